@@ -1,0 +1,1 @@
+"""Benchmarks behind `laserpi bench` (see device/commands/bench.py)."""

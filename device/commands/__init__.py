@@ -1,0 +1,1 @@
+"""Command-line adapters: argument parsing and printing only; the work is done elsewhere."""

@@ -1,0 +1,1 @@
+"""Command-line adapters of the host SDK (no OpenCV needed)."""
