@@ -1,0 +1,1 @@
+"""Scene simulator with ground truth: renderer, scenes, sensor noise and timing (thesis ch. 6, app. A)."""

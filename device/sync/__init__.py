@@ -1,0 +1,1 @@
+"""Laser-camera synchronisation: clock mapping, pulse placement and control (thesis ch. 5)."""
