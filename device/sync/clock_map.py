@@ -72,7 +72,7 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(n, 1)
 
 
-def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 8, prior_sigma: float = 0.0) -> LineFit:
+def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sigma: float = 0.0) -> LineFit:
     """Line under points whose error is a one-sided latency (see module docstring, method (a)).
 
     x, y: 1-D arrays of equal length >= 2, x increasing. ``prior_sigma`` is the spread assumed for a
@@ -117,11 +117,10 @@ def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 8, prior_sigm
     half = excess_all.size // 2
     jitter = float(np.partition(excess_all, half)[half]) / LN2 if m > 1 else prior_sigma  # mean excess of one point
     min_spread = jitter / m  # mean (= spread) of the minimum of m exponential excesses
-    # The spread of a block minimum is min_spread by the latency model; the empirical scatter of
-    # few minima is itself noisy, so it only takes over when it shows the model is wrong.
+    # The spread of a block minimum is min_spread by the latency model; the scatter of the minima
+    # about the line is taken instead when larger (the model is wrong, or the drift is changing).
     emp = float(np.sqrt(np.sum(resid**2) / (nb - 2))) if nb > 2 else 0.0
-    model = max(min_spread, prior_sigma / m if nb <= 3 else 0.0, 1e-9)
-    point_sigma = emp if emp > 2 * model else model
+    point_sigma = max(emp, min_spread, prior_sigma / m if nb <= 3 else 0.0, 1e-9)
     if m > 1:
         a -= min_spread
     return LineFit(a=float(a), b=float(b), x_mean=xbar, sxx=sxx, n_points=nb, point_sigma=point_sigma)
@@ -318,22 +317,29 @@ class PingClockMap:
 
 
 class EdgePairing:
-    """Pairs the MCU's reported edge ticks with GPIO edge timestamps of the same kind, near a prediction."""
+    """Pairs each reported pulse (rise tick, fall tick) with a GPIO rising and falling edge.
 
-    def __init__(self, max_late_s: float = 3e-3, horizon_s: float = 2.0) -> None:
-        self.max_late_s = max_late_s
+    A pulse is paired only if a rising edge lies near the predicted time and a falling edge
+    follows it after the pulse's width (within ``width_tol_s``): a glitch on the line or an edge
+    of another pulse cannot fake that, so spurious edges do not enter the fit. The window around
+    the prediction is 10 sigma of the current map (at least 100 us) and allows ``max_late_s`` of
+    interrupt latency.
+    """
+
+    def __init__(self, max_late_s: float = 3e-3, width_tol_s: float = 300e-6, horizon_s: float = 2.0) -> None:
+        self.max_late_ns = max_late_s * 1e9
+        self.width_tol_ns = width_tol_s * 1e9
         self.horizon_ns = int(horizon_s * 1e9)
-        self._mcu: list[tuple[int, bool]] = []  # (tick, rising)
+        self._mcu: list[tuple[int, int]] = []  # (rise tick, fall tick)
         self._gpio: dict[bool, list[int]] = {True: [], False: []}
-        self.unpaired_gpio = 0
+        self.unpaired_pulses = 0
 
     def clear(self) -> None:
         self._mcu.clear()
         self._gpio = {True: [], False: []}
 
     def add_mcu(self, rise_tick: int, fall_tick: int) -> None:
-        self._mcu.append((int(rise_tick), True))
-        self._mcu.append((int(fall_tick), False))
+        self._mcu.append((int(rise_tick), int(fall_tick)))
 
     def add_gpio(self, ns: int, rising: bool) -> None:
         lst = self._gpio[bool(rising)]
@@ -343,25 +349,33 @@ class EdgePairing:
             lst.append(int(ns))
 
     def pair(self, est: ClockEstimate, now_ns: int, max_window_s: float) -> list[tuple[int, int]]:
-        """Pairs (tick, gpio ns) in tick order; GPIO edges within [pred - tol, pred + tol + max_late]."""
+        """Pairs (tick, gpio ns), two per matched pulse, in tick order."""
         out = []
         keep = []
-        for tick, rising in self._mcu:
-            pred = float(est.mcu_to_pi_ns(tick))
-            tol = min(max(10 * float(est.sigma_s(tick)), 100e-6), max_window_s) * 1e9
-            lst = self._gpio[rising]
-            lo = bisect.bisect_left(lst, pred - tol)
-            hi = bisect.bisect_right(lst, pred + tol + self.max_late_s * 1e9)
-            if hi > lo:
-                out.append((tick, lst[lo]))  # the earliest candidate: later ones are latency tails or glitches
-                del lst[lo:hi]
-            elif pred + tol + self.max_late_s * 1e9 > now_ns:
-                keep.append((tick, rising))  # its GPIO event may not be read yet
+        ups, downs = self._gpio[True], self._gpio[False]
+        for rise, fall in self._mcu:
+            pred = float(est.mcu_to_pi_ns(rise))
+            width_ns = (fall - rise) / est.tick_hz * 1e9
+            tol = min(max(10 * float(est.sigma_s(rise)), 100e-6), max_window_s) * 1e9
+            lo = bisect.bisect_left(ups, pred - tol)
+            hi = bisect.bisect_right(ups, pred + tol + self.max_late_ns)
+            match = None
+            for r_ns in ups[lo:hi]:
+                f_lo = bisect.bisect_left(downs, r_ns + width_ns - self.width_tol_ns)
+                f_hi = bisect.bisect_right(downs, r_ns + width_ns + self.width_tol_ns)
+                if f_hi > f_lo:
+                    match = (r_ns, downs[f_lo])
+                    break
+            if match is not None:
+                out += [(rise, match[0]), (fall, match[1])]
+                ups.remove(match[0])
+                downs.remove(match[1])
+            elif pred + width_ns + tol + self.max_late_ns > now_ns:
+                keep.append((rise, fall))  # its GPIO events may not be read yet
+            else:
+                self.unpaired_pulses += 1
         self._mcu = keep
-        for rising in (True, False):
-            lst = self._gpio[rising]
-            cut = bisect.bisect_left(lst, now_ns - self.horizon_ns)
-            self.unpaired_gpio += cut
-            del lst[:cut]
+        for lst in (ups, downs):
+            del lst[:bisect.bisect_left(lst, now_ns - self.horizon_ns)]
         out.sort()
         return out

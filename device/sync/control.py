@@ -83,8 +83,9 @@ class FrameInfo:
 
     sequence: int
     sensor_timestamp_ns: int
-    exposure_s: float
-    line_time_s: float
+    exposure_s: float  # ExposureTime metadata (nominal line time x lines)
+    line_time_s: float  # nominal line time of the sensor mode
+    frame_duration_s: float  # FrameDuration metadata (nominal line time x frame length lines)
 
 
 class SyncState(enum.Enum):
@@ -112,6 +113,8 @@ class SyncConfig:
     pattern: tuple[bool, ...] = (True, False)
     tick_hz: float = 2e6
     guard_sigmas: float = 5.0
+    guard_headroom: float = 1.3  # a new train's guard over the one needed now, so it is not widened every frame
+    narrow_interval_s: float = 1.0  # narrow the guard (a new schedule) at most this often
     min_guard_s: float = 2e-6
     max_guard_s: float = 2e-3
     lock_pulses: int = 2
@@ -121,7 +124,7 @@ class SyncConfig:
     report_wait_s: float = 5e-3
     gpio_latency_min_s: float = 3e-6
     gpio_prior_jitter_s: float = 50e-6
-    gpio_window: int = 512
+    gpio_window: int = 256
     gpio_stale_s: float = 2.0
     link_min_rtt_s: float = 2 * 16 * 10 / 115200
     camera_window: int = 256
@@ -214,6 +217,7 @@ class _Train:
     period: int
     width: int
     guard_s: float
+    scheduled_ns: int
     last_trim_slot: int = -1
     pending_reports: dict[int, int] = field(default_factory=dict)  # rise tick -> fall tick
 
@@ -326,7 +330,7 @@ class SyncController:
         if self.train is not None and self._needs_new_width(guard):
             self.train = None
         if self.train is None:
-            self._start_train(frame, est, guard)
+            self._start_train(frame, est, guard * cfg.guard_headroom)
         else:
             self._trim(frame, est)
         return self._update_lock(frame, status)
@@ -337,12 +341,24 @@ class SyncController:
         return math.hypot(float(est.sigma_s(tick)), self.camera.sigma_s(seq))
 
     def _needs_new_width(self, guard: float) -> bool:
+        """Widen at once when the uncertainty grew past the guard; narrow when it fell (rate-limited)."""
         g = self.train.guard_s
-        return guard > g or guard < 0.6 * g
+        if guard > g:
+            return True
+        recent = self._now_ns - self.train.scheduled_ns < self.cfg.narrow_interval_s * 1e9
+        need = guard * self.cfg.guard_headroom
+        return need < 0.4 * g or (not recent and need < 0.75 * g)
 
-    def _window_ns(self, seq: int, exposure_s: float, line_time_s: float) -> tuple[float, float]:
+    def _window_ns(self, seq: int, frame: FrameInfo) -> tuple[float, float]:
+        """ROI exposure window of frame ``seq`` (Pi ns) on the camera line.
+
+        Exposure and line time are nominal (counted in lines of the sensor's own clock); the
+        camera oscillator's error shows as the ratio of the measured frame period to the
+        nominal frame duration, and scales both.
+        """
+        scale = self.camera.period_s / frame.frame_duration_s * 1e9
         t = self.camera.predict_ns(seq)
-        s, e = roi_exposure_window(t, exposure_s * 1e9, line_time_s * 1e9, self.cfg.row_min, self.cfg.row_max)
+        s, e = roi_exposure_window(t, frame.exposure_s * scale, frame.line_time_s * scale, self.cfg.row_min, self.cfg.row_max)
         return float(s), float(e)
 
     def _start_train(self, frame: FrameInfo, est: ClockEstimate, guard: float) -> None:
@@ -352,7 +368,7 @@ class SyncController:
         earliest = self._now_ns + (cfg.cmd_latency_max_s + 1e-3) * 1e9
         seq = frame.sequence + 1
         while True:
-            ws, we = self._window_ns(seq, frame.exposure_s, frame.line_time_s)
+            ws, we = self._window_ns(seq, frame)
             if ws - guard * 1e9 > earliest:
                 break
             seq += 1
@@ -362,7 +378,8 @@ class SyncController:
         width = t1 - t0 + 1
         pattern = [cfg.lit(seq + i) for i in range(len(cfg.pattern))]
         self.mcu.schedule(t0, period, width, pattern)
-        self.train = _Train(frame0=seq, ref_slot=0, ref_tick=t0, period=period, width=width, guard_s=guard)
+        self.train = _Train(frame0=seq, ref_slot=0, ref_tick=t0, period=period, width=width, guard_s=guard,
+                            scheduled_ns=self._now_ns)
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
 
     def _trim(self, frame: FrameInfo, est: ClockEstimate) -> None:
@@ -375,7 +392,7 @@ class SyncController:
             return  # the command could land on either side of the previous boundary: wait a frame
         if slot <= tr.last_trim_slot:
             return  # one trim per boundary: the MCU would replace, not add to, a pending one
-        ws, _ = self._window_ns(tr.frame0 + slot, frame.exposure_s, frame.line_time_s)
+        ws, _ = self._window_ns(tr.frame0 + slot, frame)
         want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9)))
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
         phase = want - tr.start(slot)
@@ -398,7 +415,7 @@ class SyncController:
             due = float(est.mcu_to_pi_ns(expect + tr.width)) + self.cfg.report_wait_s * 1e9
             return "pending" if due > self._now_ns else "missing"
         fall = tr.pending_reports.pop(rise)
-        ws, we = self._window_ns(frame.sequence, frame.exposure_s, frame.line_time_s)
+        ws, we = self._window_ns(frame.sequence, frame)
         margin_start = (ws - float(est.mcu_to_pi_ns(rise))) * 1e-9
         margin_end = (float(est.mcu_to_pi_ns(fall)) - we) * 1e-9
         top = 2 * tr.guard_s + 2 / self.cfg.tick_hz
@@ -445,6 +462,9 @@ class SyncController:
         self._unlock(why)
         self.state = SyncState.ERROR
         self.reason = why
+        self.gpio_map.clear()  # its pairs may be what is wrong; the ping map re-checks the drift
+        self.pairing.clear()
+        self._last_pair_ns = None
         if self.train is not None:
             self.mcu.stop()
             self.train = None
