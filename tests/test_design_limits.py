@@ -149,3 +149,35 @@ def test_bad_design_inputs():
         limits.resolution_at_pixels(pinhole_geometry(), np.array([CX, 500.0]), 0.0)
     with pytest.raises(ValueError, match="1-D"):
         limits.resolution_table(pinhole_geometry(), [[0.1]], [2.0])
+
+
+def test_resolution_table_cross_checked_with_opencv():
+    """The calibrated preset's table recomputed independently: OpenCV's iterative undistortion,
+    eq. 3.17 for z and eq. 3.14 for q with alpha = 90 deg - atan(1/|b_c|) (beta = 90 deg)."""
+    cv2 = pytest.importorskip("cv2")
+    from scipy.optimize import brentq
+
+    cfg = load_preset("thesis-calibrated")
+    g = limits.geometry_from_config(cfg)
+    a, b, c = cfg.plane.to_abc()
+    alpha = math.pi / 2 - math.atan(1 / abs(b))
+    K = cfg.camera.intrinsics.matrix
+    D = cfg.camera.distortion.opencv_coefficients()
+    u = cfg.camera.intrinsics.cx
+
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    undistort = getattr(cv2, "undistortPointsIter", None)    # OpenCV 4; folded into undistortPoints in 5
+
+    def q_cv(v):
+        args = (np.array([[[u, v]]], dtype=np.float64), K, D, None, None)
+        xy = (undistort(*args, crit) if undistort else cv2.undistortPoints(*args, None, crit))[0, 0]
+        z = c / (1 - a * xy[0] - b * xy[1])
+        return z * math.hypot(math.sin(alpha) - xy[1] * math.cos(alpha), xy[0])
+
+    table = limits.resolution_table(g, [0.1, 0.5], [2.0, 3.5])
+    for j, q in enumerate((2.0, 3.5)):
+        v = brentq(lambda v: q_cv(v) - q, 60.0, 400.0, xtol=1e-10)
+        assert limits.row_at_range(g, u, q) == pytest.approx(v, abs=1e-5)
+        for i, sigma in enumerate((0.1, 0.5)):
+            expected = min(abs(q_cv(v + sigma) - q), abs(q_cv(v - sigma) - q)) / q
+            assert table[i, j] == pytest.approx(expected, rel=1e-5)
