@@ -181,3 +181,16 @@ def test_resolution_table_cross_checked_with_opencv():
         for i, sigma in enumerate((0.1, 0.5)):
             expected = min(abs(q_cv(v + sigma) - q), abs(q_cv(v - sigma) - q)) / q
             assert table[i, j] == pytest.approx(expected, rel=1e-5)
+
+
+def test_plane_behind_the_baseline_is_not_folded_forward():
+    """A short focal length sees the laser plane behind the line s (y_n > tan(alpha)); eq. 3.14's
+    square root would report those points as small positive distances: they must be NaN."""
+    cam = CameraModel(Intrinsics(200.0, 200.0, CX, CY, width=W, height=H), BrownConrady())
+    p = TriangulationParams(math.radians(60.0), math.pi / 2, math.pi / 2, 0.05)
+    g = limits.RangeGeometry(cam, LaserPlane.from_abc(*plane_from_params(p)), p, W, H)
+    behind_row = CY + 200.0 * (math.tan(math.radians(60.0)) + 0.1)
+    q = limits.range_at_pixels(g, np.array([[CX, behind_row], [CX, CY]]))
+    assert np.isnan(q[0]) and q[1] == pytest.approx(0.05 / math.cos(math.radians(60.0)) * math.sin(math.radians(60.0)))
+    col = limits.column_limits(g, [CX])
+    assert 0 < col.q_min[0] < 0.01 and np.isposinf(col.q_max[0])
