@@ -55,9 +55,20 @@ def range_at_pixels(geom: RangeGeometry, pixels: np.ndarray) -> np.ndarray:
     NaN where the backward projection is not valid (robust solver, flagged points)."""
     un = undistort_robust(pixels, geom.camera)
     tri = intersect_plane(un.xy, geom.plane)
-    q = ideal_range(un.xy, geom.params)
+    q = _forward_range(un.xy, geom.params)
     q = np.where(tri.status == RangeStatus.BEYOND_HORIZON, np.inf, q)
     return np.where(un.valid, q, np.nan)
+
+
+def _forward_range(xy: np.ndarray, params: TriangulationParams) -> np.ndarray:
+    """Eq. 3.14 for points in front of the baseline line s; NaN behind it.
+
+    A wide lens can see the laser plane behind the line s (q_y = z (sin a - y_n cos a) < 0);
+    the square root of eq. 3.14 would fold those points forward into small positive distances.
+    """
+    with np.errstate(invalid="ignore"):
+        ahead = math.sin(params.alpha) - xy[..., 1] * math.cos(params.alpha) > 0
+    return np.where(ahead, ideal_range(xy, params), np.nan)
 
 
 def _column_pixels(column: float | np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -108,10 +119,10 @@ def column_limits(geom: RangeGeometry, columns: np.ndarray | float) -> ColumnLim
     """
     columns = np.atleast_1d(np.asarray(columns, dtype=float))
     q = range_at_pixels(geom, _column_pixels(columns, np.arange(geom.rows)))
-    seen = np.isfinite(q) | np.isposinf(q)
-    with np.errstate(invalid="ignore"):
-        q_min = np.where(seen.any(axis=1), np.nanmin(np.where(seen, q, np.nan), axis=1), np.nan)
-        q_max = np.where(seen.any(axis=1), np.nanmax(np.where(seen, q, np.nan), axis=1), np.nan)
+    seen = ~np.isnan(q)
+    any_seen = seen.any(axis=1)
+    q_min = np.where(any_seen, np.where(seen, q, np.inf).min(axis=1), np.nan)
+    q_max = np.where(any_seen, np.where(seen, q, -np.inf).max(axis=1), np.nan)
     return ColumnLimits(columns, q_min, q_max)
 
 
@@ -231,7 +242,7 @@ def alpha_sweep(camera: CameraModel, rows: int, columns, alphas_rad, subpixel: f
 
     def extent(alpha: float) -> tuple[np.ndarray, np.ndarray]:
         p = TriangulationParams(alpha=alpha, beta=beta, psi=psi, s=1.0)
-        q, q_before, q_after = (ideal_range(xy, p) for xy in xys)
+        q, q_before, q_after = (_forward_range(xy, p) for xy in xys)
         return _qualifying_extent(q, relative_resolution(q, q_before, q_after), max_resolution, min_range_over_s)
 
     def usable(q_high: np.ndarray) -> float:
