@@ -129,12 +129,9 @@ def column_limits(geom: RangeGeometry, columns: np.ndarray | float) -> ColumnLim
 def row_at_range(geom: RangeGeometry, column: float, q_m: float) -> float:
     """Fractional row v where the model gives q(v) = ``q_m`` on ``column``; NaN if not seen.
 
-    Brackets the crossing between whole rows, then solves on the continuous row with Brent's
-    method (scipy) to 1e-9 px. Where q(v) is not monotonic and ``q_m`` is crossed more than
+    Brackets the crossing between whole rows, then bisects on the continuous row to 1e-9 px. Where q(v) is not monotonic and ``q_m`` is crossed more than
     once, the crossing nearest the horizon (smallest v) is returned.
     """
-    from scipy.optimize import brentq
-
     rows = np.arange(geom.rows, dtype=float)
     q = range_at_pixels(geom, _column_pixels(column, rows))[0]
     with np.errstate(invalid="ignore"):
@@ -150,7 +147,42 @@ def row_at_range(geom: RangeGeometry, column: float, q_m: float) -> float:
     def f(v: float) -> float:
         return float(range_at_pixels(geom, np.array([column, v]))) - q_m
 
-    return float(brentq(f, rows[i], rows[i + 1], xtol=1e-9))
+    return _bisect(f, rows[i], rows[i + 1], xtol=1e-9)
+
+
+def _bisect(f, lo: float, hi: float, xtol: float) -> float:
+    """Root of f in [lo, hi] where f changes sign. Plain bisection: a bracketed root one pixel
+    wide needs ~30 halvings, not a SciPy dependency."""
+    f_lo = f(lo)
+    while hi - lo > xtol:
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        if f_mid == 0:
+            return mid
+        if (f_mid < 0) == (f_lo < 0):
+            lo, f_lo = mid, f_mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def _golden_max(f, lo: float, hi: float, xtol: float) -> tuple[float, float]:
+    """(x, f(x)) maximising a unimodal f on [lo, hi] by golden-section search (no SciPy needed)."""
+    g = (math.sqrt(5) - 1) / 2
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    while b - a > xtol:
+        if fc > fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = f(d)
+    x = 0.5 * (a + b)
+    return x, f(x)
 
 
 def resolution_table(geom: RangeGeometry, subpixels, ranges_m, column: float | None = None) -> np.ndarray:
@@ -262,13 +294,11 @@ def alpha_sweep(camera: CameraModel, rows: int, columns, alphas_rad, subpixel: f
     k = int(np.argmax(candidates))
     best_alpha, best = float(alphas[k]), float(merit[k])
     if refine and alphas.size > 1:
-        from scipy.optimize import minimize_scalar
-
         lo, hi = alphas[max(k - 1, 0)], alphas[min(k + 1, alphas.size - 1)]
-        res = minimize_scalar(lambda a: -np.nan_to_num(usable(extent(a)[1]), nan=0.0) if is_feasible(a) else 0.0,
-                              bounds=(lo, hi), method="bounded", options={"xatol": math.radians(1e-3)})
-        if -res.fun > best:
-            best_alpha, best = float(res.x), float(-res.fun)
+        x, fx = _golden_max(lambda a: float(np.nan_to_num(usable(extent(a)[1]), nan=0.0)) if is_feasible(a) else 0.0,
+                            float(lo), float(hi), math.radians(1e-3))
+        if fx > best:
+            best_alpha, best = float(x), float(fx)
     return AlphaSweep(alphas, columns, q_low, q_high, merit, feasible, best_alpha, best)
 
 
