@@ -1,6 +1,5 @@
 """The simulated IMX219 clock and the simulated co-MCU against their own definitions."""
 
-import math
 
 import numpy as np
 import pytest

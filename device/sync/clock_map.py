@@ -64,7 +64,7 @@ class LineFit:
 
     def sigma(self, x: np.ndarray | float) -> np.ndarray | float:
         """1-sigma uncertainty of ``predict(x)`` (the line's own uncertainty, extrapolation included)."""
-        lever = (np.asarray(x) - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
+        lever = (x - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
         return self.point_sigma * np.sqrt(1.0 / self.n_points + lever)
 
 
@@ -214,16 +214,16 @@ class ClockEstimate:
         return (1.0 / self.fit.b - 1.0) * 1e6
 
     def mcu_to_pi_ns(self, tick: np.ndarray | float) -> np.ndarray | float:
-        x = (np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz
+        x = (tick - self.ref_tick) / self.tick_hz
         return self.ref_ns + 1e9 * self.fit.predict(x)
 
     def pi_to_mcu_tick(self, pi_ns: np.ndarray | float) -> np.ndarray | float:
-        y = (np.asarray(pi_ns, dtype=float) - self.ref_ns) * 1e-9
+        y = (pi_ns - self.ref_ns) * 1e-9
         return self.ref_tick + (y - self.fit.a) / self.fit.b * self.tick_hz
 
     def sigma_s(self, tick: np.ndarray | float) -> np.ndarray | float:
         """1-sigma uncertainty (s) of ``mcu_to_pi_ns(tick)`` (for the ping source: asymmetry taken as uniform)."""
-        return self.fit.sigma((np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz)
+        return self.fit.sigma((tick - self.ref_tick) / self.tick_hz)
 
 
 class GpioClockMap:

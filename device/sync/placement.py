@@ -37,13 +37,20 @@ def roi_exposure_window(t_readout: np.ndarray | float, exposure_s: np.ndarray | 
     All arguments broadcast (per-frame ROI rows allowed); ``t_readout`` and the returned times are in
     seconds if ``t_readout`` is. Raises ValueError for an empty or negative row range.
     """
+    if isinstance(exposure_s, float) and isinstance(line_time_s, float) and isinstance(row_min, int) \
+            and isinstance(row_max, int):  # the per-frame scalar case, kept cheap
+        if not 0 <= row_min <= row_max:
+            raise ValueError(f"ROI rows must satisfy 0 <= row_min <= row_max, got {row_min}..{row_max}")
+        if exposure_s <= 0 or line_time_s <= 0:
+            raise ValueError(f"exposure_s and line_time_s must be positive, got {exposure_s}, {line_time_s}")
+        return t_readout - exposure_s + row_min * line_time_s, t_readout + row_max * line_time_s
     if isinstance(row_min, (int, np.integer)) and isinstance(row_max, (int, np.integer)):
         bad_rows = not 0 <= row_min <= row_max
     else:
         bad_rows = bool(np.any(np.asarray(row_min) < 0) or np.any(np.asarray(row_max) < np.asarray(row_min)))
     if bad_rows:
         raise ValueError(f"ROI rows must satisfy 0 <= row_min <= row_max, got {row_min}..{row_max}")
-    if np.min(exposure_s) <= 0 or np.min(line_time_s) <= 0:
+    if np.any(np.asarray(exposure_s) <= 0) or np.any(np.asarray(line_time_s) <= 0):
         raise ValueError("exposure_s and line_time_s must be positive")
     return t_readout - exposure_s + row_min * line_time_s, t_readout + row_max * line_time_s
 
