@@ -144,7 +144,7 @@ class AnalyticWallSource:
         return SourceScan(device_time_us, r.astype(np.float32), q, first_index=s.roi_first)
 
 
-def default_settings(n_points: int) -> ScanSettings:
+def default_settings(n_points: int, laser_power_mw: float = 4.0) -> ScanSettings:
     """Power-on settings of the simulated device: 10 Hz, all columns, no filters, 4 mW."""
     return ScanSettings(scan_rate_hz=10.0, exposure_us=2000, roi_first=0, roi_count=n_points,
-                        median_window=1, min_quality=0, laser_power_mw=4.0)
+                        median_window=1, min_quality=0, laser_power_mw=laser_power_mw)
