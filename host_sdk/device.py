@@ -67,11 +67,13 @@ class LaserPi:
     queue_scans: scans kept for a slow consumer (oldest dropped beyond that).
     link_rate_bps: real bits per second on the wire, for time stamps (default: the baud rate;
     set it for USB CDC, where the baud rate is nominal).
+    tap: called as tap(t_ns, data) from the reader thread with every chunk read, before decoding
+    (``laserpi record`` uses it); t_ns is time.monotonic_ns() of the read.
     """
 
     def __init__(self, port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 1.0, *,
                  queue_scans: int = 16, reconnect: bool = False, reconnect_timeout_s: float = 30.0,
-                 link_rate_bps: float | None = None):
+                 link_rate_bps: float | None = None, tap=None):
         if queue_scans < 1:
             raise ValueError("queue_scans must be at least 1")
         self.port_name = port
@@ -80,6 +82,7 @@ class LaserPi:
         self.reconnect = reconnect
         self.reconnect_timeout_s = reconnect_timeout_s
         self._receiver = Receiver(link_rate_bps or baudrate)
+        self._tap = tap
         self._cond = threading.Condition()
         self._scans: collections.deque[Scan] = collections.deque(maxlen=queue_scans)
         self._replies: list = []
@@ -261,7 +264,10 @@ class LaserPi:
                     return
                 continue
             if data:
-                self._dispatch(self._receiver.feed(data, time.monotonic()))
+                t_ns = time.monotonic_ns()
+                if self._tap is not None:
+                    self._tap(t_ns, data)
+                self._dispatch(self._receiver.feed(data, t_ns * 1e-9))
 
     def _dispatch(self, items: list) -> None:
         with self._cond:
