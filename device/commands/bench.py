@@ -23,8 +23,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p = sub.add_parser(name, help=help_, description=help_)
         p.set_defaults(_bench_module=module_name)
         # Imported only to declare options; benchmark modules keep heavy imports inside run().
-        importlib.import_module(module_name).add_arguments(p)
+        # A benchmark whose module is not there (yet) must not stop the others from running.
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            p.set_defaults(_bench_missing=module_name)
+            continue
+        module.add_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "_bench_missing", None):
+        print(f"laserpi bench {args.benchmark}: {args._bench_missing} is not in this build")
+        return 2
     return int(importlib.import_module(args._bench_module).run(args) or 0)
