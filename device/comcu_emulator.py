@@ -9,14 +9,14 @@
 SteppedMcuPort is pyserial-like (write, read, in_waiting, timeout) and advances simulated time
 only while the host waits for bytes or calls advance(), so runs are deterministic whatever the
 load of the machine; its ``timeout`` is in simulated seconds.  The harness's free-running mode
-(a pty for pyserial, simulated time paced to the wall clock) is started with
-start_free_running().  simavr's UART moves bytes in batches, not like a physical line: link
+(a pty for pyserial, simulated time paced to the wall clock) is FreeRunningEmulator.  simavr's UART moves bytes in batches, not like a physical line: link
 latency is not measured here; pin edges and timer counts are cycle-exact.
 """
 
 from __future__ import annotations
 
 import subprocess
+import threading
 from pathlib import Path
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware_pwm"
@@ -140,14 +140,43 @@ class SteppedMcuPort:
         self.close()
 
 
-def start_free_running(harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0):
-    """Starts the harness with its UART on a pty, simulated time paced to `realtime` x wall
-    clock.  Returns (process, pty_path); open the pty with serial.Serial(pty_path, BAUDRATE);
-    the process's stdout carries `edge <cycle> <level>` lines.  Terminate the process when done."""
-    proc = subprocess.Popen([str(harness), str(elf), "--realtime", str(realtime)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, bufsize=1)
-    first = proc.stdout.readline().split()
-    if len(first) != 2 or first[0] != "pty":
-        proc.kill()
-        raise EmulatorError(f"harness did not report its pty: {first} {proc.stderr.read()}")
-    return proc, first[1]
+class FreeRunningEmulator:
+    """The harness with its UART on a pty and simulated time paced to `realtime` x wall clock:
+    open ``pty`` with serial.Serial(pty, 250000) like the real link.  A reader thread collects
+    the harness's events (``edges``: (cpu cycle, level) of the laser pin)."""
+
+    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0):
+        self._proc = subprocess.Popen([str(harness), str(elf), "--realtime", str(realtime)],
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self.edges: list[tuple[int, int]] = []
+        self.pty = None
+        for line in self._proc.stdout:
+            kind, _, rest = line.strip().partition(" ")
+            if kind == "pty":
+                self.pty = rest
+                break
+        if self.pty is None:
+            self._proc.kill()
+            raise EmulatorError(f"harness did not report its pty: {self._proc.stderr.read()}")
+        self._reader = threading.Thread(target=self._read_events, daemon=True)
+        self._reader.start()
+
+    def _read_events(self) -> None:
+        for line in self._proc.stdout:
+            kind, _, rest = line.strip().partition(" ")
+            if kind == "edge":
+                c, level = rest.split()
+                self.edges.append((int(c), int(level)))
+
+    def close(self) -> None:
+        self._proc.terminate()
+        self._proc.wait(timeout=5)
+        self._reader.join(timeout=5)
+        self._proc.stdout.close()
+        self._proc.stderr.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

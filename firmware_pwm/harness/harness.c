@@ -4,7 +4,8 @@
  *
  * Free-running mode (default): the UART is bridged to a pseudo-terminal whose path is printed
  * first as "pty /dev/pts/N"; open it with pyserial like a real serial port.  Simulated time is
- * paced to FACTOR x wall-clock time (default 1.0; 0 = as fast as possible).
+ * paced to FACTOR x wall-clock time (default 1.0; 0 = as fast as possible).  The path is
+ * printed after 5 ms of simulated boot, once the firmware listens.
  * Stepped mode (--stepped, used by the tests): simulated time only advances on command, so runs
  * are deterministic whatever the load of the machine.  stdin takes lines
  *     rx <hex bytes>     queue bytes for the MCU's UART receiver
@@ -218,6 +219,9 @@ static int free_loop(double realtime)
         perror("harness: cannot open a pseudo-terminal");
         return 1;
     }
+    /* boot first: the MCU's UART drops bytes until the firmware has enabled its receiver */
+    if (run_cycles(CPU_HZ / 200))
+        return 1;
     printf("pty %s\n", ptsname(pty_fd));
     fflush(stdout);
     double t0 = wall_seconds();
