@@ -1,0 +1,384 @@
+"""The sensor configuration file (TOML): everything the model, simulator and pipeline need to know
+about one physical sensor, versioned and validated with errors that name the offending field.
+
+Layout (schema_version 1; SI units unless the key names another unit)::
+
+    schema_version = 1
+    name = "thesis-calibrated"
+
+    [image]            # buffer size and the active area inside it (thesis B.1.4, ERRATA 6)
+    width = 1664
+    height = 928
+    active_width = 1640
+    active_height = 922
+
+    [camera]           # eq. 3.2-3.4; model "brown-conrady" (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4)
+    model = "brown-conrady"
+    fx = 592.139
+    fy = 590.933
+    cx = 802.362
+    cy = 413.244
+    skew = 0.0
+    distortion = [-0.02077, -0.0393, 0.00889, -0.00259, 0.00025]
+
+    [laser_plane]      # z = a x + b y + c in the OpenCV camera frame (eq. 3.16), c in metres
+    a = 0.03099
+    b = -1.6272
+    c_m = 0.09405262
+    beta_deg = 90.0    # laser rotation w.r.t. the baseline, to derive alpha/psi/s (D.2.2)
+
+    # ... or instead of [laser_plane], the design form (thesis Table 4.4):
+    # [triangulation]
+    # alpha_deg = 58.9
+    # beta_deg = 90.0
+    # psi_deg = 90.0
+    # s_m = 0.055
+
+    [laser]            # Table 4.4; pulse_s and rate_hz are the thesis's 17.4 ms at 10 Hz
+    wavelength_m = 8.08e-7
+    power_w = 0.025
+    fan_angle_rad = 2.0944
+    line_height_m = 0.004
+    source_diameter_m = 0.001
+    pulse_s = 0.0174
+    rate_hz = 10.0
+
+    [optics]
+    bandpass_width_m = 5e-8
+    f_number = 2.0
+    pixel_pitch_m = 2.24e-6
+
+    [range]            # Algorithm 2's filter, 1..10000 mm (ERRATA 3)
+    min_m = 0.001
+    max_m = 10.0
+
+    [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, ERRATA 8)
+    terms = [[0, 0], [1, 0], [0, 1]]
+    coefficients = [0.0, 0.0, 0.0]
+    x_scale_m = 1.0
+    z_offset_m = 0.0
+    z_scale_m = 1.0
+
+Presets (``device/presets/*.toml``) hold the thesis's inputs only, never its results.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .model.camera import BrownConrady, CameraModel, Intrinsics, KannalaBrandt
+from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
+
+SCHEMA_VERSION = 1
+PRESET_DIR = Path(__file__).with_name("presets")
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used; the message names the field."""
+
+
+@dataclass(frozen=True)
+class LaserSpec:
+    wavelength_m: float = 808e-9
+    power_w: float = 0.025
+    fan_angle_rad: float = math.radians(120.0)
+    line_height_m: float = 0.004
+    source_diameter_m: float = 0.001
+    pulse_s: float = 0.0174
+    rate_hz: float = 10.0
+
+
+@dataclass(frozen=True)
+class Optics:
+    bandpass_width_m: float = 50e-9
+    f_number: float = 2.0
+    pixel_pitch_m: float = 2.24e-6  # IMX219 1.12 um, 2x2 binned in mode 5
+
+
+@dataclass(frozen=True)
+class RangeLimits:
+    min_m: float = 0.001
+    max_m: float = 10.0
+
+
+@dataclass(frozen=True)
+class PostCalibration:
+    """z_corrected = z - sum_k c_k X^i_k Z^j_k with X = x / x_scale_m, Z = (z - z_offset_m) / z_scale_m.
+
+    The thesis's eq. 6.5 in raw millimetre monomials is this form with x_scale = z_scale = 1 mm;
+    fitting in scaled coordinates keeps it well conditioned (ERRATA 8).
+    """
+
+    terms: tuple[tuple[int, int], ...] = ()
+    coefficients: tuple[float, ...] = ()
+    x_scale_m: float = 1.0
+    z_offset_m: float = 0.0
+    z_scale_m: float = 1.0
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    name: str
+    width: int
+    height: int
+    camera: CameraModel
+    plane: LaserPlane
+    beta_rad: float = math.pi / 2
+    active_width: int | None = None
+    active_height: int | None = None
+    laser: LaserSpec = field(default_factory=LaserSpec)
+    optics: Optics = field(default_factory=Optics)
+    range: RangeLimits = field(default_factory=RangeLimits)
+    post_calibration: PostCalibration | None = None
+
+
+# ---------------------------------------------------------------- reading
+def _take(table: dict[str, Any], where: str, key: str, kind: type, default: Any = ..., positive: bool = False) -> Any:
+    if key not in table:
+        if default is ...:
+            raise ConfigError(f"{where}: missing required key '{key}'")
+        return default
+    v = table.pop(key)
+    if kind is float and isinstance(v, int) and not isinstance(v, bool):
+        v = float(v)
+    if not isinstance(v, kind) or isinstance(v, bool) and kind is not bool:
+        raise ConfigError(f"{where}: '{key}' must be a {kind.__name__}, got {v!r}")
+    if kind is float and not math.isfinite(v):
+        raise ConfigError(f"{where}: '{key}' must be finite, got {v}")
+    if positive and not v > 0:
+        raise ConfigError(f"{where}: '{key}' must be positive, got {v}")
+    return v
+
+
+def _no_extra(table: dict[str, Any], where: str) -> None:
+    if table:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))} (typo?)")
+
+
+def _table(doc: dict[str, Any], name: str, required: bool = True) -> dict[str, Any] | None:
+    if name not in doc:
+        if required:
+            raise ConfigError(f"missing required table [{name}]")
+        return None
+    t = doc.pop(name)
+    if not isinstance(t, dict):
+        raise ConfigError(f"[{name}] must be a table")
+    return dict(t)
+
+
+def config_from_dict(doc: dict[str, Any], source: str = "<config>") -> SensorConfig:
+    """Validate a parsed TOML document; raises ConfigError naming the source and the field."""
+    doc = dict(doc)
+    try:
+        return _parse(doc, source)
+    except (DegeneratePlaneError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise ConfigError(f"{source}: {exc}") from None
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
+    version = _take(doc, "top level", "schema_version", int)
+    if version != SCHEMA_VERSION:
+        raise ConfigError(f"schema_version {version} is not supported; this software reads version {SCHEMA_VERSION}")
+    name = _take(doc, "top level", "name", str, default=Path(source).stem)
+
+    img = _table(doc, "image")
+    width = _take(img, "[image]", "width", int, positive=True)
+    height = _take(img, "[image]", "height", int, positive=True)
+    active_w = _take(img, "[image]", "active_width", int, default=None)
+    active_h = _take(img, "[image]", "active_height", int, default=None)
+    _no_extra(img, "[image]")
+    for key, v, lim in (("active_width", active_w, width), ("active_height", active_h, height)):
+        if v is not None and not 0 < v <= lim:
+            raise ConfigError(f"[image]: '{key}' = {v} must be in 1..{lim}")
+
+    cam = _table(doc, "camera")
+    model = _take(cam, "[camera]", "model", str, default="brown-conrady")
+    k = Intrinsics(
+        fx=_take(cam, "[camera]", "fx", float, positive=True),
+        fy=_take(cam, "[camera]", "fy", float, positive=True),
+        cx=_take(cam, "[camera]", "cx", float),
+        cy=_take(cam, "[camera]", "cy", float),
+        skew=_take(cam, "[camera]", "skew", float, default=0.0),
+        width=width,
+        height=height,
+    )
+    coeffs = _take(cam, "[camera]", "distortion", list, default=[])
+    if not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in coeffs):
+        raise ConfigError(f"[camera]: 'distortion' must be a list of finite numbers, got {coeffs!r}")
+    if model == "brown-conrady":
+        if len(coeffs) > 5:
+            raise ConfigError(f"[camera]: brown-conrady takes up to 5 coefficients k1 k2 k3 p1 p2, got {len(coeffs)}")
+        dist = BrownConrady(*[float(c) for c in coeffs])
+    elif model == "kannala-brandt":
+        if len(coeffs) > 4:
+            raise ConfigError(f"[camera]: kannala-brandt takes up to 4 coefficients k1..k4, got {len(coeffs)}")
+        dist = KannalaBrandt(*[float(c) for c in coeffs])
+    else:
+        raise ConfigError(f"[camera]: model must be 'brown-conrady' or 'kannala-brandt', got {model!r}")
+    _no_extra(cam, "[camera]")
+
+    plane_t, tri_t = _table(doc, "laser_plane", required=False), _table(doc, "triangulation", required=False)
+    if (plane_t is None) == (tri_t is None):
+        raise ConfigError("give exactly one of [laser_plane] (a, b, c_m) or [triangulation] (alpha_deg, beta_deg, psi_deg, s_m)")
+    if plane_t is not None:
+        a = _take(plane_t, "[laser_plane]", "a", float)
+        b = _take(plane_t, "[laser_plane]", "b", float)
+        c = _take(plane_t, "[laser_plane]", "c_m", float)
+        beta = math.radians(_take(plane_t, "[laser_plane]", "beta_deg", float, default=90.0))
+        _no_extra(plane_t, "[laser_plane]")
+        plane = LaserPlane.from_abc(a, b, c)
+    else:
+        p = TriangulationParams(
+            alpha=math.radians(_take(tri_t, "[triangulation]", "alpha_deg", float)),
+            beta=math.radians(_take(tri_t, "[triangulation]", "beta_deg", float, default=90.0)),
+            psi=math.radians(_take(tri_t, "[triangulation]", "psi_deg", float, default=90.0)),
+            s=_take(tri_t, "[triangulation]", "s_m", float, positive=True),
+        )
+        _no_extra(tri_t, "[triangulation]")
+        plane, beta = LaserPlane.from_abc(*plane_from_params(p)), p.beta
+
+    laser = _read_dataclass(doc, "laser", LaserSpec)
+    if not 600e-9 <= laser.wavelength_m <= 1050e-9:
+        raise ConfigError(f"[laser]: wavelength_m = {laser.wavelength_m} is outside the modelled 600-1050 nm band")
+    if laser.pulse_s * laser.rate_hz > 1.0:
+        raise ConfigError(f"[laser]: pulse_s x rate_hz = {laser.pulse_s * laser.rate_hz:.3f} > 1: pulses would overlap")
+    optics = _read_dataclass(doc, "optics", Optics)
+    limits = _read_dataclass(doc, "range", RangeLimits)
+    if not limits.max_m > limits.min_m:
+        raise ConfigError(f"[range]: max_m ({limits.max_m}) must exceed min_m ({limits.min_m})")
+    post = _read_post_calibration(_table(doc, "post_calibration", required=False))
+    _no_extra(doc, "top level")
+    return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post)
+
+
+def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:
+    t = _table(doc, name, required=False)
+    if t is None:
+        return cls()
+    defaults = cls()
+    values = {f: _take(t, f"[{name}]", f, float, default=getattr(defaults, f), positive=True) for f in cls.__dataclass_fields__}
+    _no_extra(t, f"[{name}]")
+    return cls(**values)
+
+
+def _read_post_calibration(t: dict[str, Any] | None) -> PostCalibration | None:
+    if t is None:
+        return None
+    where = "[post_calibration]"
+    terms = _take(t, where, "terms", list)
+    coeffs = _take(t, where, "coefficients", list)
+    if not all(isinstance(p, list) and len(p) == 2 and all(isinstance(e, int) and e >= 0 for e in p) for p in terms):
+        raise ConfigError(f"{where}: 'terms' must be a list of [i, j] pairs of non-negative integers")
+    if len(coeffs) != len(terms) or not all(isinstance(c, (int, float)) and math.isfinite(c) for c in coeffs):
+        raise ConfigError(f"{where}: 'coefficients' must be {len(terms)} finite numbers, one per term")
+    post = PostCalibration(
+        tuple((int(i), int(j)) for i, j in terms),
+        tuple(float(c) for c in coeffs),
+        _take(t, where, "x_scale_m", float, default=1.0, positive=True),
+        _take(t, where, "z_offset_m", float, default=0.0),
+        _take(t, where, "z_scale_m", float, default=1.0, positive=True),
+    )
+    _no_extra(t, where)
+    return post
+
+
+def load_config(path: str | Path) -> SensorConfig:
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such configuration file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return config_from_dict(doc, str(path))
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+
+
+def load_preset(name: str) -> SensorConfig:
+    path = PRESET_DIR / f"{name}.toml"
+    if not path.exists():
+        raise ConfigError(f"unknown preset {name!r}; choose from: {', '.join(preset_names())}")
+    return load_config(path)
+
+
+# ---------------------------------------------------------------- writing
+def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
+    """The TOML document of a configuration (always in the [laser_plane] form)."""
+    k, d = cfg.camera.intrinsics, cfg.camera.distortion
+    if isinstance(d, BrownConrady):
+        model, coeffs = "brown-conrady", [d.k1, d.k2, d.k3, d.p1, d.p2]
+    else:
+        model, coeffs = "kannala-brandt", [d.k1, d.k2, d.k3, d.k4]
+    a, b, c = cfg.plane.to_abc()
+    doc: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "name": cfg.name}
+    doc["image"] = {"width": cfg.width, "height": cfg.height}
+    if cfg.active_width is not None:
+        doc["image"]["active_width"] = cfg.active_width
+    if cfg.active_height is not None:
+        doc["image"]["active_height"] = cfg.active_height
+    doc["camera"] = {"model": model, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "skew": k.skew, "distortion": coeffs}
+    doc["laser_plane"] = {"a": a, "b": b, "c_m": c, "beta_deg": math.degrees(cfg.beta_rad)}
+    for name in ("laser", "optics", "range"):
+        obj = getattr(cfg, name)
+        doc[name] = {f: getattr(obj, f) for f in obj.__dataclass_fields__}
+    if cfg.post_calibration is not None:
+        p = cfg.post_calibration
+        doc["post_calibration"] = {
+            "terms": [list(t) for t in p.terms],
+            "coefficients": list(p.coefficients),
+            "x_scale_m": p.x_scale_m,
+            "z_offset_m": p.z_offset_m,
+            "z_scale_m": p.z_scale_m,
+        }
+    return doc
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(float(v))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dumps_config(cfg: SensorConfig) -> str:
+    """TOML text of a configuration.
+
+    Written by hand rather than with a TOML library: the schema is a flat set of tables of
+    numbers, strings and number lists, which is a dozen lines and not worth a dependency.
+    """
+    lines = []
+    tables = []
+    for key, v in config_to_dict(cfg).items():
+        (tables if isinstance(v, dict) else lines).append((key, v))
+    out = [f"{k} = {_toml_value(v)}" for k, v in lines]
+    for name, t in tables:
+        out.append(f"\n[{name}]")
+        out.extend(f"{k} = {_toml_value(v)}" for k, v in t.items())
+    return "\n".join(out) + "\n"
+
+
+def save_config(cfg: SensorConfig, path: str | Path) -> None:
+    """Write atomically: a half-written configuration file is never left behind."""
+    path = Path(path)
+    text = dumps_config(cfg)
+    config_from_dict(tomllib.loads(text), str(path))  # never write what we could not read back
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

@@ -1,0 +1,27 @@
+"""Ground truth that the simulator attaches to every rendered frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """Per image column (width W) and per row (height H) truth of one rendered frame.
+
+    ``row``: (W,) true sub-pixel row of the laser line's centre, NaN where the column has no return.
+    ``range_m``: (W,) true range in the scan frame (device.model.scan_frame), +inf for no return.
+    ``angle_rad``: (W,) true scan angle of the column's laser point, NaN for no return.
+    ``points``: (W, 3) true 3-D laser point in the camera frame (metres), NaN for no return.
+    ``surface``: (W,) int id of the scene surface hit (-1 none), to tell depth jumps apart.
+    ``lit_rows``: (H,) bool, rows whose exposure overlapped the laser pulse.
+    """
+
+    row: np.ndarray
+    range_m: np.ndarray
+    angle_rad: np.ndarray
+    points: np.ndarray
+    surface: np.ndarray
+    lit_rows: np.ndarray

@@ -1,0 +1,79 @@
+"""Sensor configuration file: presets, round trip, and clear errors for bad values."""
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from device.config import ConfigError, config_from_dict, dumps_config, load_config, load_preset, preset_names, save_config
+
+
+def _doc(name="thesis-calibrated"):
+    from device.config import PRESET_DIR
+    return tomllib.loads((PRESET_DIR / f"{name}.toml").read_text())
+
+
+def test_presets_load_and_hold_thesis_inputs():
+    assert {"thesis-design", "thesis-calibrated"} <= set(preset_names())
+    cal = load_preset("thesis-calibrated")
+    assert (cal.width, cal.height) == (1664, 928)
+    assert cal.plane.to_abc() == pytest.approx((0.03099, -1.62720, 0.09405262))
+    design = load_preset("thesis-design")
+    assert design.camera.intrinsics.cy == pytest.approx(576.404 - 155)  # ERRATA 5
+    a, b, c = design.plane.to_abc()
+    assert c == pytest.approx(0.055 / math.sin(math.radians(31.1)))
+
+
+@pytest.mark.parametrize("name", ["thesis-design", "thesis-calibrated"])
+def test_roundtrip_through_toml(tmp_path, name):
+    cfg = load_preset(name)
+    save_config(cfg, tmp_path / "s.toml")
+    back = load_config(tmp_path / "s.toml")
+    assert back.camera == cfg.camera and back.laser == cfg.laser and back.range == cfg.range
+    np.testing.assert_allclose(back.plane.normal, cfg.plane.normal, rtol=1e-14)
+    assert back.plane.distance == pytest.approx(cfg.plane.distance, rel=1e-14)
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d["camera"].__setitem__("fx", -5.0), "fx"),
+    (lambda d: d["camera"].__setitem__("fy", "600"), "'fy' must be a float"),
+    (lambda d: d["camera"].__setitem__("model", "pinhole"), "model must be"),
+    (lambda d: d["camera"].__setitem__("distortion", [0.1] * 6), "up to 5"),
+    (lambda d: d["laser_plane"].__setitem__("c_m", -0.09), "positive"),
+    (lambda d: d["laser_plane"].__setitem__("colour", 3), "unknown key"),
+    (lambda d: d.__setitem__("schema_version", 99), "schema_version 99"),
+    (lambda d: d["laser"].__setitem__("wavelength_m", 5e-7), "600-1050 nm"),
+    (lambda d: d["laser"].__setitem__("pulse_s", 0.2), "overlap"),
+    (lambda d: d["range"].__setitem__("max_m", 0.0005), "max_m"),
+    (lambda d: d.pop("image"), r"\[image\]"),
+    (lambda d: d.__setitem__("triangulation", {"alpha_deg": 58.9, "s_m": 0.05}), "exactly one"),
+    (lambda d: d["image"].__setitem__("active_width", 5000), "active_width"),
+])
+def test_bad_values_name_the_field(mutate, message):
+    doc = _doc()
+    mutate(doc)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(doc, "sensor.toml")
+
+
+def test_unreadable_files(tmp_path):
+    with pytest.raises(ConfigError, match="no such"):
+        load_config(tmp_path / "missing.toml")
+    (tmp_path / "bad.toml").write_text("schema_version = = 1")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(tmp_path / "bad.toml")
+    with pytest.raises(ConfigError, match="unknown preset"):
+        load_preset("nope")
+
+
+def test_save_leaves_no_half_file(tmp_path, monkeypatch):
+    cfg = load_preset("thesis-calibrated")
+    target = tmp_path / "s.toml"
+    target.write_text("previous")
+    import device.config as C
+    monkeypatch.setattr(C, "dumps_config", lambda c: "garbage = [")
+    with pytest.raises(Exception):
+        save_config(cfg, target)
+    assert target.read_text() == "previous"
+    assert dumps_config(cfg).startswith("schema_version = 1")
