@@ -52,7 +52,8 @@ from ..config import SensorConfig
 from ..model.camera import project_points, undistort_robust, pixel_grid
 from ..model.scan_frame import scan_frame, to_scan_plane
 from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
-from .scene import Floor, Scene, Wall
+from ..model.irradiance import band_irradiance_w_m2
+from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
 from .sensor import IMX219_MODE5, SensorParams, sensor_frame
 from .truth import FrameTruth
 
@@ -120,6 +121,15 @@ def row_overlap_s(timing: FrameTiming, height: int, rolling_shutter: bool = True
             raise ValueError(f"pulse window ({on}, {off}) ends before it starts")
         total += np.clip(np.minimum(end, off) - np.maximum(start, on), 0.0, None)
     return total * 1e-9
+
+
+def ambient_irradiance_w_m2(scene: Scene, cfg: SensorConfig) -> float:
+    """In-band ambient irradiance on the scene's surfaces: the scene's own figure, or its fraction
+    (AMBIENT_FRACTION) of the AM1.5 solar irradiance through the configured bandpass (thesis 3.4)."""
+    if scene.ambient_w_m2 is not None:
+        return scene.ambient_w_m2
+    sun = band_irradiance_w_m2(cfg.laser.wavelength_m * 1e9, cfg.optics.bandpass_width_m * 1e9)
+    return AMBIENT_FRACTION[scene.ambient] * sun
 
 
 def photons_per_joule(wavelength_m: float) -> float:
@@ -193,7 +203,8 @@ class SceneRenderer:
         self.truth_template = self._truth(primary)
         ghosts = self._ghosts(lit, k_col) if options.gloss else []
         self._splat = self._splat_table([primary, *ghosts])
-        self._ambient = self._ambient_rate() if options.ambient and scene.ambient_w_m2 > 0 else None
+        self.ambient_w_m2 = ambient_irradiance_w_m2(scene, cfg)
+        self._ambient = self._ambient_rate() if options.ambient and self.ambient_w_m2 > 0 else None
         self._normals = None
 
     # ------------------------------------------------------------ static geometry
@@ -336,7 +347,7 @@ class SceneRenderer:
             el = d_scan[nohit, 2] / np.linalg.norm(d_scan[nohit], axis=-1) * 40
             refl[nohit] *= 1 + 0.3 * (2 * value_noise(az, el, self.seed + 99) - 1)
         refl[~un.valid] = 0.0
-        rate = (refl * self.scene.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)).reshape(hh, ww)
+        rate = (refl * self.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)).reshape(hh, ww)
         full = np.repeat(np.repeat(rate, step, axis=0), step, axis=1)[: self.active_height, : self.active_width]
         out = np.zeros((self.height, self.width), dtype=np.float32)
         out[: self.active_height, : self.active_width] = full
