@@ -138,12 +138,15 @@ class Unprojection:
 
     ``xy``: (..., 2) normalised coordinates, NaN where not valid; ``valid``: bool (...);
     ``residual_px``: (...) distance between the input pixel and the reprojected solution;
+    ``error_px``: (...) estimated error of the solution (remaining Newton correction x focal
+    length); a point is valid only if this is within the solver's tolerance;
     ``status``: (...) :class:`UnprojectStatus` codes; ``iterations``: iterations used.
     """
 
     xy: np.ndarray
     valid: np.ndarray
     residual_px: np.ndarray
+    error_px: np.ndarray
     status: np.ndarray
     iterations: int
 
@@ -242,17 +245,39 @@ def project_points(points: np.ndarray, cam: CameraModel) -> np.ndarray:
 
 # ---------------------------------------------------------------- backward projection
 def _result(cam: CameraModel, pixels: np.ndarray, xy: np.ndarray, status: np.ndarray, tol_px: float, iters: int) -> Unprojection:
-    """Reproject the solution, measure the residual in pixels and finish the status."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        reproj = project_normalized(xy, cam)
+    """Measure the solution and finish its status.
+
+    ``residual_px`` is the reprojection residual. Validity is judged on ``error_px``, the Newton
+    correction the solution still needs (J^-1 times the residual in distorted coordinates, or
+    d(theta) for the fisheye) times the focal length: near the fold J is nearly singular, so a
+    tiny reprojection residual can hide a large error in the ray, and only this measure sees it.
+    """
+    d = cam.distortion
+    f = max(cam.intrinsics.fx, cam.intrinsics.fy)
+    xy_d = from_pixels(pixels, cam.intrinsics)
+    with np.errstate(all="ignore"):
+        dist_xy = distort(xy, d)
+        reproj = to_pixels(dist_xy, cam.intrinsics)
         residual = np.hypot(reproj[..., 0] - pixels[..., 0], reproj[..., 1] - pixels[..., 1])
+        rx, ry = dist_xy[..., 0] - xy_d[..., 0], dist_xy[..., 1] - xy_d[..., 1]
+        if isinstance(d, BrownConrady):
+            j11, j12, j21, j22 = _brown_jacobian(xy[..., 0], xy[..., 1], d)
+            det = j11 * j22 - j12 * j21
+            error = np.hypot(j22 * rx - j12 * ry, -j21 * rx + j11 * ry) / np.abs(det) * f
+            error = np.where(det > 0, error, np.inf)
+        else:
+            theta = np.arctan(np.hypot(xy[..., 0], xy[..., 1]))
+            t2 = theta * theta
+            slope = 1.0 + t2 * (3 * d.k1 + t2 * (5 * d.k2 + t2 * (7 * d.k3 + t2 * 9 * d.k4)))
+            error = np.abs(_kb_theta_d(theta, d) - np.hypot(xy_d[..., 0], xy_d[..., 1])) / slope * f
+            error = np.where(slope > 0, error, np.inf)
     status = status.copy()
-    bad_num = ~np.isfinite(residual) & (status == UnprojectStatus.OK)
-    status[bad_num] = UnprojectStatus.NOT_FINITE
-    status[(status == UnprojectStatus.OK) & (residual > tol_px)] = UnprojectStatus.NOT_CONVERGED
+    status[~np.isfinite(residual) & (status == UnprojectStatus.OK)] = UnprojectStatus.NOT_FINITE
+    status[(status == UnprojectStatus.OK) & ~(error <= tol_px)] = UnprojectStatus.NOT_CONVERGED
     valid = status == UnprojectStatus.OK
     residual = np.where(np.isfinite(residual), residual, np.inf)
-    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, status, iters)
+    error = np.where(np.isfinite(error), error, np.inf)
+    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, error, status, iters)
 
 
 def _fold_status(xy: np.ndarray, dist: Distortion) -> np.ndarray:
@@ -271,8 +296,8 @@ def undistort_fixed(pixels: np.ndarray, cam: CameraModel, iterations: int = 5, t
 
     Runs exactly ``iterations`` steps of  p_n <- (p_d - d_t(p_n)) / d_r(p_n)  from p_n = p_d.
     For the fisheye model the same fixed-point idea is applied to theta = theta_d / (1 + ...).
-    Unlike the thesis (and OpenCV/kornia), the result is checked: a point whose reprojection
-    misses the input pixel by more than ``tol_px`` is returned invalid, never as a wrong point.
+    Unlike the thesis (and OpenCV/kornia), the result is checked: a point whose estimated error
+    (see :class:`Unprojection`) exceeds ``tol_px`` is returned invalid, never as a wrong point.
     """
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1, got {iterations}")
@@ -354,6 +379,11 @@ def undistort_robust(
             exa, eya = ex[active], ey[active]
             xn = xa - la * (j22 * exa - j12 * eya) / det
             yn = ya - la * (-j21 * exa + j11 * eya) / det
+            if np.isfinite(fold):  # never step onto the folded branch: stop halfway to the fold
+                rn, ra = np.hypot(xn, yn), np.hypot(xa, ya)
+                over = rn >= fold
+                pull = np.where(over, 0.5 * (ra + fold) / np.maximum(rn, 1e-300), 1.0)
+                xn, yn = xn * pull, yn * pull
             rx, ry = _residual_xy(xn, yn, xd[active], yd[active], d)
             en = np.hypot(rx, ry)
             accept = en < err[active]
