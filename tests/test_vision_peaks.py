@@ -122,3 +122,10 @@ def test_bad_arguments_are_named():
         column_peaks(np.zeros(5))
     with pytest.raises(ValueError, match="pedestal"):
         column_peaks(img, pedestal=1.0)
+
+
+def test_two_lines_in_one_window_show_as_wide_spread():
+    single = column_peaks(gaussian_image(np.full(W, 24.0), 1.2), "com")
+    double = column_peaks(gaussian_image(np.full(W, 22.5), 1.2) + gaussian_image(np.full(W, 25.5), 1.2), "com")
+    assert np.all(single.spread < 1.3)
+    assert np.all(double.spread > 1.5 * single.spread)

@@ -34,8 +34,6 @@ from dataclasses import dataclass
 import numpy as np
 
 ESTIMATORS = ("com", "gaussian", "parabolic", "blais-rioux")
-#: Samples each estimator needs on either side of the integer maximum.
-_REACH = {"com": None, "gaussian": 1, "parabolic": 1, "blais-rioux": 3}
 
 
 @dataclass(frozen=True)
@@ -46,7 +44,9 @@ class ColumnPeaks:
     not valid. ``peak``: value at the integer maximum after background subtraction.
     ``argmax``: integer row of the maximum (-1 where the interval is empty). ``valid``: the peak is
     at least ``min_peak`` and the estimator had all its samples. ``plateau``: the maximum was
-    repeated on at least three rows (flat or saturated top).
+    repeated on at least three rows (flat or saturated top). ``spread``: RMS width (rows) of the
+    pedestal-subtracted profile in the centre-of-mass window, whatever the estimator; two lines
+    merged in one window (a depth jump, a ghost) show up as a wide spread.
     """
 
     row: np.ndarray
@@ -54,6 +54,7 @@ class ColumnPeaks:
     argmax: np.ndarray
     valid: np.ndarray
     plateau: np.ndarray
+    spread: np.ndarray
 
 
 def _limits(value, default: int, width: int, height: int, name: str) -> np.ndarray:
@@ -91,6 +92,19 @@ def subpixel_offset(fm: np.ndarray, f0: np.ndarray, fp: np.ndarray, estimator: s
     return delta, ok
 
 
+def _check_args(image, estimator: str, half_width: int, pedestal: float) -> np.ndarray:
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image must be (height, width), got shape {img.shape}")
+    if half_width < 1:
+        raise ValueError(f"half_width must be >= 1, got {half_width}")
+    if not 0.0 <= pedestal < 1.0:
+        raise ValueError(f"pedestal must be in [0, 1), got {pedestal}")
+    return img
+
+
 def column_peaks(
     image: np.ndarray,
     estimator: str = "com",
@@ -109,33 +123,47 @@ def column_peaks(
     ``half_width``/``pedestal``: window and relative threshold of the centre of mass (and of the
     plateau refinement of every estimator).
     """
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
-    img = np.asarray(image)
-    if img.ndim != 2:
-        raise ValueError(f"image must be (height, width), got shape {img.shape}")
-    if half_width < 1:
-        raise ValueError(f"half_width must be >= 1, got {half_width}")
-    if not 0.0 <= pedestal < 1.0:
-        raise ValueError(f"pedestal must be in [0, 1), got {pedestal}")
+    img = _check_args(image, estimator, half_width, pedestal)
     height, width = img.shape
     lo = _limits(row_lo, 0, width, height, "row_lo")
     hi = _limits(row_hi, height, width, height, "row_hi")
+    top, bottom = int(lo.min()), int(hi.max())
+    if bottom <= top:
+        k = np.full(width, -1)
+    else:
+        band = img[top:bottom]
+        if np.any(lo > top) or np.any(hi < bottom):
+            rows = np.arange(top, bottom)[:, None]
+            band = np.where((rows >= lo) & (rows < hi), band, 0)
+        k = np.argmax(band, axis=0) + top
+    return refine_peaks(img, k, estimator, lo, hi, min_peak, background, half_width, pedestal)
+
+
+def refine_peaks(
+    image: np.ndarray,
+    argmax: np.ndarray,
+    estimator: str = "com",
+    row_lo=None,
+    row_hi=None,
+    min_peak: float = 10.0,
+    background=0.0,
+    half_width: int = 4,
+    pedestal: float = 0.1,
+) -> ColumnPeaks:
+    """Sub-pixel refinement of given integer peak rows ``argmax`` (W,) (-1: none), same options
+    as :func:`column_peaks`; use it when the candidates come from elsewhere (a second peak)."""
+    img = _check_args(image, estimator, half_width, pedestal)
+    height, width = img.shape
+    lo = _limits(row_lo, 0, width, height, "row_lo")
+    hi = _limits(row_hi, height, width, height, "row_hi")
+    k = np.asarray(argmax, dtype=np.intp)
+    if k.shape != (width,):
+        raise ValueError(f"argmax must have shape ({width},), got {k.shape}")
     bg = np.broadcast_to(np.asarray(background, dtype=np.float64), (width,))
     cols = np.arange(width)
-
-    top, bottom = int(lo.min()), int(hi.max())
-    empty = hi <= lo
-    if bottom <= top:
-        nan = np.full(width, np.nan)
-        return ColumnPeaks(nan, nan.copy(), np.full(width, -1), np.zeros(width, bool), np.zeros(width, bool))
-    band = img[top:bottom]
-    if np.any(lo > top) or np.any(hi < bottom):
-        rows = np.arange(top, bottom)[:, None]
-        band = np.where((rows >= lo) & (rows < hi), band, 0)
-    k = np.argmax(band, axis=0) + top
-    f0 = img[k, cols].astype(np.float64) - bg
+    empty = (hi <= lo) | (k < lo) | (k >= hi)
     k = np.where(empty, -1, k)
+    f0 = np.where(empty, np.nan, img[np.clip(k, 0, height - 1), cols].astype(np.float64) - bg)
 
     def sample(offset: int) -> tuple[np.ndarray, np.ndarray]:
         r = k + offset
@@ -148,8 +176,9 @@ def column_peaks(
     plateau = in_p1 & in_p2 & (fp1 == f0) & (fp2 == f0)
     valid = (f0 >= min_peak) & ~empty
 
+    com_row, com_ok, spread = _centre_of_mass(img, np.maximum(k, 0), f0, bg, lo, hi, half_width, pedestal)
     if estimator == "com":
-        row, ok = _centre_of_mass(img, k, f0, bg, lo, hi, half_width, pedestal)
+        row, ok = com_row, com_ok
     elif estimator in ("gaussian", "parabolic"):
         fm1, in_m1 = sample(-1)
         delta, ok = subpixel_offset(fm1, f0, fp1, estimator)
@@ -165,7 +194,7 @@ def column_peaks(
             prow, pok = _plateau_centre(img, k[idx], f0[idx], bg[idx], lo[idx], hi[idx], idx, half_width, pedestal)
             row[idx], ok[idx] = prow, pok
     valid &= ok & np.isfinite(row)
-    return ColumnPeaks(np.where(valid, row, np.nan), f0, k, valid, plateau)
+    return ColumnPeaks(np.where(valid, row, np.nan), f0, k, valid, plateau, spread)
 
 
 def _window(img, k, lo, hi, cols, half: int):
@@ -185,7 +214,8 @@ def _centre_of_mass(img, k, f0, bg, lo, hi, half, pedestal):
     s = w.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         delta = (w * offs).sum(axis=0) / s
-    return k + delta, (s > 0) & ~_cut_with_weight(img, cols, k, half, lo, hi, t)
+        spread = np.sqrt(np.maximum((w * (offs - delta) ** 2).sum(axis=0) / s, 0.0))
+    return k + delta, (s > 0) & ~_cut_with_weight(img, cols, k, half, lo, hi, t), spread
 
 
 def _cut_with_weight(img, cols, centre, span, lo, hi, threshold):
