@@ -26,6 +26,7 @@ Pi's clock) before it lets the controller send commands, and ``advance_to`` runs
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -235,6 +236,17 @@ class SimulatedMcu:
         got = [e for e in self._gpio if e[0] <= lim]
         self._gpio = self._gpio[len(got):]
         return got
+
+    def windows(self, start_ns: int, end_ns: int) -> list[tuple[int, int]]:
+        """The laser's true on-windows overlapping [start_ns, end_ns] (a ``device.sim.pulses.PulseSource``).
+
+        Runs the MCU up to ``end_ns`` first, so the renderer sees every pulse of the frame.
+        """
+        self.advance_to(max(self._t, end_ns * 1e-9))
+        p = self.pulses
+        i = max(bisect.bisect_left(p.rise_s, start_ns * 1e-9) - 1, 0)
+        return [(int(round(r * 1e9)), int(round(f * 1e9))) for r, f in zip(p.rise_s[i:], p.fall_s[i:])
+                if f * 1e9 >= start_ns and r * 1e9 <= end_ns]
 
     def ping(self, t_send_s: float) -> tuple[int, int, int]:
         """A PING exchange sent at ``t_send_s``: (Pi send ns, MCU tick, Pi receive ns)."""
