@@ -446,8 +446,10 @@ class SyncController:
             self.train = None
         if self.state is not SyncState.LOCKED:
             return self._label(frame, None, self.reason)
-        if status == "n/a":
-            return FrameLabel(frame.sequence, False, self.state, True)
+        if status == "n/a":  # an unlit slot; a lit one before the current train began is not known
+            lit = cfg.lit(frame.sequence)
+            return FrameLabel(frame.sequence, None if lit else False, self.state, not lit,
+                              "before the current pulse train" if lit else "")
         if status == "ok":
             return FrameLabel(frame.sequence, True, self.state, True)
         return FrameLabel(frame.sequence, None, self.state, False, f"this frame's pulse is {status}")
