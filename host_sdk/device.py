@@ -29,7 +29,8 @@ from typing import Iterator
 
 import serial
 
-from host_sdk.errors import CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, PortError
+from host_sdk.errors import (CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, LaserPiError,
+                             PortError)
 from host_sdk.receiver import Receiver, Stats
 from host_sdk.scan import Scan
 from protocol import messages as m
@@ -270,11 +271,17 @@ class LaserPi:
                 if not self._recover(exc):
                     return
                 continue
-            if data:
-                t_ns = time.monotonic_ns()
+            if not data:
+                continue
+            t_ns = time.monotonic_ns()
+            try:
                 if self._tap is not None:
                     self._tap(t_ns, data)
                 self._dispatch(self._receiver.feed(data, t_ns * 1e-9))
+            except Exception as exc:  # a bug or a failing tap: say so instead of going silent
+                log.exception("%s: reader failed", self.port_name)
+                self._fail(LaserPiError(f"{self.port_name}: reader failed: {exc!r}"))
+                return
 
     def _dispatch(self, items: list) -> None:
         with self._cond:

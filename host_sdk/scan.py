@@ -83,7 +83,9 @@ class Scan:
         calibration) are within a quarter step of equal spacing the rays are copied in
         increasing-angle order; otherwise each equally spaced angle takes the range of the
         nearest ray (never an interpolation across an edge), a bearing error of at most half the
-        local ray spacing. ``stamp`` defaults to Scan.stamp (host monotonic time).
+        local ray spacing. ``stamp`` (default Scan.stamp, host monotonic time) is the time of the
+        device's first ray; when the order is reversed, the LaserScan's stamp is moved to its own
+        first ray and time_increment changes sign, as LaserScan defines them.
         """
         order = np.argsort(self.angles, kind="stable")
         a = self.angles[order].astype(np.float64)
@@ -95,10 +97,14 @@ class Scan:
             right = np.clip(np.searchsorted(a, grid), 1, n - 1)
             nearest = np.where(grid - a[right - 1] <= a[right] - grid, right - 1, right)
             ranges, inten = ranges[nearest], inten[nearest]
-        time_inc = self.time_increment if order[0] == 0 else -self.time_increment
-        return LaserScan(self.stamp if stamp is None else stamp, frame_id, float(grid[0]), float(grid[-1]),
-                         float(inc), float(time_inc), self.scan_time, self.range_min, self.range_max,
-                         ranges.astype(np.float32), inten.astype(np.float32))
+        stamp = self.stamp if stamp is None else stamp
+        time_inc = self.time_increment
+        if n > 1 and order[0] != 0:  # the device's first ray is now last: stamp the new first one
+            stamp += (n - 1) * time_inc
+            time_inc = -time_inc
+        return LaserScan(stamp, frame_id, float(grid[0]), float(grid[-1]), float(inc), float(time_inc),
+                         self.scan_time, self.range_min, self.range_max, ranges.astype(np.float32),
+                         inten.astype(np.float32))
 
 
 class StampClock:

@@ -156,3 +156,11 @@ def test_scan_roundtrip_property(seq, t, dt, age, first, points):
 def test_settings_roundtrip_property(fields):
     s = m.ScanSettings(**fields)
     assert m.ScanSettings.decode(s.encode()) == s
+
+
+def test_long_reasons_are_clipped_at_a_character_boundary():
+    nack = m.Nack(m.MsgType.SET_CONFIG, 1, m.NackCode.OUT_OF_RANGE, "é" * 200)  # 400 bytes of UTF-8
+    back = m.Nack.decode(nack.encode())
+    assert back.reason == "é" * 127
+    with pytest.raises(ValueError, match="at most 255"):
+        m.Info(1, 0, "v" * 300, "s", 10.0, 0.1, 3.0, np.zeros(2, np.float32), VECTORS["info"][1].settings, 1.0).encode()

@@ -172,3 +172,13 @@ def test_host_side_needs_no_opencv_or_matplotlib():
     out = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[1],
                          capture_output=True, text=True, timeout=30)
     assert out.stdout.strip() == "ok", out.stderr
+
+
+def test_to_laserscan_moves_the_stamp_to_its_first_ray_when_reversing():
+    angles = np.array([0.2, 0.1, 0.0], dtype=np.float32)  # device order: clockwise
+    scan = host_sdk.Scan(0, 10.0, 5.0, angles, np.array([1, 2, 3], np.float32), np.zeros(3, np.float32),
+                         0.001, 0.1, 0.1, 3.0)
+    ls = scan.to_laserscan()
+    # the LaserScan starts with the device's last ray, acquired 2 ms after the first
+    assert ls.stamp == pytest.approx(10.002) and ls.time_increment == pytest.approx(-0.001)
+    np.testing.assert_array_equal(ls.ranges, [3, 2, 1])
