@@ -183,6 +183,8 @@ class LaserPi:
             self._serial.close()
         except Exception as exc:
             log.debug("closing port failed: %s", exc)
+        if self._error is None:  # wake any thread still waiting in scans() or a request
+            self._fail(PortError(f"{self.port_name} was closed"))
 
     def __enter__(self) -> LaserPi:
         return self

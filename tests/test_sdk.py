@@ -182,3 +182,23 @@ def test_to_laserscan_moves_the_stamp_to_its_first_ray_when_reversing():
     # the LaserScan starts with the device's last ray, acquired 2 ms after the first
     assert ls.stamp == pytest.approx(10.002) and ls.time_increment == pytest.approx(-0.001)
     np.testing.assert_array_equal(ls.ranges, [3, 2, 1])
+
+
+def test_close_from_another_thread_ends_a_waiting_scans_loop():
+    s = host_sdk.LaserPi("sim://wall?points=20&rate=1", timeout_s=5.0)
+    it = s.scans()
+    next(it)
+    errors = []
+
+    def consume():
+        try:
+            next(it)
+        except host_sdk.LaserPiError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=consume)
+    t.start()
+    time.sleep(0.2)
+    s.close()
+    t.join(2.0)
+    assert not t.is_alive() and "closed" in str(errors[0])
