@@ -56,7 +56,7 @@ def test_time_stamps_are_corrected_for_transmission_and_age():
     with host_sdk.LaserPi("sim://wall?points=1640&rate=2", baudrate=115200, timeout_s=2.0) as s:
         it = s.scans()
         errors = [sc.stamp - sc.device_time for sc in (next(it) for _ in range(4))]
-    assert max(abs(e) for e in errors) < 0.005, errors
+    assert max(abs(e) for e in errors) < 0.01, errors  # uncorrected, they would be ~0.43 s
 
 
 def test_configure_applies_or_refuses_with_reason():
