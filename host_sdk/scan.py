@@ -12,6 +12,9 @@ started sending (SCAN.age_us). Reads only ever arrive late, so the per-scan esti
 turned into a clock offset (host − device) by taking the minimum over the last
 StampClock.window scans; stamp = device_time + offset. This removes host scheduling jitter and
 leaves a constant error of the order of the serial driver's latency (about a millisecond).
+A frame that had to wait in the device's UART buffer behind the previous one gives a late
+estimate, which the minimum also ignores as long as the link is not saturated (54 % at
+921600 baud and full rate, protocol/SPEC.md).
 Clock drift between device and host over the window (5 s at 10 Hz) is < 0.3 ms for 50 ppm
 crystals. For a USB CDC link the baud rate is nominal: pass the real throughput as
 ``link_rate_bps`` to LaserPi.
