@@ -197,7 +197,7 @@ class LinkServer:
         self.counters = LinkCounters()
         self.decoder = StreamDecoder()
         self._lock = threading.Condition()
-        self._control: collections.deque[bytes] = collections.deque()
+        self._control: collections.deque = collections.deque()  # replies and LOG messages
         self._scans: collections.deque[m.ScanMessage] = collections.deque(maxlen=config.queue_scans)
         self._scanning = False
         self._fault: str | None = None
