@@ -84,7 +84,7 @@ def test_depth_jump_has_no_phantom_points(pipes):
         assert ok.mean() > (0.95 if name == "fast-com" else 0.8)
         between = ok & (depth > 1.1) & (depth < 2.2)  # 2.5 m wall, 1 m box
         assert between.sum() == 0, f"{name}: phantom points at {m.column[between]}"
-        assert np.all(np.abs(depth[700:900][ok[700:900]] - 1.0) < 0.03)
+        assert np.all(np.abs(depth[700:900][ok[700:900]] - 1.0) < (0.03 if name == "fast-com" else 0.06))
 
 
 def test_glossy_floor_ghost_brighter_than_the_line_is_rejected(wall2m, pipes):
