@@ -11,7 +11,8 @@ Per frame pair:
    rows away from it, both found through 16-row block maxima (contiguous reductions, much
    faster than a strided argmax over the whole band). Each is refined by the selected
    sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
-3. Detection: peak >= max(min_peak, noise_ratio x the column's largest negative difference),
+3. Detection, on the difference smoothed over 5 columns x 3 rows (speckle and noise averaged):
+   peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
    (a noise peak is alone; a line is not).
 4. Several peaks in a column (a glossy floor's mirror image, multipath): the candidate that more
@@ -43,6 +44,10 @@ from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
 from .peaks import ESTIMATORS, refine_peaks
 
 BLOCK_ROWS = 16
+#: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
+SATURATED_LINE_MIN = 24
+#: Box (columns, rows) that smooths the difference image for detection only.
+DETECT_KERNEL = (5, 3)
 
 
 @dataclass(frozen=True)
@@ -50,8 +55,8 @@ class FastParams:
     estimator: str = "com"
     half_width: int = 4  # centre-of-mass window (rows each side)
     pedestal: float = 0.1  # centre-of-mass threshold, fraction of the peak
-    min_peak: float = 6.0  # smallest line amplitude, 8-bit levels of the difference
-    noise_ratio: float = 1.5  # peak must exceed this x the column's largest negative difference
+    min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
+    noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
     min_run: int = 3  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
@@ -116,30 +121,43 @@ class FastPipeline:
         a = luminance(lit, "lit", shape)[self.top : self.top + self.rows]
         b = luminance(unlit, "unlit", shape)[self.top : self.top + self.rows]
         p = self.params
-        # a saturated lit pixel is "at least full scale": flat top at 255 so the plateau
-        # handling of the estimators finds its centre whatever the unlit frame's noise
-        d = cv2.bitwise_and(cv2.max(cv2.subtract(a, b), cv2.compare(a, 255, cv2.CMP_EQ)), self.mask)
-        noise = cv2.bitwise_and(cv2.subtract(b, a), self.mask).max(axis=0).astype(np.float64)
-        k1, k2 = self._candidates(d)
+        # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
+        # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
+        # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
+        # be brightened by the laser and one of its vertical neighbours too)
+        d = cv2.subtract(a, b)
+        sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
+        pair = cv2.bitwise_and(sat[1:], sat[:-1])
+        sat = np.zeros_like(sat)
+        sat[1:] = pair
+        sat[:-1] |= pair
+        d = cv2.bitwise_and(cv2.max(d, sat), self.mask)
+        # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
+        # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
+        sm = cv2.blur(d, DETECT_KERNEL)
+        noise = cv2.blur(cv2.bitwise_and(cv2.subtract(b, a), self.mask), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        k1, k2 = (self._local_max(d, k) for k in self._candidates(sm))
+        s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
-        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
-        det1 = c1.valid & (c1.peak >= thr) & (c1.spread <= p.max_spread_px)
-        det2 = c2.valid & (c2.peak >= thr) & (c2.spread <= p.max_spread_px)
+        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
+        det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        det2 = c2.valid & (s2 >= thr) & (c2.peak >= 0.5 * s2) & (c2.spread <= p.max_spread_px)
         row, peak, found = self._choose(c1.row, c2.row, c1.peak, c2.peak, det1, det2)
         row = row + self.top
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
         segment = np.where(found, segment, -1)
         if p.smooth_half:
-            row = _local_line_fit(row, found & ~outlier, segment, p.smooth_half)
+            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
         status[found & outlier] = ColumnStatus.REJECTED
         # wide profiles with nothing else found: a line was there but could not be measured
-        wide = ~found & c1.valid & (c1.peak >= thr) & (c1.spread > p.max_spread_px)
+        wide = ~found & c1.valid & (s1 >= thr) & (c1.spread > p.max_spread_px)
         status[wide] = ColumnStatus.REJECTED
         # the pulse lit the "unlit" frame in this column (out of sync)
-        status[(noise >= np.maximum(p.min_peak, 2.0 * np.nan_to_num(c1.peak))) & ~found] = ColumnStatus.UNLIT
+        status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         if self.near_bottom > self.near_top:
             la = luminance(lit, "lit")[self.near_top : self.near_bottom]
             ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom]
@@ -153,6 +171,12 @@ class FastPipeline:
         tri = self.geometry.triangulate(np.where(found, row, np.nan))
         return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
                       status, tri, self.config.post_calibration)
+
+    def _local_max(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Move each row k to the largest of d[k-1], d[k], d[k+1] (the smoothed peak can sit a
+        row off the unsmoothed one)."""
+        r = np.clip(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
+        return r[np.argmax(d[r, self.cols], axis=0), self.cols]
 
     def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column."""
@@ -265,16 +289,18 @@ def _run_length(label: np.ndarray, member_of: np.ndarray | None = None) -> np.nd
     return out
 
 
-def _local_line_fit(row: np.ndarray, use: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
-    """Least-squares line through the rows of the columns within +-half of each column that
-    belong to the same run (same label >= 0) and are marked ``use``, evaluated at the column.
-    Windowed sums by cumsum; every column of a run gets a value, used or not."""
+def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
+    """Weighted least-squares line through the rows of the columns within +-half of each column
+    that belong to the same run (same label >= 0), evaluated at the column. Windowed sums by
+    cumsum; every column of a run gets a value, weighted or not. (Weighting by the line's
+    amplitude was tried and is worse on the simulator: bright speckle grains are no more
+    accurate than dim ones.)"""
     W = row.size
     x = np.arange(W, dtype=np.float64)
     inrun = label >= 0
-    ok = use & inrun
+    ok = (weight > 0) & inrun
     y = np.where(ok, row, 0.0)
-    w = ok.astype(np.float64)
+    w = np.where(ok, weight, 0.0)
     # window limits clipped to the run: runs are contiguous column ranges
     idx = np.arange(W)
     run_start = np.full(W, 0)
