@@ -174,7 +174,7 @@ def laser_irradiance(pts: np.ndarray, hit: np.ndarray, plane: LaserPlane, scene:
 
     Gaussian in the point-to-plane distance (sheet thickness), averaged over the pixel's footprint
     in that distance with erf, peak falling off as 1/range from the camera (fan laser)."""
-    from scipy.special import erf
+    from .special import erf
 
     n = np.asarray(plane.normal)
     dist = np.where(hit, pts @ n - plane.distance, np.inf)

@@ -46,7 +46,7 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
-from scipy.special import erf
+from .special import erf
 
 from ..config import SensorConfig
 from ..model.camera import project_points, undistort_robust, pixel_grid
