@@ -1,7 +1,8 @@
 """`laserpi bench NAME`: benchmarks that compare variants in one run, speed next to error.
 
-Each benchmark is a module with ``add_arguments(parser)`` and ``run(args)``; results are
-printed (``--json`` for machines) and recorded by hand in BENCHMARKS.md with the command.
+Each benchmark is a module with ``add_arguments(parser)`` and ``run(args)``; only the chosen
+one is imported. Results are printed (``--json`` for machines) and recorded in BENCHMARKS.md
+together with the command and the machine.
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
-    for name, (module_name, help_) in BENCHMARKS.items():
-        p = sub.add_parser(name, help=help_, description=help_)
-        p.set_defaults(_bench_module=module_name)
-        # Imported only to declare options; benchmark modules keep heavy imports inside run().
-        importlib.import_module(module_name).add_arguments(p)
+    parser.epilog = "benchmarks: " + "; ".join(f"{n}: {h}" for n, (_, h) in BENCHMARKS.items())
+    parser.add_argument("benchmark", choices=list(BENCHMARKS), help="which benchmark to run")
+    parser.add_argument("options", nargs=argparse.REMAINDER, help="options of that benchmark (see NAME --help)")
 
 
 def run(args: argparse.Namespace) -> int:
-    return int(importlib.import_module(args._bench_module).run(args) or 0)
+    module_name, help_ = BENCHMARKS[args.benchmark]
+    module = importlib.import_module(module_name)
+    parser = argparse.ArgumentParser(prog=f"laserpi bench {args.benchmark}", description=help_)
+    module.add_arguments(parser)
+    return int(module.run(parser.parse_args(args.options)) or 0)

@@ -138,12 +138,15 @@ class Unprojection:
 
     ``xy``: (..., 2) normalised coordinates, NaN where not valid; ``valid``: bool (...);
     ``residual_px``: (...) distance between the input pixel and the reprojected solution;
+    ``error_px``: (...) estimated error of the solution (remaining Newton correction x focal
+    length); a point is valid only if this is within the solver's tolerance;
     ``status``: (...) :class:`UnprojectStatus` codes; ``iterations``: iterations used.
     """
 
     xy: np.ndarray
     valid: np.ndarray
     residual_px: np.ndarray
+    error_px: np.ndarray
     status: np.ndarray
     iterations: int
 
@@ -242,17 +245,39 @@ def project_points(points: np.ndarray, cam: CameraModel) -> np.ndarray:
 
 # ---------------------------------------------------------------- backward projection
 def _result(cam: CameraModel, pixels: np.ndarray, xy: np.ndarray, status: np.ndarray, tol_px: float, iters: int) -> Unprojection:
-    """Reproject the solution, measure the residual in pixels and finish the status."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        reproj = project_normalized(xy, cam)
+    """Measure the solution and finish its status.
+
+    ``residual_px`` is the reprojection residual. Validity is judged on ``error_px``, the Newton
+    correction the solution still needs (J^-1 times the residual in distorted coordinates, or
+    d(theta) for the fisheye) times the focal length: near the fold J is nearly singular, so a
+    tiny reprojection residual can hide a large error in the ray, and only this measure sees it.
+    """
+    d = cam.distortion
+    f = max(cam.intrinsics.fx, cam.intrinsics.fy)
+    xy_d = from_pixels(pixels, cam.intrinsics)
+    with np.errstate(all="ignore"):
+        dist_xy = distort(xy, d)
+        reproj = to_pixels(dist_xy, cam.intrinsics)
         residual = np.hypot(reproj[..., 0] - pixels[..., 0], reproj[..., 1] - pixels[..., 1])
+        rx, ry = dist_xy[..., 0] - xy_d[..., 0], dist_xy[..., 1] - xy_d[..., 1]
+        if isinstance(d, BrownConrady):
+            j11, j12, j21, j22 = _brown_jacobian(xy[..., 0], xy[..., 1], d)
+            det = j11 * j22 - j12 * j21
+            error = np.hypot(j22 * rx - j12 * ry, -j21 * rx + j11 * ry) / np.abs(det) * f
+            error = np.where(det > 0, error, np.inf)
+        else:
+            theta = np.arctan(np.hypot(xy[..., 0], xy[..., 1]))
+            t2 = theta * theta
+            slope = 1.0 + t2 * (3 * d.k1 + t2 * (5 * d.k2 + t2 * (7 * d.k3 + t2 * 9 * d.k4)))
+            error = np.abs(_kb_theta_d(theta, d) - np.hypot(xy_d[..., 0], xy_d[..., 1])) / slope * f
+            error = np.where(slope > 0, error, np.inf)
     status = status.copy()
-    bad_num = ~np.isfinite(residual) & (status == UnprojectStatus.OK)
-    status[bad_num] = UnprojectStatus.NOT_FINITE
-    status[(status == UnprojectStatus.OK) & (residual > tol_px)] = UnprojectStatus.NOT_CONVERGED
+    status[~np.isfinite(residual) & (status == UnprojectStatus.OK)] = UnprojectStatus.NOT_FINITE
+    status[(status == UnprojectStatus.OK) & ~(error <= tol_px)] = UnprojectStatus.NOT_CONVERGED
     valid = status == UnprojectStatus.OK
     residual = np.where(np.isfinite(residual), residual, np.inf)
-    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, status, iters)
+    error = np.where(np.isfinite(error), error, np.inf)
+    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, error, status, iters)
 
 
 def _fold_status(xy: np.ndarray, dist: Distortion) -> np.ndarray:
@@ -271,8 +296,8 @@ def undistort_fixed(pixels: np.ndarray, cam: CameraModel, iterations: int = 5, t
 
     Runs exactly ``iterations`` steps of  p_n <- (p_d - d_t(p_n)) / d_r(p_n)  from p_n = p_d.
     For the fisheye model the same fixed-point idea is applied to theta = theta_d / (1 + ...).
-    Unlike the thesis (and OpenCV/kornia), the result is checked: a point whose reprojection
-    misses the input pixel by more than ``tol_px`` is returned invalid, never as a wrong point.
+    Unlike the thesis (and OpenCV/kornia), the result is checked: a point whose estimated error
+    (see :class:`Unprojection`) exceeds ``tol_px`` is returned invalid, never as a wrong point.
     """
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1, got {iterations}")
@@ -317,9 +342,12 @@ def undistort_robust(
     """Backward projection to a stated tolerance, with per-point convergence and residual.
 
     Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
-    fisheye), started at p_d, with step halving whenever a step does not reduce the residual.
-    Points stop iterating once their residual is below ``tol_px``. A solution is valid only if
-    it converged *and* lies inside the radial fold, where the forward model is one-to-one.
+    fisheye), warm-started by three Heikkila steps (or at p_d, pulled inside the fold, where
+    those land outside it), with step halving whenever a step does not reduce the residual.
+    A point stops iterating once its full Newton step, times the focal length, is below
+    ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
+    near a fold it is much larger than the reprojection residual. A solution is valid only if it
+    converged *and* lies inside the radial fold, where the forward model is one-to-one.
     """
     if tol_px <= 0:
         raise ValueError(f"tol_px must be positive, got {tol_px}")
@@ -332,18 +360,27 @@ def undistort_robust(
         return _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations)
     shape = xy_d.shape[:-1]
     xd, yd = xy_d[..., 0].ravel(), xy_d[..., 1].ravel()
-    x, y = xd.copy(), yd.copy()
     fold = d.radial_fold()
-    if np.isfinite(fold):
-        # start inside the one-to-one region so Newton cannot wander onto the folded branch
+    with np.errstate(all="ignore"):
+        # warm start: three Heikkila steps (eq. 3.11) get most points within a Newton step or two
+        x, y = xd.copy(), yd.copy()
+        for _ in range(3):
+            r2 = x * x + y * y
+            dr = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+            x, y = (xd - 2 * d.p1 * x * y - d.p2 * (r2 + 2 * x * x)) / dr, (yd - d.p1 * (r2 + 2 * y * y) - 2 * d.p2 * x * y) / dr
         r0 = np.hypot(x, y)
-        shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
-        x, y = x * shrink, y * shrink
+        cold = ~np.isfinite(r0) | (r0 >= 0.9 * fold)
+        x, y = np.where(cold, xd, x), np.where(cold, yd, y)
+        if np.isfinite(fold):
+            # start inside the one-to-one region so Newton cannot wander onto the folded branch
+            r0 = np.hypot(x, y)
+            shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
+            x, y = x * shrink, y * shrink
     with np.errstate(all="ignore"):
         ex, ey = _residual_xy(x, y, xd, yd, d)
         err = np.hypot(ex, ey)
         lam = np.ones_like(err)  # per-point step length: halved after a step that did not help
-        active = np.nonzero(np.isfinite(err) & (err > tol))[0]
+        active = np.nonzero(np.isfinite(err))[0]
         it = 0
         for it in range(1, max_iterations + 1):
             if active.size == 0:
@@ -352,8 +389,16 @@ def undistort_robust(
             j11, j12, j21, j22 = _brown_jacobian(xa, ya, d)
             det = j11 * j22 - j12 * j21
             exa, eya = ex[active], ey[active]
-            xn = xa - la * (j22 * exa - j12 * eya) / det
-            yn = ya - la * (-j21 * exa + j11 * eya) / det
+            sx = (j22 * exa - j12 * eya) / det  # full Newton step = error estimate
+            sy = (-j21 * exa + j11 * eya) / det
+            small = np.hypot(sx, sy) <= tol
+            la = np.where(small, 1.0, la)
+            xn, yn = xa - la * sx, ya - la * sy
+            if np.isfinite(fold):  # never step onto the folded branch: stop halfway to the fold
+                rn, ra = np.hypot(xn, yn), np.hypot(xa, ya)
+                over = rn >= fold
+                pull = np.where(over, 0.5 * (ra + fold) / np.maximum(rn, 1e-300), 1.0)
+                xn, yn = xn * pull, yn * pull
             rx, ry = _residual_xy(xn, yn, xd[active], yd[active], d)
             en = np.hypot(rx, ry)
             accept = en < err[active]
@@ -363,9 +408,10 @@ def undistort_robust(
             ey[active] = np.where(accept, ry, eya)
             err[active] = np.where(accept, en, err[active])
             lam[active] = np.where(accept, np.minimum(1.0, 2.0 * la), 0.5 * la)
-            # keep iterating points that are above tolerance and can still move
-            keep = (err[active] > tol) & (lam[active] > 1e-6) & np.isfinite(err[active])
-            active = active[keep]
+            # a point is done after taking a step below tolerance, or when it can no longer move
+            done = small | ~(lam[active] > 1e-6) | ~np.isfinite(err[active])
+            x[active[small]], y[active[small]] = xn[small], yn[small]
+            active = active[~done]
     xy = np.stack([x, y], axis=-1).reshape(*shape, 2)
     return _result(cam, pixels, xy, _fold_status(xy, d), tol_px, it)
 

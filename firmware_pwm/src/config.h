@@ -1,0 +1,55 @@
+/* Compile-time configuration of the LaserPi co-MCU firmware.
+ *
+ * Time unit: one MCU tick = one Timer1 count = 8 CPU cycles at 16 MHz = 0.5 us.
+ * The eye-safety envelope (MAX_PULSE_TICKS, MAX_DUTY_PPM) is compiled in and can only be changed
+ * by rebuilding (`make MAX_PULSE_TICKS=... MAX_DUTY_PPM=...`); nothing on the serial link can
+ * widen it.  Defaults, for the thesis laser (808 nm, 25 mW, 120 deg fan, 4 mm line, 1 mm
+ * source): 17.4 ms maximum pulse, the pulse the thesis's Class 1 analysis was done for (mode-5
+ * exposure, parameter t of sections 4.1.1/4.2; appendix B NOHD analysis: 25 mW keeps the NOHD
+ * under 10 mm with 17.4 ms pulses), and 20 % maximum duty, just above the thesis operating
+ * point (17.4 ms at 10 Hz = 17.4 %).  The sensor-model issue (device/model eye safety, IEC
+ * 60825-1 AEL with the C5 reduction of errata note 1) computes the envelope for other lasers
+ * and configurations; rebuild with its numbers.
+ */
+#ifndef LASERPI_CONFIG_H
+#define LASERPI_CONFIG_H
+
+#include <stdint.h>
+
+#define TICKS_PER_SECOND 2000000UL /* 16 MHz / prescaler 8 */
+
+#ifndef MAX_PULSE_TICKS
+#define MAX_PULSE_TICKS 34800UL /* 17.4 ms */
+#endif
+#ifndef MAX_DUTY_PPM
+#define MAX_DUTY_PPM 200000UL /* 20 % (parts per million of time) */
+#endif
+#ifndef HEARTBEAT_TIMEOUT_TICKS
+/* 50 ms. Checked in the Timer1 overflow interrupt (every 32.8 ms) and in the main loop, so the
+ * laser is off at most 50 + 32.8 = 82.8 ms after the last heartbeat, inside the 100 ms budget. */
+#define HEARTBEAT_TIMEOUT_TICKS 100000UL
+#endif
+
+/* Shortest pulse and shortest gap the interrupt code can place without racing itself. */
+#define MIN_PULSE_TICKS 64UL   /* 32 us */
+#define MIN_GAP_TICKS 400UL    /* 200 us */
+/* An edge closer than this to "now" cannot be armed safely (interrupt latency allowance). */
+#define ARM_MARGIN_TICKS 48UL  /* 24 us */
+/* How far ahead a schedule may start: at least MIN_LEAD, at most MAX_LEAD ticks from now. */
+#define MIN_LEAD_TICKS 200UL            /* 100 us */
+#define MAX_LEAD_TICKS (10UL * TICKS_PER_SECOND) /* 10 s */
+#define MAX_PATTERN_LEN 32
+
+#define FIRMWARE_VERSION 1
+
+#if MAX_PULSE_TICKS + 4 * ARM_MARGIN_TICKS >= 65536UL
+#error "MAX_PULSE_TICKS must leave the fall edge inside one 16-bit compare window"
+#endif
+#if MAX_DUTY_PPM == 0 || MAX_DUTY_PPM > 1000000UL
+#error "MAX_DUTY_PPM must be in 1..1000000"
+#endif
+#if MAX_PULSE_TICKS < MIN_PULSE_TICKS
+#error "MAX_PULSE_TICKS below MIN_PULSE_TICKS"
+#endif
+
+#endif

@@ -1,0 +1,437 @@
+/* Firmware logic: command handling, pulse scheduler, eye-safety interlock (no AVR registers).
+ *
+ * Duty rule (interlock_min_gap).  For every two consecutive pulses of widths w1, w2 separated by
+ * an off time g, the firmware requires  g >= max(w1, w2) * (1 - D) / D  with D = MAX_DUTY_PPM.
+ * For a regular train (every k-th frame lit, frame period P) this is exactly the usual duty
+ * limit w <= D * k * P; for irregular patterns it is stricter than the average duty, never
+ * looser.  It is checked when a SCHEDULE or TRIM arrives (refused with a reason) and again, at
+ * run time, on the actual edge times before every rise is armed, so no sequence of trims or
+ * schedules can build a denser train: a violation at run time is a fault (laser off).
+ * Width: every pulse is armed to fall at rise + width <= MAX_PULSE_TICKS; a guard in the timer
+ * overflow interrupt and the main loop switches the laser off if a pulse is ever seen longer.
+ */
+#include "core.h"
+#include "config.h"
+#include "hw.h"
+
+uint32_t interlock_min_gap(uint32_t width)
+{
+    uint64_t num = (uint64_t)width * (1000000UL - MAX_DUTY_PPM);
+    uint64_t gap = (num + MAX_DUTY_PPM - 1) / MAX_DUTY_PPM;
+    if (gap < MIN_GAP_TICKS)
+        gap = MIN_GAP_TICKS;
+    return gap > 0xFFFFFFFFULL ? 0xFFFFFFFFUL : (uint32_t)gap;
+}
+
+static uint8_t lit(const core_t *c, uint32_t index) { return (c->mask >> (index % c->n)) & 1u; }
+
+uint8_t pattern_min_spacing(uint32_t mask, uint8_t n)
+{
+    uint8_t best = 0;
+    for (uint8_t i = 0; i < n; i++) {
+        if (!((mask >> i) & 1u))
+            continue;
+        for (uint8_t d = 1; d <= n; d++) {
+            if ((mask >> ((i + d) % n)) & 1u) {
+                if (best == 0 || d < best)
+                    best = d;
+                break;
+            }
+        }
+    }
+    return best;
+}
+
+void core_init(core_t *c, uint8_t reset_cause)
+{
+    uint8_t *p = (uint8_t *)c;
+    for (uint16_t i = 0; i < sizeof *c; i++)
+        p[i] = 0;
+    c->reset_cause = reset_cause;
+    c->state = STATE_IDLE;
+}
+
+/* ---- replies ---------------------------------------------------------------------------- */
+
+static void reply(uint8_t type, uint16_t seq, const uint8_t *payload, uint8_t len)
+{
+    uint8_t out[FRAME_WIRE_MAX];
+    uint8_t n = link_encode(type, seq, 0, payload, len, out);
+    hw_tx(out, n);
+}
+
+static void ack(uint8_t acked, uint16_t seq, uint32_t info)
+{
+    uint8_t p[LEN_ACK];
+    p[0] = acked;
+    put_u32(p + 1, info);
+    reply(MSG_ACK, seq, p, sizeof p);
+}
+
+static void nack(uint8_t acked, uint16_t seq, uint8_t reason, uint32_t detail)
+{
+    uint8_t p[LEN_NACK];
+    p[0] = acked;
+    p[1] = reason;
+    put_u32(p + 2, detail);
+    reply(MSG_NACK, seq, p, sizeof p);
+}
+
+static void refuse(core_t *c, uint8_t acked, uint16_t seq, uint8_t reason, uint32_t detail)
+{
+    c->refused++;
+    nack(acked, seq, reason, detail);
+}
+
+void core_send_info(core_t *c, uint16_t seq)
+{
+    uint8_t p[LEN_INFO];
+    p[0] = FIRMWARE_VERSION;
+    p[1] = c->reset_cause;
+    put_u16(p + 2, (uint16_t)(HEARTBEAT_TIMEOUT_TICKS / (TICKS_PER_SECOND / 1000)));
+    put_u32(p + 4, MAX_PULSE_TICKS);
+    put_u32(p + 8, MAX_DUTY_PPM);
+    put_u32(p + 12, TICKS_PER_SECOND);
+    reply(MSG_INFO, seq, p, sizeof p);
+}
+
+static void send_status(core_t *c, uint16_t seq)
+{
+    uint8_t p[LEN_STATUS];
+    uint8_t s = hw_irq_save();
+    p[0] = c->state;
+    p[1] = c->faults;
+    p[2] = c->reset_cause;
+    p[3] = c->stream_edges;
+    put_u32(p + 4, c->frames_ok);
+    put_u16(p + 8, c->crc_errors);
+    put_u16(p + 10, c->malformed);
+    put_u16(p + 12, c->unknown);
+    put_u16(p + 14, c->refused);
+    put_u16(p + 16, c->late);
+    put_u32(p + 18, c->pulses);
+    put_u32(p + 22, c->pin_high ? c->cur_index : c->next_index);
+    put_u64(p + 26, c->last_rise);
+    put_u64(p + 34, c->last_fall);
+    hw_irq_restore(s);
+    reply(MSG_STATUS, seq, p, sizeof p);
+}
+
+/* ---- edges (interrupt context) ---------------------------------------------------------- */
+
+static void record_fall(core_t *c, uint64_t t, uint8_t flags)
+{
+    c->pin_high = 0;
+    c->last_fall = t;
+    c->have_last = 1;
+    c->last_min_gap = c->min_gap;
+    c->pulses++;
+    if (c->stream_edges) {
+        uint8_t slot = (uint8_t)((c->edge_head + c->edge_count) % EDGE_QUEUE);
+        if (c->edge_count == EDGE_QUEUE) { /* full: drop the oldest, keep the newest */
+            c->edge_head = (uint8_t)((c->edge_head + 1) % EDGE_QUEUE);
+            c->edge_count--;
+        }
+        c->edges[slot].index = c->cur_index;
+        c->edges[slot].rise = c->cur_rise;
+        c->edges[slot].fall = t;
+        c->edges[slot].flags = flags;
+        c->edge_count++;
+    }
+}
+
+void core_fault(core_t *c, uint8_t flag, uint64_t now)
+{
+    uint8_t was_high = c->pin_high;
+    hw_force_off();
+    if (was_high)
+        record_fall(c, now, EDGE_CUT);
+    c->faults |= flag;
+    c->state = STATE_FAULT;
+    c->trim_pending = 0;
+}
+
+uint64_t core_rise_done(core_t *c, uint64_t t)
+{
+    c->pin_high = 1;
+    c->cur_rise = t;
+    c->cur_index = c->next_index;
+    c->last_rise = t;
+    return t + c->width;
+}
+
+uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
+{
+    if (flags & EDGE_FALL_FORCED)
+        c->late++;
+    record_fall(c, t, flags);
+    if (c->state != STATE_RUNNING)
+        return 0;
+    int64_t phase = 0;
+    if (c->trim_pending) {
+        c->period = (uint32_t)((int64_t)c->period + c->trim_period);
+        phase = c->trim_phase;
+        c->trim_pending = 0;
+        c->trim_phase = 0;
+        c->trim_period = 0;
+    }
+    uint32_t index = c->cur_index + 1;
+    uint64_t rise = (uint64_t)((int64_t)(c->cur_rise + c->period) + phase);
+    while (!lit(c, index)) {
+        index++;
+        rise += c->period;
+    }
+    uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
+    if (rise <= t || rise - t < need) { /* run-time duty interlock on the actual edges */
+        core_fault(c, FAULT_DUTY, t);
+        return 0;
+    }
+    c->next_rise = rise;
+    c->next_index = index;
+    *next = rise;
+    return 1;
+}
+
+void core_guard(core_t *c, uint64_t now)
+{
+    if (c->pin_high && now - c->cur_rise > MAX_PULSE_TICKS + 2 * ARM_MARGIN_TICKS)
+        core_fault(c, FAULT_WIDTH, now);
+    if (c->state == STATE_RUNNING && now - c->last_heartbeat > HEARTBEAT_TIMEOUT_TICKS)
+        core_fault(c, FAULT_HEARTBEAT, now);
+}
+
+/* ---- commands (main context) ------------------------------------------------------------ */
+
+static void do_schedule(core_t *c, const frame_t *f)
+{
+    uint64_t first = get_u64(f->payload);
+    uint32_t period = get_u32(f->payload + 8);
+    uint32_t width = get_u32(f->payload + 12);
+    uint32_t mask = get_u32(f->payload + 16);
+    uint8_t n = f->payload[20];
+    uint8_t flags = f->payload[21];
+    uint32_t low = (n >= 32) ? 0xFFFFFFFFUL : ((1UL << n) - 1);
+
+    if (n < 1 || n > MAX_PATTERN_LEN || (mask & ~low) || !(mask & low)) {
+        refuse(c, f->msg_type, f->seq, NACK_BAD_PATTERN, n);
+        return;
+    }
+    if (width > MAX_PULSE_TICKS) {
+        refuse(c, f->msg_type, f->seq, NACK_ENVELOPE_WIDTH, MAX_PULSE_TICKS);
+        return;
+    }
+    if (width < MIN_PULSE_TICKS) {
+        refuse(c, f->msg_type, f->seq, NACK_BAD_VALUE, MIN_PULSE_TICKS);
+        return;
+    }
+    uint32_t min_gap = interlock_min_gap(width);
+    uint64_t spacing = (uint64_t)pattern_min_spacing(mask, n) * period;
+    if (spacing < (uint64_t)width + min_gap) {
+        refuse(c, f->msg_type, f->seq, NACK_ENVELOPE_DUTY, min_gap);
+        return;
+    }
+    uint8_t s = hw_irq_save();
+    if (c->state != STATE_IDLE) {
+        uint8_t state = c->state;
+        hw_irq_restore(s);
+        refuse(c, f->msg_type, f->seq, NACK_BUSY, state);
+        return;
+    }
+    uint64_t now = hw_now();
+    uint32_t index = 0;
+    uint64_t rise = first;
+    while (!((mask >> (index % n)) & 1u)) {
+        index++;
+        rise += period;
+    }
+    uint8_t reason = 0;
+    uint32_t detail = 0;
+    if (first < now + MIN_LEAD_TICKS || rise > now + MAX_LEAD_TICKS) {
+        reason = NACK_BAD_TIME;
+        detail = (uint32_t)now;
+    } else if (c->have_last) {
+        uint32_t need = c->last_min_gap > min_gap ? c->last_min_gap : min_gap;
+        if (rise - c->last_fall < need) {
+            reason = NACK_ENVELOPE_DUTY;
+            detail = need;
+        }
+    }
+    if (!reason) {
+        c->period = period;
+        c->width = width;
+        c->mask = mask;
+        c->n = n;
+        c->min_gap = min_gap;
+        c->next_rise = rise;
+        c->next_index = index;
+        c->trim_pending = 0;
+        c->trim_phase = 0;
+        c->trim_period = 0;
+        c->stream_edges = flags & SCHEDULE_FLAG_STREAM_EDGES;
+        c->last_heartbeat = now;
+        c->state = STATE_RUNNING;
+        if (hw_arm_rise(rise))
+            core_fault(c, FAULT_LATE, now);
+    }
+    hw_irq_restore(s);
+    if (reason)
+        refuse(c, f->msg_type, f->seq, reason, detail);
+    else
+        ack(f->msg_type, f->seq, index);
+}
+
+static void do_trim(core_t *c, const frame_t *f)
+{
+    int32_t dphase = (int32_t)get_u32(f->payload);
+    int32_t dperiod = (int32_t)get_u32(f->payload + 4);
+    uint8_t reason = 0;
+    uint32_t info = 0;
+    uint8_t s = hw_irq_save();
+    if (c->state != STATE_RUNNING) {
+        reason = NACK_NOT_RUNNING;
+        info = c->state;
+    } else {
+        int64_t phase = (int64_t)c->trim_phase + dphase;
+        int64_t dper = (int64_t)c->trim_period + dperiod;
+        int64_t period = (int64_t)c->period + dper;
+        int64_t worst = (int64_t)pattern_min_spacing(c->mask, c->n) * period + (phase < 0 ? phase : 0);
+        if (phase > INT32_MAX || phase < INT32_MIN || period < (int64_t)(MIN_PULSE_TICKS + MIN_GAP_TICKS) ||
+            period > 0x7FFFFFFFL) {
+            reason = NACK_BAD_VALUE;
+        } else if (worst < (int64_t)c->width + c->min_gap) {
+            reason = NACK_ENVELOPE_DUTY;
+            info = c->min_gap;
+        } else {
+            c->trim_phase = (int32_t)phase;
+            c->trim_period = (int32_t)dper;
+            c->trim_pending = 1;
+            info = c->pin_high ? c->cur_index : c->next_index; /* last pulse on the old timing */
+        }
+    }
+    hw_irq_restore(s);
+    if (reason)
+        refuse(c, f->msg_type, f->seq, reason, info);
+    else
+        ack(f->msg_type, f->seq, info);
+}
+
+static void do_stop(core_t *c, const frame_t *f)
+{
+    uint8_t s = hw_irq_save();
+    uint64_t now = hw_now();
+    uint8_t was_high = c->pin_high;
+    hw_force_off();
+    if (was_high)
+        record_fall(c, now, EDGE_CUT);
+    c->state = STATE_IDLE;
+    c->faults = 0;
+    c->trim_pending = 0;
+    uint32_t pulses = c->pulses;
+    hw_irq_restore(s);
+    ack(f->msg_type, f->seq, pulses);
+}
+
+static uint8_t expected_len(uint8_t type)
+{
+    switch (type) {
+    case MSG_SCHEDULE: return LEN_SCHEDULE;
+    case MSG_TRIM: return LEN_TRIM;
+    case MSG_PING: case MSG_STOP: case MSG_STATUS_REQ: case MSG_HEARTBEAT: case MSG_INFO_REQ: return 0;
+    default: return 0xFF;
+    }
+}
+
+static void handle_frame(core_t *c, uint64_t rx_tick)
+{
+    frame_t f;
+    uint8_t r = link_decode(c->rx, c->rx_len, &f);
+    if (r == LINK_CRC) {
+        c->crc_errors++;
+        nack(f.msg_type, f.seq, NACK_CRC, 0);
+        return;
+    }
+    if (r != LINK_OK) {
+        c->malformed++;
+        nack(f.msg_type, f.seq, NACK_MALFORMED, 0);
+        return;
+    }
+    uint8_t want = expected_len(f.msg_type);
+    if (want == 0xFF) {
+        c->unknown++;
+        nack(f.msg_type, f.seq, NACK_UNKNOWN_TYPE, 0);
+        return;
+    }
+    if (f.len != want) {
+        c->malformed++;
+        nack(f.msg_type, f.seq, NACK_MALFORMED, want);
+        return;
+    }
+    c->frames_ok++;
+    switch (f.msg_type) {
+    case MSG_PING: {
+        uint8_t p[LEN_PONG];
+        put_u64(p, rx_tick);
+        put_u64(p + 8, hw_now());
+        reply(MSG_PONG, f.seq, p, sizeof p);
+        break;
+    }
+    case MSG_SCHEDULE: do_schedule(c, &f); break;
+    case MSG_TRIM: do_trim(c, &f); break;
+    case MSG_STOP: do_stop(c, &f); break;
+    case MSG_STATUS_REQ: send_status(c, f.seq); break;
+    case MSG_INFO_REQ: core_send_info(c, f.seq); break;
+    case MSG_HEARTBEAT: {
+        uint8_t s = hw_irq_save();
+        c->last_heartbeat = hw_now();
+        uint32_t info = c->state | ((uint32_t)c->faults << 8);
+        hw_irq_restore(s);
+        ack(f.msg_type, f.seq, info);
+        break;
+    }
+    }
+}
+
+void core_rx_byte(core_t *c, uint8_t b, uint64_t rx_tick)
+{
+    if (b != 0) {
+        if (c->rx_len < RX_ENC_MAX)
+            c->rx[c->rx_len++] = b;
+        else
+            c->rx_overflow = 1;
+        return;
+    }
+    if (c->rx_overflow) { /* longer than any valid frame: count and answer, never act */
+        c->malformed++;
+        nack(0, 0, NACK_MALFORMED, 0);
+    } else if (c->rx_len > 0) {
+        handle_frame(c, rx_tick);
+    } /* an empty frame (a lone delimiter) only resynchronises */
+    c->rx_len = 0;
+    c->rx_overflow = 0;
+}
+
+void core_rx_damaged(core_t *c) { c->rx_overflow = 1; }
+
+void core_poll(core_t *c)
+{
+    uint8_t s = hw_irq_save();
+    core_guard(c, hw_now());
+    hw_irq_restore(s);
+    for (;;) {
+        uint8_t p[LEN_EDGE];
+        s = hw_irq_save();
+        if (c->edge_count == 0) {
+            hw_irq_restore(s);
+            return;
+        }
+        edge_t e = c->edges[c->edge_head];
+        c->edge_head = (uint8_t)((c->edge_head + 1) % EDGE_QUEUE);
+        c->edge_count--;
+        hw_irq_restore(s);
+        put_u32(p, e.index);
+        put_u64(p + 4, e.rise);
+        put_u64(p + 12, e.fall);
+        p[20] = e.flags;
+        reply(MSG_EDGE, 0, p, sizeof p);
+    }
+}

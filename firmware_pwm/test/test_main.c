@@ -1,0 +1,465 @@
+/* Host-compiled unit tests of the firmware logic (make test): CRC-32, COBS, frame layer, time
+ * extension, scheduler, trims, interlock (at acceptance and at run time), heartbeat, parser.
+ * The hardware layer is test/fake_hw.c: a simulated tick clock with exact compare matches. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cobs.h"
+#include "config.h"
+#include "core.h"
+#include "crc32.h"
+#include "fake_hw.h"
+#include "link.h"
+#include "timeext.h"
+
+static int checks, failures;
+#define CHECK(cond, ...)                                                                   \
+    do {                                                                                   \
+        checks++;                                                                          \
+        if (!(cond)) {                                                                     \
+            failures++;                                                                    \
+            printf("FAIL %s:%d: %s: ", __FILE__, __LINE__, #cond);                         \
+            printf(__VA_ARGS__);                                                           \
+            printf("\n");                                                                  \
+        }                                                                                  \
+    } while (0)
+
+static uint32_t rng = 12345;
+static uint32_t rnd(void)
+{
+    rng ^= rng << 13;
+    rng ^= rng >> 17;
+    rng ^= rng << 5;
+    return rng;
+}
+
+static void test_crc32(void)
+{
+    CHECK(crc32((const uint8_t *)"123456789", 9) == 0xCBF43926UL, "check value");
+    CHECK(crc32((const uint8_t *)"", 0) == 0, "empty");
+    const uint8_t a[] = {0x00, 0xFF, 0x10};
+    CHECK(crc32(a, 3) == crc32_update(crc32(a, 1), a + 1, 2), "incremental");
+}
+
+static void test_cobs(void)
+{
+    const uint8_t in1[] = {0x11, 0x22, 0x00, 0x33};
+    const uint8_t want1[] = {0x03, 0x11, 0x22, 0x02, 0x33};
+    uint8_t enc[600], dec[600];
+    uint16_t n = cobs_encode(in1, 4, enc);
+    CHECK(n == 5 && memcmp(enc, want1, 5) == 0, "vector 1");
+    const uint8_t zero[] = {0x00};
+    n = cobs_encode(zero, 1, enc);
+    CHECK(n == 2 && enc[0] == 1 && enc[1] == 1, "single zero");
+    for (int trial = 0; trial < 300; trial++) {
+        uint16_t len = (uint16_t)(rnd() % 520);
+        uint8_t buf[520];
+        for (uint16_t i = 0; i < len; i++)
+            buf[i] = (rnd() % 4 == 0) ? 0 : (uint8_t)rnd();
+        n = cobs_encode(buf, len, enc);
+        int zeros = 0;
+        for (uint16_t i = 0; i < n; i++)
+            zeros += enc[i] == 0;
+        int16_t m = cobs_decode(enc, n, dec, sizeof dec);
+        CHECK(zeros == 0 && m == len && memcmp(buf, dec, len) == 0, "roundtrip len %u", len);
+    }
+    const uint8_t bad1[] = {0x05, 0x11, 0x22};       /* code runs past the end */
+    const uint8_t bad2[] = {0x03, 0x11, 0x00, 0x01}; /* zero inside */
+    CHECK(cobs_decode(bad1, 3, dec, sizeof dec) == -1, "overrun");
+    CHECK(cobs_decode(bad2, 4, dec, sizeof dec) == -1, "zero inside");
+    CHECK(cobs_decode(want1, 5, dec, 3) == -1, "capacity");
+}
+
+static void test_link(void)
+{
+    uint8_t wire[FRAME_WIRE_MAX];
+    uint8_t payload[MAX_PAYLOAD_MCU];
+    for (int i = 0; i < MAX_PAYLOAD_MCU; i++)
+        payload[i] = (uint8_t)(i * 7);
+    uint8_t n = link_encode(0x41, 0xBEEF, 3, payload, MAX_PAYLOAD_MCU, wire);
+    CHECK(wire[n - 1] == 0 && n <= FRAME_WIRE_MAX, "delimiter and size");
+    frame_t f;
+    CHECK(link_decode(wire, (uint16_t)(n - 1), &f) == LINK_OK, "decode");
+    CHECK(f.msg_type == 0x41 && f.seq == 0xBEEF && f.flags == 3 && f.len == MAX_PAYLOAD_MCU &&
+              memcmp(f.payload, payload, MAX_PAYLOAD_MCU) == 0, "fields");
+    /* flip every bit of the encoded frame in turn: never LINK_OK */
+    int accepted = 0;
+    for (uint8_t i = 0; i < n - 1; i++)
+        for (uint8_t bit = 0; bit < 8; bit++) {
+            uint8_t copy[FRAME_WIRE_MAX];
+            memcpy(copy, wire, n);
+            copy[i] ^= (uint8_t)(1u << bit);
+            accepted += link_decode(copy, (uint16_t)(n - 1), &f) == LINK_OK;
+        }
+    CHECK(accepted == 0, "%d corrupted frames accepted", accepted);
+    /* crc error keeps type and seq readable for the NACK */
+    n = link_encode(0x45, 77, 0, NULL, 0, wire);
+    uint8_t body[32];
+    int16_t m = cobs_decode(wire, (uint16_t)(n - 1), body, sizeof body);
+    body[m - 1] ^= 0x01;
+    uint8_t re[40];
+    uint16_t k = cobs_encode(body, (uint16_t)m, re);
+    CHECK(link_decode(re, k, &f) == LINK_CRC && f.msg_type == 0x45 && f.seq == 77, "crc reason");
+    /* wrong version with a valid CRC */
+    body[m - 1] ^= 0x01;
+    body[0] = 2;
+    put_u32(body + m - 4, crc32(body, (uint16_t)(m - 4)));
+    k = cobs_encode(body, (uint16_t)m, re);
+    CHECK(link_decode(re, k, &f) == LINK_MALFORMED, "version");
+    /* declared length bigger than the frame */
+    body[0] = 1;
+    put_u16(body + 5, 3);
+    put_u32(body + m - 4, crc32(body, (uint16_t)(m - 4)));
+    k = cobs_encode(body, (uint16_t)m, re);
+    CHECK(link_decode(re, k, &f) == LINK_MALFORMED, "length");
+}
+
+static void test_time_extend(void)
+{
+    /* For true times around many wraps, model the three cases of a read with interrupts off:
+     * (a) no overflow pending, (b) the counter wrapped before TCNT1 was read (ISR not yet run,
+     * count small, TOV1 set), (c) it wrapped after TCNT1 was read (count large, TOV1 set). */
+    int bad = 0;
+    for (uint64_t wrap = 1; wrap < 5000000; wrap += 65537) {
+        uint64_t base = (wrap | 0xFFFF) + 1; /* an overflow instant */
+        for (int d = -40; d < 40; d++) {
+            uint64_t t = base + (uint64_t)(int64_t)d;
+            uint16_t tcnt = (uint16_t)t;
+            uint64_t ovf_done = t >> 16;
+            if (time_extend(ovf_done, tcnt, 0) != t)
+                bad++;
+            if (d >= 0 && time_extend(ovf_done - 1, tcnt, 1) != t) /* (b) */
+                bad++;
+            if (d < 0 && time_extend(ovf_done, tcnt, 1) != t) /* (c) */
+                bad++;
+        }
+    }
+    CHECK(bad == 0, "%d wrong extensions", bad);
+    /* the naive read (ignore TOV1) is wrong in case (b): the check above can fail */
+    CHECK(time_extend(0, 5, 0) != 65541, "naive read differs");
+}
+
+static void test_interlock_math(void)
+{
+    CHECK(interlock_min_gap(34800) == 34800UL * 4, "20%% duty -> gap 4w, got %u", interlock_min_gap(34800));
+    CHECK(interlock_min_gap(10) == MIN_GAP_TICKS, "min gap floor");
+    CHECK(pattern_min_spacing(0x1, 1) == 1, "every frame");
+    CHECK(pattern_min_spacing(0x1, 2) == 2, "every other");
+    CHECK(pattern_min_spacing(0x5, 4) == 2, "1010");
+    CHECK(pattern_min_spacing(0x3, 3) == 1, "110");
+    CHECK(pattern_min_spacing(0x0, 3) == 0, "none lit");
+}
+
+static void schedule_payload(uint8_t *p, uint64_t first, uint32_t period, uint32_t width,
+                             uint32_t mask, uint8_t n, uint8_t flags)
+{
+    put_u64(p, first);
+    put_u32(p + 8, period);
+    put_u32(p + 12, width);
+    put_u32(p + 16, mask);
+    p[20] = n;
+    p[21] = flags;
+}
+
+/* sends a command and returns the reply frame (asserting there is one) */
+static frame_t command(core_t *c, uint8_t type, const uint8_t *payload, uint8_t len)
+{
+    static uint16_t seq = 100;
+    frame_t f;
+    memset(&f, 0, sizeof f);
+    fake_send(c, type, ++seq, payload, len);
+    int got = 0;
+    frame_t r;
+    while (fake_reply(&r))
+        if (r.msg_type != MSG_EDGE) {
+            f = r;
+            got = 1;
+        }
+    CHECK(got && f.seq == seq, "reply to 0x%02x", type);
+    return f;
+}
+
+static void heartbeat(core_t *c) { command(c, MSG_HEARTBEAT, NULL, 0); }
+
+static void run_with_heartbeats(core_t *c, uint64_t until)
+{
+    while (fake.now < until) {
+        uint64_t step = fake.now + 40000; /* 20 ms */
+        fake_run(c, step < until ? step : until);
+        heartbeat(c);
+    }
+}
+
+static void test_schedule_pattern(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    uint64_t first = 200000;
+    uint32_t period = 66667, width = 20000; /* 30 fps, every other frame lit */
+    schedule_payload(p, first, period, width, 0x1, 2, 0);
+    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_ACK && r.payload[0] == MSG_SCHEDULE, "ack, got 0x%02x", r.msg_type);
+    run_with_heartbeats(&c, first + 10 * period - 1);
+    CHECK(fake.n_edges == 10, "5 pulses in 10 frames, got %u edges", fake.n_edges);
+    int exact = 1;
+    for (uint32_t k = 0; k + 1 < fake.n_edges; k += 2) {
+        uint64_t rise = first + (uint64_t)k * period; /* pulse k/2 is frame k */
+        exact &= fake.edge_level[k] == 1 && fake.edge_t[k] == rise;
+        exact &= fake.edge_level[k + 1] == 0 && fake.edge_t[k + 1] == rise + width;
+    }
+    CHECK(exact, "edges on the exact ticks");
+    /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w */
+    core_init(&c, 0);
+    fake_reset(1000);
+    schedule_payload(p, first, 100000, 20000, 0x6, 3, 0);
+    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "first lit index 1");
+    run_with_heartbeats(&c, first + 6 * 100000);
+    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 100000 && fake.edge_t[2] == first + 200000 &&
+              fake.edge_t[4] == first + 400000, "frames 1,2,4,5 lit");
+}
+
+static void test_refusals(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    struct { uint64_t first; uint32_t period, width, mask; uint8_t n, reason; } cases[] = {
+        {200000, 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
+        {200000, 100000, 20001, 1, 1, NACK_ENVELOPE_DUTY},   /* 20.001 % */
+        {200000, 50000, 20001, 1, 2, NACK_ENVELOPE_DUTY},    /* every other: > 20 % of 100000 */
+        {200000, 90000, 20000, 0x3, 3, NACK_ENVELOPE_DUTY}, /* two adjacent frames lit */
+        {200000, 100000, 10000, 0, 2, NACK_BAD_PATTERN},
+        {200000, 100000, 10000, 0x4, 2, NACK_BAD_PATTERN},
+        {200000, 100000, 10000, 1, 33, NACK_BAD_PATTERN},
+        {200000, 100000, 10, 1, 1, NACK_BAD_VALUE},
+        {1000, 100000, 10000, 1, 1, NACK_BAD_TIME},
+        {1000 + MAX_LEAD_TICKS + 1000, 100000, 10000, 1, 1, NACK_BAD_TIME},
+    };
+    for (unsigned i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        schedule_payload(p, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
+        frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+        CHECK(r.msg_type == MSG_NACK && r.payload[1] == cases[i].reason, "case %u: reason %u", i,
+              r.msg_type == MSG_NACK ? r.payload[1] : 0);
+    }
+    CHECK(c.refused == sizeof cases / sizeof cases[0] && c.state == STATE_IDLE, "counted, idle");
+    fake_run(&c, 2000000);
+    CHECK(fake.n_edges == 0, "refused schedules never light the laser");
+    /* exactly at the envelope is accepted */
+    schedule_payload(p, 2200000, 100000, 20000, 1, 1, 0);
+    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_ACK, "20 %% exactly accepted");
+    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "busy while running");
+    const uint8_t t[LEN_TRIM] = {0};
+    core_init(&c, 0);
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_NOT_RUNNING, "trim when idle");
+}
+
+static void test_trim(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    uint64_t first = 100000;
+    uint32_t period = 200000, width = 10000;
+    schedule_payload(p, first, period, width, 1, 1, 0);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, first + 5000); /* pulse 0 in flight */
+    uint8_t t[LEN_TRIM];
+    put_u32(t, (uint32_t)-3000); /* phase -1.5 ms */
+    put_u32(t + 4, 500);         /* period +0.25 ms */
+    frame_t r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 0, "applies after pulse 0");
+    run_with_heartbeats(&c, first + 4 * period);
+    uint64_t want1 = first + period + 500 - 3000, want2 = want1 + period + 500;
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == first && fake.edge_t[2] == want1 && fake.edge_t[4] == want2,
+          "rises %llu %llu (want %llu %llu)", (unsigned long long)fake.edge_t[2],
+          (unsigned long long)fake.edge_t[4], (unsigned long long)want1, (unsigned long long)want2);
+    int widths_ok = 1;
+    for (uint32_t k = 0; k + 1 < fake.n_edges; k += 2)
+        widths_ok &= fake.edge_t[k + 1] - fake.edge_t[k] == width;
+    CHECK(widths_ok, "trims never change the width");
+    /* a trim that would make the train too dense is refused */
+    put_u32(t, 0);
+    put_u32(t + 4, (uint32_t)-(int32_t)(period + 500 - 49999));
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "dense period refused");
+    put_u32(t, (uint32_t)-(int32_t)(period + 500 - 49999));
+    put_u32(t + 4, 0);
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "big negative phase refused");
+}
+
+static void test_runtime_interlock(void)
+{
+    /* Bypass the acceptance checks (as a logic error elsewhere would) and check that the
+     * run-time check on the actual edges still refuses to build a denser train. */
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, 105000);
+    c.trim_pending = 1;
+    c.trim_phase = -150000; /* next gap 30000 < 4 * 20000 */
+    fake_run(&c, 1000000);
+    CHECK(fake.n_edges == 2 && fake.pin == 0, "only the first pulse, got %u edges", fake.n_edges);
+    CHECK(c.state == STATE_FAULT && (c.faults & FAULT_DUTY), "duty fault latched");
+    /* width guard: a pulse seen high too long is cut */
+    core_init(&c, 0);
+    fake_reset(1000);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, 100001);
+    fake.fall_armed = 0; /* the fall compare "never comes" */
+    c.last_heartbeat = fake.now;
+    fake_run(&c, 100000 + 2 * 65536);
+    CHECK(fake.pin == 0 && (c.faults & FAULT_WIDTH), "width guard");
+    CHECK(fake.n_edges == 2 && fake.edge_t[1] - fake.edge_t[0] <= MAX_PULSE_TICKS + 65536,
+          "cut at the next guard run");
+}
+
+static void test_heartbeat(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    schedule_payload(p, 100000, 100000, 20000, 1, 1, 0);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    uint64_t last_hb = fake.now;
+    fake_run(&c, 100000 + 10000); /* mid pulse, heartbeats stop */
+    fake_run(&c, 2000000);
+    CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "heartbeat fault");
+    uint64_t last_edge = fake.edge_t[fake.n_edges - 1];
+    CHECK(fake.pin == 0 && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
+    CHECK(last_edge - last_hb < TICKS_PER_SECOND / 10, "off within 100 ms: %llu ticks",
+          (unsigned long long)(last_edge - last_hb));
+    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "fault must be cleared by STOP");
+    r = command(&c, MSG_STOP, NULL, 0);
+    CHECK(r.msg_type == MSG_ACK && c.state == STATE_IDLE && c.faults == 0, "stop clears");
+}
+
+static void test_parser_garbage(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    int acted = 0;
+    for (int i = 0; i < 20000; i++) {
+        core_rx_byte(&c, (uint8_t)((rnd() % 8 == 0) ? 0 : rnd()), fake.now);
+        acted |= c.state != STATE_IDLE;
+    }
+    core_rx_byte(&c, 0, fake.now);
+    CHECK(!acted && fake.n_edges == 0, "garbage never acted upon");
+    CHECK(c.malformed + c.crc_errors > 100, "garbage counted: %u malformed, %u crc", c.malformed, c.crc_errors);
+    fake.tx_read = fake.tx_len = 0; /* the fake's buffer filled with NACKs */
+    frame_t r = command(&c, MSG_PING, NULL, 0);
+    CHECK(r.msg_type == MSG_PONG && r.len == LEN_PONG, "still answers PING");
+    uint8_t x[3] = {1, 2, 3};
+    r = command(&c, 0x7E, NULL, 0);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_UNKNOWN_TYPE && c.unknown == 1, "unknown type");
+    r = command(&c, MSG_PING, x, 3);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_MALFORMED, "payload size");
+    r = command(&c, MSG_STATUS_REQ, NULL, 0);
+    CHECK(r.msg_type == MSG_STATUS && r.len == LEN_STATUS && get_u16(r.payload + 12) == 1, "status counters");
+    r = command(&c, MSG_INFO_REQ, NULL, 0);
+    CHECK(r.msg_type == MSG_INFO && get_u32(r.payload + 4) == MAX_PULSE_TICKS &&
+              get_u32(r.payload + 8) == MAX_DUTY_PPM, "info carries the envelope");
+}
+
+static void test_stop_and_edges(void)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    schedule_payload(p, 100000, 100000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, 210000); /* pulse 0 done, pulse 1 in flight */
+    core_poll(&c);
+    frame_t r;
+    int got = fake_reply(&r);
+    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 0 && get_u64(r.payload + 4) == 100000 &&
+              get_u64(r.payload + 12) == 120000 && r.payload[20] == 0, "edge report of pulse 0");
+    r = command(&c, MSG_STOP, NULL, 0);
+    CHECK(r.msg_type == MSG_ACK && fake.pin == 0, "stop mid pulse");
+    core_poll(&c);
+    got = fake_reply(&r);
+    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 1 && r.payload[20] == EDGE_CUT &&
+              get_u64(r.payload + 12) == 210000, "cut pulse reported");
+    fake_run(&c, 1000000);
+    CHECK(fake.n_edges == 4, "nothing after stop");
+}
+
+static void test_random_commands_interlock(void)
+{
+    /* Random, mostly hostile command streams: check every emitted pulse and gap. */
+    int violations = 0, pulses = 0;
+    for (int trial = 0; trial < 500; trial++) {
+        core_t c;
+        core_init(&c, 0);
+        fake_reset(1000);
+        for (int step = 0; step < 60; step++) {
+            uint8_t p[LEN_SCHEDULE];
+            uint8_t t[LEN_TRIM];
+            switch (rnd() % 6) {
+            case 0:
+                schedule_payload(p, fake.now + 200 + rnd() % 400000, 1000 + rnd() % 200000,
+                                 rnd() % (MAX_PULSE_TICKS + 5000), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
+                command(&c, MSG_SCHEDULE, p, sizeof p);
+                break;
+            case 1: case 2:
+                put_u32(t, (uint32_t)((int32_t)(rnd() % 200000) - 100000));
+                put_u32(t + 4, (uint32_t)((int32_t)(rnd() % 100000) - 50000));
+                command(&c, MSG_TRIM, t, sizeof t);
+                break;
+            case 3: command(&c, MSG_STOP, NULL, 0); break;
+            default: heartbeat(&c); break;
+            }
+            fake_run(&c, fake.now + rnd() % 80000);
+        }
+        for (uint32_t k = 0; k < fake.n_edges; k++) {
+            if (fake.edge_level[k] != 0)
+                continue;
+            uint64_t w = fake.edge_t[k] - fake.edge_t[k - 1];
+            pulses++;
+            violations += w > MAX_PULSE_TICKS;
+            if (k + 1 < fake.n_edges) { /* gap to the next pulse vs the wider of the two */
+                uint64_t w2 = (k + 2 < fake.n_edges) ? fake.edge_t[k + 2] - fake.edge_t[k + 1] : 0;
+                uint64_t wmax = w > w2 ? w : w2;
+                uint64_t gap = fake.edge_t[k + 1] - fake.edge_t[k];
+                violations += gap * MAX_DUTY_PPM < wmax * (1000000ULL - MAX_DUTY_PPM);
+            }
+        }
+    }
+    CHECK(pulses > 200, "random streams produced %d pulses", pulses);
+    CHECK(violations == 0, "%d envelope violations in %d pulses", violations, pulses);
+}
+
+int main(void)
+{
+    test_crc32();
+    test_cobs();
+    test_link();
+    test_time_extend();
+    test_interlock_math();
+    test_schedule_pattern();
+    test_refusals();
+    test_trim();
+    test_runtime_interlock();
+    test_heartbeat();
+    test_parser_garbage();
+    test_stop_and_edges();
+    test_random_commands_interlock();
+    printf("firmware unit tests: %d checks, %d failed\n", checks, failures);
+    return failures ? 1 : 0;
+}

@@ -1,0 +1,488 @@
+"""Host <-> device link messages (types 0x01-0x3F): one dataclass per message, payload codecs.
+
+Every payload is little-endian and packed with ``struct`` (scans with numpy); byte layouts are in
+protocol/SPEC.md. ``encode()`` returns the payload bytes that go into a frame
+(protocol/framing.py); ``decode(payload)`` checks lengths and values and raises MessageError
+naming what is wrong. A decoder accepts and ignores trailing bytes it does not know (that is how
+minor protocol revisions add fields, see SPEC.md "Compatibility").
+
+Ranges travel as u16 codes in quarter millimetres (RANGE_UNIT_M) with three reserved codes for
+the REP 117 values, qualities as u8: 3 bytes per point.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from protocol.framing import OVERHEAD, PROTOCOL_VERSION
+
+#: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
+PROTOCOL_MINOR = 0
+
+
+class MsgType(enum.IntEnum):
+    GET_INFO = 0x01
+    INFO = 0x02
+    GET_HEALTH = 0x03
+    HEALTH = 0x04
+    START = 0x05
+    STOP = 0x06
+    SET_CONFIG = 0x07
+    ACK = 0x08
+    NACK = 0x09
+    SCAN = 0x10
+    LOG = 0x11
+
+
+class NackCode(enum.IntEnum):
+    UNKNOWN_MESSAGE = 1  # message type not known to the device
+    BAD_PAYLOAD = 2  # payload does not decode
+    OUT_OF_RANGE = 3  # a setting outside what the device supports
+    EYE_SAFETY = 4  # a setting outside the IEC 60825-1 Class 1 envelope
+    NOT_SUPPORTED = 5  # understood but not possible on this device (e.g. a replay)
+    SOURCE_ERROR = 6  # the scan source failed to apply the request
+
+
+class DeviceState(enum.IntEnum):
+    IDLE = 0
+    SCANNING = 1
+    FAULT = 2
+
+
+class ErrorCode(enum.IntEnum):
+    """Codes in HEALTH.errors: conditions that are true now."""
+
+    SOURCE_FAILED = 1  # the scan source raised; see the LOG messages
+    SYNC_LOST = 2  # camera and laser pulses are not locked
+    LASER_FAULT = 3  # laser driver reports a fault
+
+
+class MessageError(ValueError):
+    """A payload that does not decode; ``reason`` is a short machine-readable word."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+# --- ranges: u16 codes of RANGE_UNIT_M, three reserved codes for REP 117 -----------------------
+RANGE_UNIT_M = 0.00025
+RANGE_CODE_NAN = 0xFFFF  # invalid measurement
+RANGE_CODE_POS_INF = 0xFFFE  # no return within range_max
+RANGE_CODE_NEG_INF = 0xFFFD  # object closer than range_min
+RANGE_CODE_MAX = 0xFFFC  # largest finite code: 16.383 m
+RANGE_MAX_ENCODABLE_M = RANGE_CODE_MAX * RANGE_UNIT_M
+
+
+def _range_lut() -> np.ndarray:
+    lut = np.arange(65536, dtype=np.float64) * RANGE_UNIT_M
+    lut[RANGE_CODE_NEG_INF] = -np.inf
+    lut[RANGE_CODE_POS_INF] = np.inf
+    lut[RANGE_CODE_NAN] = np.nan
+    return lut.astype(np.float32)
+
+
+#: code -> metres (float32), read-only. 256 KiB; one gather decodes a whole scan.
+RANGE_LUT = _range_lut()
+RANGE_LUT.flags.writeable = False
+
+
+def encode_ranges(ranges_m: np.ndarray) -> np.ndarray:
+    """Metres (REP 117 values allowed) -> u16 codes, rounded to the nearest RANGE_UNIT_M.
+
+    Raises ValueError for a finite range that is negative or beyond RANGE_MAX_ENCODABLE_M rather
+    than sending a wrong number.
+    """
+    r = np.asarray(ranges_m, dtype=np.float64)
+    if r.ndim != 1:
+        raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
+    finite = np.isfinite(r)
+    bad = finite & ((r < 0) | (r > RANGE_MAX_ENCODABLE_M))
+    if bad.any():
+        raise ValueError(
+            f"{int(bad.sum())} finite ranges outside [0, {RANGE_MAX_ENCODABLE_M:.3f}] m, e.g. {r[bad][0]!r}"
+        )
+    codes = np.empty(r.shape, dtype="<u2")
+    codes[finite] = np.rint(r[finite] / RANGE_UNIT_M)
+    codes[np.isnan(r)] = RANGE_CODE_NAN
+    codes[r == np.inf] = RANGE_CODE_POS_INF
+    codes[r == -np.inf] = RANGE_CODE_NEG_INF
+    return codes
+
+
+def decode_ranges(codes: np.ndarray) -> np.ndarray:
+    """u16 codes -> metres as float32 (REP 117 NaN / +inf / -inf for the reserved codes)."""
+    return RANGE_LUT[codes]
+
+
+# --- helpers ----------------------------------------------------------------------------------
+def _need(payload: bytes, size: int, what: str) -> None:
+    if len(payload) < size:
+        raise MessageError("short", f"{what} needs {size} bytes, got {len(payload)}")
+
+
+def _pack_str(text: str, what: str) -> bytes:
+    data = text.encode("utf-8")
+    if len(data) > 255:
+        raise ValueError(f"{what} is {len(data)} bytes in UTF-8, at most 255")
+    return bytes([len(data)]) + data
+
+
+def _unpack_str(payload: bytes, offset: int, what: str) -> tuple[str, int]:
+    _need(payload, offset + 1, what)
+    n = payload[offset]
+    _need(payload, offset + 1 + n, what)
+    try:
+        return bytes(payload[offset + 1 : offset + 1 + n]).decode("utf-8"), offset + 1 + n
+    except UnicodeDecodeError as exc:
+        raise MessageError("utf8", f"{what}: {exc}") from None
+
+
+def _finite(value: float, what: str) -> None:
+    if not np.isfinite(value):
+        raise MessageError("value", f"{what} is {value}")
+
+
+# --- messages ---------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class GetInfo:
+    """Host -> device. Carries the host's protocol version so the device can log a mismatch."""
+
+    TYPE = MsgType.GET_INFO
+    _S = struct.Struct("<BB")
+    host_major: int = PROTOCOL_VERSION
+    host_minor: int = PROTOCOL_MINOR
+
+    def encode(self) -> bytes:
+        return self._S.pack(self.host_major, self.host_minor)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> GetInfo:
+        _need(payload, cls._S.size, "GET_INFO")
+        return cls(*cls._S.unpack_from(payload))
+
+
+@dataclass(frozen=True, slots=True)
+class ScanSettings:
+    """What `set config` can change. None = leave as is (only in a SET_CONFIG request).
+
+    roi_first / roi_count select the columns (indices into Info.angles) a scan carries;
+    median_window is the odd length of the range median filter (1 = off); min_quality drops
+    points below this quality (they become NaN); laser_power_mw is the peak optical power.
+    """
+
+    scan_rate_hz: float | None = None
+    exposure_us: int | None = None
+    roi_first: int | None = None
+    roi_count: int | None = None
+    median_window: int | None = None
+    min_quality: int | None = None
+    laser_power_mw: float | None = None
+
+    _S: ClassVar = struct.Struct("<HfIHHBBf")
+    FIELDS: ClassVar = ("scan_rate_hz", "exposure_us", "roi_first", "roi_count", "median_window", "min_quality", "laser_power_mw")
+
+    def encode(self) -> bytes:
+        mask = 0
+        values = []
+        for bit, name in enumerate(self.FIELDS):
+            v = getattr(self, name)
+            mask |= (v is not None) << bit
+            values.append(0 if v is None else v)
+        return self._S.pack(mask, *values)
+
+    @classmethod
+    def decode(cls, payload: bytes, offset: int = 0) -> ScanSettings:
+        _need(payload, offset + cls._S.size, "settings")
+        mask, *values = cls._S.unpack_from(payload, offset)
+        if mask >> len(cls.FIELDS):
+            raise MessageError("value", f"settings mask 0x{mask:04x} has unknown bits")
+        kw = {name: v for bit, (name, v) in enumerate(zip(cls.FIELDS, values)) if mask >> bit & 1}
+        for name in ("scan_rate_hz", "laser_power_mw"):
+            if name in kw:
+                _finite(kw[name], name)
+        return cls(**kw)
+
+    def merged(self, update: ScanSettings) -> ScanSettings:
+        """These settings with every non-None field of ``update`` applied."""
+        return ScanSettings(**{n: getattr(self, n) if getattr(update, n) is None else getattr(update, n) for n in self.FIELDS})
+
+    def as_dict(self) -> dict:
+        return {n: getattr(self, n) for n in self.FIELDS if getattr(self, n) is not None}
+
+
+SETTINGS_SIZE = ScanSettings._S.size
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Info:
+    """Device -> host: who the device is and the geometry every scan refers to.
+
+    ``angles`` (float32, rad, counter-clockwise from +x, REP 103) gives the bearing of every
+    column a scan can carry; a scan's points are ``angles[first_index : first_index + n]``.
+    """
+
+    TYPE = MsgType.INFO
+    _S = struct.Struct("<BBfffH")
+    protocol_major: int
+    protocol_minor: int
+    software_version: str
+    serial_number: str
+    scan_rate_hz: float
+    range_min_m: float
+    range_max_m: float
+    angles: np.ndarray
+    settings: ScanSettings
+    laser_limit_mw: float  # the Class 1 limit the device enforces on laser_power_mw
+
+    def encode(self) -> bytes:
+        angles = np.ascontiguousarray(self.angles, dtype="<f4")
+        head = self._S.pack(self.protocol_major, self.protocol_minor, self.scan_rate_hz,
+                            self.range_min_m, self.range_max_m, angles.size)
+        return (head + _pack_str(self.software_version, "software_version")
+                + _pack_str(self.serial_number, "serial_number") + angles.tobytes()
+                + self.settings.encode() + struct.pack("<f", self.laser_limit_mw))
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Info:
+        _need(payload, cls._S.size, "INFO")
+        major, minor, rate, rmin, rmax, n = cls._S.unpack_from(payload)
+        sw, off = _unpack_str(payload, cls._S.size, "software_version")
+        serial, off = _unpack_str(payload, off, "serial_number")
+        _need(payload, off + 4 * n + SETTINGS_SIZE + 4, "INFO angles and settings")
+        angles = np.frombuffer(payload, dtype="<f4", count=n, offset=off).astype(np.float32)
+        off += 4 * n
+        settings = ScanSettings.decode(payload, off)
+        (limit,) = struct.unpack_from("<f", payload, off + SETTINGS_SIZE)
+        for name, v in (("scan_rate_hz", rate), ("range_min_m", rmin), ("range_max_m", rmax)):
+            _finite(v, name)
+        if not np.isfinite(angles).all():
+            raise MessageError("value", "INFO angles contain NaN or inf")
+        if not 0 <= rmin < rmax:
+            raise MessageError("value", f"range limits [{rmin}, {rmax}] m are not increasing")
+        if not rate > 0:
+            raise MessageError("value", f"scan_rate_hz {rate} is not positive")
+        return cls(major, minor, sw, serial, rate, rmin, rmax, angles, settings, limit)
+
+
+@dataclass(frozen=True, slots=True)
+class GetHealth:
+    TYPE = MsgType.GET_HEALTH
+
+    def encode(self) -> bytes:
+        return b""
+
+    @classmethod
+    def decode(cls, payload: bytes) -> GetHealth:
+        return cls()
+
+
+@dataclass(frozen=True, slots=True)
+class Health:
+    """Device -> host. Counters are totals since the device process started (u32, wrap)."""
+
+    TYPE = MsgType.HEALTH
+    _S = struct.Struct("<BBBxIIIQH")
+    state: DeviceState
+    laser_on: bool
+    sync_locked: bool
+    frames_dropped: int  # camera frames the pipeline lost
+    scans_dropped: int  # whole scans dropped because the link queue was full
+    scans_sent: int
+    device_time_us: int  # the device clock when the health was sampled
+    errors: tuple[int, ...] = ()  # ErrorCode values active now
+
+    def encode(self) -> bytes:
+        return self._S.pack(int(self.state), self.laser_on, self.sync_locked, self.frames_dropped & 0xFFFFFFFF,
+                            self.scans_dropped & 0xFFFFFFFF, self.scans_sent & 0xFFFFFFFF,
+                            self.device_time_us, len(self.errors)) + struct.pack(f"<{len(self.errors)}H", *self.errors)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Health:
+        _need(payload, cls._S.size, "HEALTH")
+        state, laser, sync, fd, sd, ss, t, n = cls._S.unpack_from(payload)
+        _need(payload, cls._S.size + 2 * n, "HEALTH errors")
+        try:
+            state = DeviceState(state)
+        except ValueError:
+            raise MessageError("value", f"unknown device state {state}") from None
+        errors = struct.unpack_from(f"<{n}H", payload, cls._S.size)
+        return cls(state, bool(laser), bool(sync), fd, sd, ss, t, tuple(errors))
+
+
+@dataclass(frozen=True, slots=True)
+class Start:
+    TYPE = MsgType.START
+
+    def encode(self) -> bytes:
+        return b""
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Start:
+        return cls()
+
+
+@dataclass(frozen=True, slots=True)
+class Stop:
+    TYPE = MsgType.STOP
+
+    def encode(self) -> bytes:
+        return b""
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Stop:
+        return cls()
+
+
+@dataclass(frozen=True, slots=True)
+class SetConfig:
+    TYPE = MsgType.SET_CONFIG
+    settings: ScanSettings
+
+    def encode(self) -> bytes:
+        return self.settings.encode()
+
+    @classmethod
+    def decode(cls, payload: bytes) -> SetConfig:
+        return cls(ScanSettings.decode(payload))
+
+
+@dataclass(frozen=True, slots=True)
+class Ack:
+    """Device -> host: the request (type, frame sequence number) was carried out."""
+
+    TYPE = MsgType.ACK
+    _S = struct.Struct("<BH")
+    request_type: int
+    request_seq: int
+
+    def encode(self) -> bytes:
+        return self._S.pack(self.request_type, self.request_seq)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Ack:
+        _need(payload, cls._S.size, "ACK")
+        return cls(*cls._S.unpack_from(payload))
+
+
+@dataclass(frozen=True, slots=True)
+class Nack:
+    """Device -> host: the request was refused; nothing of it was applied."""
+
+    TYPE = MsgType.NACK
+    _S = struct.Struct("<BHB")
+    request_type: int
+    request_seq: int
+    code: NackCode
+    reason: str
+
+    def encode(self) -> bytes:
+        return self._S.pack(self.request_type, self.request_seq, int(self.code)) + _pack_str(self.reason[:255], "reason")
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Nack:
+        _need(payload, cls._S.size, "NACK")
+        rtype, rseq, code = cls._S.unpack_from(payload)
+        reason, _ = _unpack_str(payload, cls._S.size, "reason")
+        try:
+            code = NackCode(code)
+        except ValueError:
+            raise MessageError("value", f"unknown NACK code {code}") from None
+        return cls(rtype, rseq, code, reason)
+
+
+@dataclass(frozen=True, slots=True)
+class Log:
+    """Device -> host: an event for the host's log. ``level`` uses the logging module's numbers."""
+
+    TYPE = MsgType.LOG
+    _S = struct.Struct("<BQ")
+    level: int
+    device_time_us: int
+    text: str
+
+    def encode(self) -> bytes:
+        return self._S.pack(self.level, self.device_time_us) + _pack_str(self.text.encode()[:255].decode(errors="ignore"), "text")
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Log:
+        _need(payload, cls._S.size, "LOG")
+        level, t = cls._S.unpack_from(payload)
+        text, _ = _unpack_str(payload, cls._S.size, "text")
+        return cls(level, t, text)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ScanMessage:
+    """Device -> host: one scan, 20-byte header then ``n`` u16 range codes then ``n`` u8 qualities.
+
+    device_time_us: device clock (µs, monotonic) when the first ray was exposed.
+    ray_interval_ns: time from one ray (column) to the next.
+    age_us: time from the first ray to the moment the device started sending this frame; the host
+    uses it with the frame's arrival time to stamp the scan (host_sdk/scan.py).
+    ranges_m (float32, REP 117) and quality (uint8) are per point, for columns
+    ``first_index .. first_index + n - 1`` of Info.angles.
+    """
+
+    TYPE = MsgType.SCAN
+    scan_seq: int
+    device_time_us: int
+    ray_interval_ns: int
+    age_us: int
+    first_index: int
+    ranges_m: np.ndarray
+    quality: np.ndarray
+
+    def encode(self) -> bytes:
+        quality = np.asarray(self.quality)
+        codes = encode_ranges(self.ranges_m)
+        if quality.shape != codes.shape or quality.dtype != np.uint8:
+            raise ValueError(f"quality must be uint8 of shape {codes.shape}, got {quality.dtype} {quality.shape}")
+        head = _SCAN_HEAD.pack(self.scan_seq & 0xFFFFFFFF, self.device_time_us, self.ray_interval_ns,
+                               min(self.age_us, 0xFFFFFFFF), self.first_index, codes.size)
+        return head + codes.tobytes() + quality.tobytes()
+
+    @classmethod
+    def decode(cls, payload: bytes) -> ScanMessage:
+        _need(payload, _SCAN_HEAD.size, "SCAN header")
+        seq, t, dt, age, first, n = _SCAN_HEAD.unpack_from(payload)
+        _need(payload, _SCAN_HEAD.size + 3 * n, f"SCAN of {n} points")
+        codes = np.frombuffer(payload, dtype="<u2", count=n, offset=_SCAN_HEAD.size)
+        quality = np.frombuffer(payload, dtype=np.uint8, count=n, offset=_SCAN_HEAD.size + 2 * n)
+        return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy())
+
+
+_SCAN_HEAD = struct.Struct("<IQIIHH")  # scan_seq, device_time_us, ray_interval_ns, age_us, first_index, n
+SCAN_HEADER_SIZE = _SCAN_HEAD.size  # 24
+BYTES_PER_POINT = 3
+
+MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
+    GetInfo, Info, GetHealth, Health, Start, Stop, SetConfig, Ack, Nack, ScanMessage, Log)}
+
+
+def decode_message(msg_type: int, payload: bytes):
+    """Decode the payload of a frame of ``msg_type``; MessageError if unknown or malformed."""
+    cls = MESSAGES.get(msg_type)
+    if cls is None:
+        raise MessageError("type", f"unknown message type 0x{msg_type:02x}")
+    try:
+        return cls.decode(payload)
+    except struct.error as exc:  # defensive: every decode checks sizes first
+        raise MessageError("short", f"{cls.__name__}: {exc}") from None
+
+
+# --- wire budget ------------------------------------------------------------------------------
+#: A UART at 8N1 sends 10 bits per byte (start, 8 data, stop).
+UART_BITS_PER_BYTE = 10
+
+
+def scan_wire_bytes(n_points: int) -> int:
+    """Bytes on the wire for one scan frame of n_points: payload, frame header and CRC, COBS
+    overhead (at most one byte per 254) and the delimiter."""
+    body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + OVERHEAD
+    return body + body // 254 + 1 + 1

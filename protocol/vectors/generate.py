@@ -1,0 +1,59 @@
+"""Write the golden vectors: one file per message, the complete wire bytes of one frame.
+
+    python -m protocol.vectors.generate        # rewrites protocol/vectors/*.bin
+
+Run it only on purpose (a deliberate, versioned change of the wire format): the tests check
+that today's encoder reproduces these bytes and today's decoder reads them back to VECTORS.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from protocol import messages as m
+from protocol.framing import encode_frame
+
+HERE = Path(__file__).parent
+
+_SETTINGS = m.ScanSettings(scan_rate_hz=10.0, exposure_us=800, roi_first=0, roi_count=8,
+                           median_window=3, min_quality=10, laser_power_mw=4.0)
+
+#: name -> (frame sequence number, message). Values are exact in float32 on purpose.
+VECTORS: dict[str, tuple[int, object]] = {
+    "get_info": (1, m.GetInfo(1, 0)),
+    "info": (2, m.Info(1, 0, "0.1.0", "LP-000042", 10.0, 0.125, 3.0,
+                       np.linspace(0.5, -0.5, 8, dtype=np.float32), _SETTINGS, 5.5)),
+    "get_health": (3, m.GetHealth()),
+    "health": (4, m.Health(m.DeviceState.SCANNING, True, False, 7, 2, 1000, 123456789,
+                           (m.ErrorCode.SYNC_LOST,))),
+    "start": (5, m.Start()),
+    "stop": (6, m.Stop()),
+    "set_config": (7, m.SetConfig(m.ScanSettings(scan_rate_hz=5.0, laser_power_mw=2.5))),
+    "ack": (8, m.Ack(m.MsgType.START, 5)),
+    "nack": (9, m.Nack(m.MsgType.SET_CONFIG, 7, m.NackCode.EYE_SAFETY,
+                       "laser_power_mw 9 exceeds the Class 1 limit 5.5")),
+    "log": (10, m.Log(30, 987654321, "sync lost")),
+    # every kind of range: zero, finite, the largest finite code, NaN, +inf, -inf
+    "scan": (65535, m.ScanMessage(4000000000, 2**40 + 5, 12500, 61000, 2,
+                                  np.array([0.0, 0.5, 1.25, m.RANGE_MAX_ENCODABLE_M, math.nan,
+                                            math.inf, -math.inf, 2.00025], dtype=np.float64),
+                                  np.array([0, 1, 128, 255, 0, 0, 0, 77], dtype=np.uint8))),
+}
+
+
+def wire(name: str) -> bytes:
+    seq, msg = VECTORS[name]
+    return encode_frame(msg.TYPE, seq, msg.encode())
+
+
+def main() -> None:
+    for name in VECTORS:
+        (HERE / f"{name}.bin").write_bytes(wire(name))
+        print(f"wrote {name}.bin")
+
+
+if __name__ == "__main__":
+    main()

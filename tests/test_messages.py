@@ -1,0 +1,125 @@
+"""Message codecs: golden vectors (both directions), REP 117 codes, refusal of bad payloads."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol import messages as m
+from protocol.framing import decode_frame, encode_frame
+from protocol.vectors.generate import VECTORS, wire
+
+VECTOR_DIR = Path(m.__file__).parent / "vectors"
+
+
+def _fields(msg):
+    """Comparable view of a message: arrays as lists with NaN made comparable."""
+    out = {}
+    for name in msg.__dataclass_fields__:
+        v = getattr(msg, name)
+        if isinstance(v, np.ndarray):
+            v = [("nan" if math.isnan(x) else x) for x in v.astype(np.float64).tolist()]
+        out[name] = v
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(VECTORS))
+def test_encoder_reproduces_golden_vector(name):
+    assert wire(name) == (VECTOR_DIR / f"{name}.bin").read_bytes()
+
+
+@pytest.mark.parametrize("name", sorted(VECTORS))
+def test_decoder_reads_golden_vector(name):
+    data = (VECTOR_DIR / f"{name}.bin").read_bytes()
+    assert data.endswith(b"\x00") and data.count(0) == 1
+    frame = decode_frame(data[:-1])
+    seq, expected = VECTORS[name]
+    assert (frame.msg_type, frame.seq) == (expected.TYPE, seq)
+    got = m.decode_message(frame.msg_type, frame.payload)
+    if name == "scan":
+        # the decoder returns what the quantiser made of the ranges
+        assert got.ranges_m.dtype == np.float32
+        exp = expected.ranges_m
+        assert np.array_equal(np.isnan(got.ranges_m), np.isnan(exp))
+        fin = np.isfinite(exp)
+        assert np.array_equal(got.ranges_m[~fin & ~np.isnan(exp)], exp[~fin & ~np.isnan(exp)])
+        assert np.abs(got.ranges_m[fin] - exp[fin]).max() <= m.RANGE_UNIT_M / 2 + 1e-6 * exp[fin].max()
+        assert np.array_equal(got.quality, expected.quality)
+        for f in ("scan_seq", "device_time_us", "ray_interval_ns", "age_us", "first_index"):
+            assert getattr(got, f) == getattr(expected, f)
+    else:
+        assert _fields(got) == _fields(expected)
+
+
+def test_scan_vector_byte_layout_by_hand():
+    """SPEC.md's table, checked byte by byte: 24-byte header, u16 codes, then u8 qualities."""
+    payload = decode_frame((VECTOR_DIR / "scan.bin").read_bytes()[:-1]).payload
+    assert len(payload) == m.SCAN_HEADER_SIZE + 3 * 8
+    assert payload[:4] == (4000000000).to_bytes(4, "little")
+    assert payload[4:12] == (2**40 + 5).to_bytes(8, "little")
+    assert payload[20:22] == (2).to_bytes(2, "little") and payload[22:24] == (8).to_bytes(2, "little")
+    codes = [int.from_bytes(payload[24 + 2 * i: 26 + 2 * i], "little") for i in range(8)]
+    assert codes == [0, 2000, 5000, 0xFFFC, 0xFFFF, 0xFFFE, 0xFFFD, 8001]
+    assert list(payload[40:]) == [0, 1, 128, 255, 0, 0, 0, 77]
+
+
+def test_range_codes_roundtrip_and_reserved():
+    r = np.array([0.0, 0.1234, 3.0, 16.383, np.nan, np.inf, -np.inf])
+    back = m.decode_ranges(m.encode_ranges(r))
+    assert np.isnan(back[4]) and back[5] == np.inf and back[6] == -np.inf
+    assert np.allclose(back[:4], r[:4], atol=m.RANGE_UNIT_M / 2 + 1e-6)
+
+
+@pytest.mark.parametrize("bad", [-0.001, 16.4, 100.0])
+def test_unencodable_range_is_refused_not_clipped(bad):
+    with pytest.raises(ValueError, match="outside"):
+        m.encode_ranges(np.array([1.0, bad]))
+
+
+def test_scan_quality_must_match_ranges():
+    with pytest.raises(ValueError, match="quality"):
+        m.ScanMessage(0, 0, 0, 0, 0, np.ones(4), np.ones(3, np.uint8)).encode()
+
+
+@pytest.mark.parametrize("msg_type, payload, reason", [
+    (m.MsgType.SCAN, bytes(10), "short"),
+    (m.MsgType.SCAN, bytes(20) + (5).to_bytes(2, "little") + (100).to_bytes(2, "little") + bytes(30), "short"),
+    (m.MsgType.INFO, bytes(3), "short"),
+    (m.MsgType.HEALTH, bytes([9]) + bytes(25), "value"),
+    (m.MsgType.NACK, bytes([7, 0, 0, 99, 0]), "value"),
+    (m.MsgType.SET_CONFIG, (0xFFFF).to_bytes(2, "little") + bytes(18), "value"),
+    (m.MsgType.LOG, bytes(9) + b"\x02\xff\xfe", "utf8"),
+    (0x3E, b"", "type"),
+])
+def test_malformed_payload_names_the_problem(msg_type, payload, reason):
+    with pytest.raises(m.MessageError) as exc:
+        m.decode_message(msg_type, payload)
+    assert exc.value.reason == reason
+
+
+def test_info_with_nan_angle_is_refused():
+    _, info = VECTORS["info"]
+    angles = info.angles.copy()
+    angles[3] = np.nan
+    bad = m.Info(1, 0, "x", "y", 10.0, 0.1, 3.0, angles, info.settings, 5.0)
+    with pytest.raises(m.MessageError, match="angles"):
+        m.Info.decode(bad.encode())
+
+
+def test_trailing_bytes_from_a_newer_minor_revision_are_ignored():
+    _, health = VECTORS["health"]
+    assert m.Health.decode(health.encode() + b"future") == health
+
+
+def test_settings_merge_keeps_unset_fields():
+    base = VECTORS["info"][1].settings
+    new = base.merged(m.ScanSettings(laser_power_mw=1.0))
+    assert new.laser_power_mw == 1.0 and new.scan_rate_hz == base.scan_rate_hz
+    assert m.SetConfig.decode(m.SetConfig(m.ScanSettings(exposure_us=5)).encode()).settings.as_dict() == {"exposure_us": 5}
+
+
+def test_frame_of_full_scan_fits_max_payload():
+    n = 1664
+    msg = m.ScanMessage(1, 0, 0, 0, 0, np.full(n, 2.0), np.zeros(n, np.uint8))
+    assert len(encode_frame(msg.TYPE, 0, msg.encode())) < 8192 + 64
