@@ -4,7 +4,8 @@ The thesis picked the laser pixels by hand and nudged them for 15 iterations unt
 fitted (Table 4.7; section 7.2.2 asks for automation). Here, per board:
 
 1. the line is extracted from the lit and unlit frames, masked to the board's quadrilateral
-   (projected with the calibrated camera and that view's pose), one sub-pixel peak per column;
+   (projected with the calibrated camera and that view's pose), one sub-pixel peak per column
+   (:func:`device.vision.peaks.column_peaks`, 3-point Gaussian estimator);
    the difference is divided by the unlit frame, which cancels the board's reflectance so a
    black/white edge inside the line profile cannot shift the peak;
 2. each peak's ray (backward projection, :func:`undistort_robust`) is intersected with that
@@ -28,6 +29,7 @@ import numpy as np
 
 from ..model.camera import CameraModel, project_points, undistort_robust
 from ..model.triangulation import LaserPlane
+from ..vision.peaks import column_peaks
 from .intrinsics import CalibrationError
 
 log = logging.getLogger(__name__)
@@ -84,25 +86,12 @@ def board_mask(cam: CameraModel, rotation: np.ndarray, translation: np.ndarray, 
     return mask.astype(bool)
 
 
-def _column_peaks(signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per column, the sub-pixel row of the strongest peak of ``signal`` inside ``mask`` (NaN if
-    the column has none): argmax, then the 3-point Gaussian (log-parabola) estimator.
-
-    TEMPORARY stand-in until device/vision/peaks.py (pipeline issue) lands; then this body becomes
-    one call to its column peak finder.
-    """
-    s = np.where(mask, signal, -np.inf)
-    h, w = s.shape
-    row = np.argmax(s, axis=0)
-    cols = np.arange(w)
-    r = np.clip(row, 1, h - 2)
-    a, b, c = s[r - 1, cols], s[r, cols], s[r + 1, cols]
-    ok = (row > 0) & (row < h - 1) & np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (a > 0) & (b > 0) & (c > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        la, lb, lc = np.log(np.where(ok, a, 1)), np.log(np.where(ok, b, 1)), np.log(np.where(ok, c, 1))
-        den = la - 2 * lb + lc
-        off = np.where(ok & (den < 0), 0.5 * (la - lc) / den, np.nan)
-    return np.where(np.abs(off) <= 1.0, r + off, np.nan)
+def _mask_rows(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the [first, last + 1) rows of a convex mask (an empty interval where none)."""
+    any_ = mask.any(axis=0)
+    lo = np.where(any_, np.argmax(mask, axis=0), 0)
+    hi = np.where(any_, mask.shape[0] - np.argmax(mask[::-1], axis=0), 0)
+    return lo, hi
 
 
 def _continuous(rows: np.ndarray, max_jump_px: float = 1.5, min_run: int = MIN_RUN_PX) -> np.ndarray:
@@ -139,10 +128,12 @@ def extract_line(lit: np.ndarray, unlit: np.ndarray, mask: np.ndarray) -> np.nda
     snr = diff / np.sqrt(base)
     vals = snr[inner]
     noise = 1.4826 * np.median(np.abs(vals - np.median(vals))) + 1e-9
-    rows = _column_peaks(diff / base, inner)
+    lo, hi = _mask_rows(inner)
+    peaks = column_peaks(diff / base, estimator="gaussian", row_lo=lo, row_hi=hi, min_peak=0.0)
+    rows = peaks.row
     cols = np.arange(lit.shape[1])
-    r = np.clip(np.round(np.nan_to_num(rows)).astype(int), 0, lit.shape[0] - 1)
-    rows = np.where(snr[r, cols] > PEAK_SNR * noise, rows, np.nan)
+    k = np.clip(peaks.argmax, 0, lit.shape[0] - 1)
+    rows = np.where((peaks.argmax >= 0) & (snr[k, cols] > PEAK_SNR * noise), rows, np.nan)
     rows = np.where(_continuous(rows), rows, np.nan)
     cols = np.flatnonzero(np.isfinite(rows))
     return np.stack([cols.astype(np.float64), rows[cols]], axis=-1)
