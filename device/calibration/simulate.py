@@ -82,3 +82,28 @@ def compare(truth: SensorConfig, estimate: SensorConfig) -> dict[str, float]:
         "range_err_pct_at_2m": wall["max_pct"],
         "range_err_rms_pct_at_2m": wall["rms_pct"],
     }
+
+
+def simulated_wall_sweep(
+    truth: SensorConfig, estimate: SensorConfig, distances_m: np.ndarray, seed: int, row_noise_px: float = 0.1, samples: int = 400
+):
+    """A wall sweep as the post-calibration of section 6.3 records it: for each distance, a wall
+    perpendicular to the true scan direction; its laser points are imaged by the true camera,
+    the line rows get ``row_noise_px`` Gaussian noise, and the estimated configuration
+    triangulates them. Returns (x_m, z_measured_m, z_true_m, wall index) of the valid points."""
+    rng = np.random.default_rng(seed)
+    fr = scan_frame(truth.plane)
+    out = []
+    for w, dist in enumerate(distances_m):
+        y = np.linspace(-4 * dist, 4 * dist, samples)
+        cam_pts = np.stack([np.full_like(y, dist), y, np.zeros_like(y)], axis=-1) @ fr.rotation + fr.origin
+        px = project_points(cam_pts, truth.camera)
+        inside = np.all(np.isfinite(px), axis=1) & (px[:, 0] >= 0) & (px[:, 0] <= truth.width - 1) & (px[:, 1] >= 0) & (px[:, 1] <= truth.height - 1)
+        px, cam_pts = px[inside], cam_pts[inside]
+        px = px + np.stack([np.zeros(len(px)), rng.normal(0.0, row_noise_px, len(px))], axis=-1)
+        un = undistort_robust(px, estimate.camera)
+        tri = intersect_plane(un.xy, estimate.plane)
+        ok = un.valid & (tri.status == RangeStatus.OK)
+        out.append(np.stack([tri.points[ok, 0], tri.points[ok, 2], cam_pts[ok, 2], np.full(ok.sum(), w)], axis=-1))
+    data = np.concatenate(out) if out else np.empty((0, 4))
+    return data[:, 0], data[:, 1], data[:, 2], data[:, 3].astype(int)

@@ -82,6 +82,7 @@ def _finish(result, out: str | None, report: str | None, as_json: bool, extra: d
     if extra:
         summary.update(extra)
     if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
         save_config(result.config, out)
         folder = report or str(Path(out).with_suffix("")) + "_report"
         write_report(result, folder, extra)
