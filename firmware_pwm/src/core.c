@@ -23,8 +23,6 @@ uint32_t interlock_min_gap(uint32_t width)
     return gap > 0xFFFFFFFFULL ? 0xFFFFFFFFUL : (uint32_t)gap;
 }
 
-static uint8_t lit(const core_t *c, uint32_t index) { return (c->mask >> (index % c->n)) & 1u; }
-
 uint8_t pattern_min_spacing(uint32_t mask, uint8_t n)
 {
     uint8_t best = 0;
@@ -156,6 +154,7 @@ uint64_t core_rise_done(core_t *c, uint64_t t)
     c->pin_high = 1;
     c->cur_rise = t;
     c->cur_index = c->next_index;
+    c->cur_pos = c->next_pos;
     c->last_rise = t;
     return t + c->width;
 }
@@ -175,12 +174,14 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
         c->trim_phase = 0;
         c->trim_period = 0;
     }
-    uint32_t index = c->cur_index + 1;
-    uint64_t rise = (uint64_t)((int64_t)(c->cur_rise + c->period) + phase);
-    while (!lit(c, index)) {
+    uint32_t index = c->cur_index;
+    uint8_t pos = c->cur_pos;
+    uint64_t rise = (uint64_t)((int64_t)c->cur_rise + phase);
+    do { /* the next lit slot; terminates because the accepted mask has a lit bit below n */
         index++;
+        pos = (uint8_t)(pos + 1 == c->n ? 0 : pos + 1);
         rise += c->period;
-    }
+    } while (!((c->mask >> pos) & 1u));
     uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
     if (rise <= t || rise - t < need) { /* run-time duty interlock on the actual edges */
         core_fault(c, FAULT_DUTY, t);
@@ -188,6 +189,7 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
     }
     c->next_rise = rise;
     c->next_index = index;
+    c->next_pos = pos;
     *next = rise;
     return 1;
 }
@@ -238,9 +240,9 @@ static void do_schedule(core_t *c, const frame_t *f)
         return;
     }
     uint64_t now = hw_now();
-    uint32_t index = 0;
+    uint8_t index = 0; /* first lit slot: below n <= 32 */
     uint64_t rise = first;
-    while (!((mask >> (index % n)) & 1u)) {
+    while (!((mask >> index) & 1u)) {
         index++;
         rise += period;
     }
@@ -264,6 +266,7 @@ static void do_schedule(core_t *c, const frame_t *f)
         c->min_gap = min_gap;
         c->next_rise = rise;
         c->next_index = index;
+        c->next_pos = index;
         c->trim_pending = 0;
         c->trim_phase = 0;
         c->trim_period = 0;

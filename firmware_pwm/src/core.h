@@ -30,6 +30,7 @@ typedef struct {
     uint32_t min_gap;        /* smallest off time the duty envelope allows before/after `width` */
     uint64_t next_rise;      /* next lit pulse (armed or about to be) */
     uint32_t next_index;
+    uint8_t next_pos, cur_pos; /* index mod n, kept incrementally (no division in interrupts) */
     uint8_t pin_high;        /* a pulse is in flight (rise done, fall pending) */
     uint64_t cur_rise;
     uint32_t cur_index;
