@@ -166,7 +166,8 @@ ISR(TIMER1_COMPB_vect)
  * the UART receive and Timer1 overflow interrupts allowed to nest (the compare interrupts are
  * masked; the overflow interrupt only counts while `in_scheduler` is set), so that a received
  * byte never waits for it (a 250 kbaud byte lasts 640 cycles and the USART holds two).  TOIE1
- * stays enabled: simavr 1.6 loses a flag raised while its interrupt is masked.  The next rise
+ * stays enabled: in simavr 1.6 a flag raised while its interrupt is masked never triggers it
+ * once unmasked, which would lose an overflow.  The next rise
  * is armed with interrupts disabled again. */
 static void after_fall(uint64_t t, uint8_t flags)
 {
