@@ -82,15 +82,18 @@ def test_mcu_pulses_land_on_scheduled_ticks_with_drift():
     assert mcu.pulses.rise_s[0] == pytest.approx(0.05 / 1.0001, abs=1e-12)
 
 
-def test_mcu_trim_applies_at_the_next_slot_boundary():
+def test_mcu_trims_add_up_and_apply_when_the_next_lit_pulse_falls():
+    # as firmware_pwm/src/core.c: the pulse after the one in progress (or next) moves
     mcu = _mcu(gpio_connected=False)
-    mcu.schedule(100_000, 100_000, 20_000, [True])
-    mcu.advance_to(0.06)  # slot 0 at 50 ms done
-    mcu.now_s = 0.06
+    mcu.schedule(100_000, 100_000, 20_000, [True, False])
+    mcu.advance_to(0.065)  # pulse 0 (slot 0, 50-60 ms) done
+    mcu.now_s = 0.065
     mcu.trim(7, 100_010)
-    mcu.advance_to(0.5)
+    mcu.trim(3, 100_010)  # reaches the MCU before the same fall: the phases add
+    mcu.advance_to(0.6)
     rise = mcu.pulses.rise_tick
-    assert rise[1] == 200_007 and rise[2] == 300_017
+    assert rise[1] == 300_000  # slot 2: lit pulse on the old timing; the trims apply at its fall
+    assert rise[2] == 300_000 + 10 + 2 * 100_010 and rise[3] == rise[2] + 2 * 100_010
 
 
 def test_mcu_refuses_out_of_envelope_and_past_requests():
