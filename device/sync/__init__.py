@@ -5,7 +5,7 @@ Wiring in the device process (one ``SyncController`` per sensor; all times CLOCK
     sched = CoMcuScheduler(CoMcu(serial_port))           # LaserScheduler on the firmware's protocol
     ctrl = SyncController(SyncConfig(row_min, row_max, frame_duration_s), sched)
     gpio = GpioEdgeSource("/dev/gpiochip0", LINE)        # the laser trigger, wired to a Pi GPIO
-    every ~50 ms (also the heartbeat): ctrl.on_ping(*sched.ping_sample())
+    every ~50 ms (beside CoMcu.heartbeat()): ctrl.on_ping(*sched.ping_sample())
     every frame, before on_frame:   ctrl.on_mcu_edges(sched.edge_reports())
     on each frame (after reading):  ctrl.on_gpio_edges(gpio.read())
                                     label = ctrl.on_frame(FrameInfo(seq, SensorTimestamp, exposure_s,
