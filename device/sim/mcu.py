@@ -60,8 +60,8 @@ class McuConfig:
     gpio_jitter_s: float = 20e-6
     gpio_outlier_prob: float = 0.005
     gpio_spurious_hz: float = 0.0
-    max_width_ticks: int = 40_000  # 20 ms
-    max_duty: float = 0.5
+    max_width_ticks: int = 34_800  # 17.4 ms, firmware_pwm/src/config.h MAX_PULSE_TICKS
+    max_duty: float = 0.2  # the firmware's compiled-in 200 000 ppm
 
 
 @dataclass
