@@ -87,8 +87,8 @@ class CoMcu:
         return self._request(msg, mcu.Ack).info
 
     def trim(self, phase_ticks: int = 0, period_ticks: int = 0) -> int:
-        """Shift the phase and change the period at the next pulse boundary; returns the index of
-        the last pulse that keeps the old timing."""
+        """Move the first slot starting >= 100 us from now by phase_ticks and change the period
+        by period_ticks from there (see protocol.mcu.Trim); returns the index of that slot."""
         return self._request(mcu.Trim(phase_ticks, period_ticks), mcu.Ack).info
 
     def stop(self) -> int:

@@ -72,20 +72,20 @@ def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
     first = ((now + 100 * MS) | 0xFFFF) + 1 - 7_000  # pulse 0 straddles a 16-bit timer overflow
     assert comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True) == 0
     run_with_heartbeats(port, comcu, 0.25)
-    last_old = comcu.trim(phase_ticks=-1_234, period_ticks=57)
+    moved = comcu.trim(phase_ticks=-1_234, period_ticks=57)  # the first slot it moves
     run_with_heartbeats(port, comcu, 0.35)
     comcu.stop()
     port.advance(0.01)
     reports = comcu.edges()
 
-    expected, rise, k = [], first, 0
-    while len(expected) < len(reports):
-        expected.append((k, rise, rise + width))
-        step = 2 * period if k < last_old else 2 * (period + 57)
-        rise += step + (-1_234 if k == last_old else 0)
-        k += 2
-    assert len(reports) >= 8 and last_old >= 2
-    assert [(e.index, e.rise_ticks, e.fall_ticks) for e in reports] == expected
+    def start(k):  # slot k before the trim, then slot `moved` shifted and the new period after it
+        if k < moved:
+            return first + k * period
+        return first + moved * period - 1_234 + (k - moved) * (period + 57)
+
+    assert len(reports) >= 8 and moved >= 3
+    assert [(e.index, e.rise_ticks, e.fall_ticks) for e in reports] == [
+        (k, start(k), start(k) + width) for k in range(0, 2 * len(reports), 2)]
     assert all(e.flags == 0 for e in reports)
     assert (reports[0].rise_ticks >> 16) != (reports[0].fall_ticks >> 16), "overflow straddled"
 
