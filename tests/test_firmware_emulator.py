@@ -228,3 +228,38 @@ def test_shortest_pulses_at_a_high_rate_stay_exact_and_commands_responsive(link)
     reports = comcu.edges()
     assert reports and all(e.flags == 0 and e.fall_ticks - e.rise_ticks == width for e in reports)
     assert comcu.status().late == 0
+
+
+def test_random_trims_follow_the_documented_slot_model_exactly(link):
+    """60 trims at random moments (some re-arm the next rise, some wait for a pulse to end):
+    every pulse lands where the slot model of the README puts it, to the tick."""
+    port, comcu = link
+    rng = random.Random(2)
+    now = comcu.ping().mcu_ticks
+    first, period, width = now + 20 * MS, 66_667, 10_000
+    comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True)
+    moves = {}  # slot -> [phase, period delta], trims on the same slot add up
+    for i in range(60):
+        port.advance(rng.uniform(0.001, 0.012))
+        if i % 3 == 0:
+            comcu.heartbeat()
+        phase, dperiod = rng.randint(-2_000, 6_000), rng.randint(-50, 50)
+        slot = comcu.trim(phase, dperiod)
+        moves.setdefault(slot, [0, 0])
+        moves[slot][0] += phase
+        moves[slot][1] += dperiod
+    port.advance(0.02)
+    comcu.stop()
+    reports = comcu.edges()
+    assert len(reports) >= 6 and len(moves) >= 10
+
+    start, p, starts = first, period, []
+    for k in range(reports[-1].index + 1):
+        phase, dperiod = moves.get(k, (0, 0))
+        starts.append(start + phase)
+        p += dperiod
+        start = starts[-1] + p
+    assert [(e.rise_ticks, e.fall_ticks) for e in reports] == [(starts[e.index], starts[e.index] + width)
+                                                                for e in reports]
+    for (rc, fc), e in zip(pin_pulses(port), reports, strict=True):
+        assert (port.timer_count_at(rc) - 1, port.timer_count_at(fc) - 1) == (e.rise_ticks, e.fall_ticks)

@@ -403,6 +403,7 @@ static void do_trim(core_t *c, const frame_t *f)
         if (same && immediate && (uint64_t)now_rise > hw_now() + ARM_MARGIN_TICKS) {
             c->period = (uint32_t)period;
             c->next_rise = (uint64_t)now_rise;
+            c->slot_floor = slot; /* slots before it keep their (old-period) starts */
             arm_next(c, hw_now()); /* re-arm: replaces the rise armed before */
             info = slot;
             hw_irq_restore(s);
