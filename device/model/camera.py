@@ -342,9 +342,12 @@ def undistort_robust(
     """Backward projection to a stated tolerance, with per-point convergence and residual.
 
     Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
-    fisheye), started at p_d, with step halving whenever a step does not reduce the residual.
-    Points stop iterating once their residual is below ``tol_px``. A solution is valid only if
-    it converged *and* lies inside the radial fold, where the forward model is one-to-one.
+    fisheye), warm-started by three Heikkila steps (or at p_d, pulled inside the fold, where
+    those land outside it), with step halving whenever a step does not reduce the residual.
+    A point stops iterating once its full Newton step, times the focal length, is below
+    ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
+    near a fold it is much larger than the reprojection residual. A solution is valid only if it
+    converged *and* lies inside the radial fold, where the forward model is one-to-one.
     """
     if tol_px <= 0:
         raise ValueError(f"tol_px must be positive, got {tol_px}")
@@ -357,18 +360,27 @@ def undistort_robust(
         return _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations)
     shape = xy_d.shape[:-1]
     xd, yd = xy_d[..., 0].ravel(), xy_d[..., 1].ravel()
-    x, y = xd.copy(), yd.copy()
     fold = d.radial_fold()
-    if np.isfinite(fold):
-        # start inside the one-to-one region so Newton cannot wander onto the folded branch
+    with np.errstate(all="ignore"):
+        # warm start: three Heikkila steps (eq. 3.11) get most points within a Newton step or two
+        x, y = xd.copy(), yd.copy()
+        for _ in range(3):
+            r2 = x * x + y * y
+            dr = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+            x, y = (xd - 2 * d.p1 * x * y - d.p2 * (r2 + 2 * x * x)) / dr, (yd - d.p1 * (r2 + 2 * y * y) - 2 * d.p2 * x * y) / dr
         r0 = np.hypot(x, y)
-        shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
-        x, y = x * shrink, y * shrink
+        cold = ~np.isfinite(r0) | (r0 >= 0.9 * fold)
+        x, y = np.where(cold, xd, x), np.where(cold, yd, y)
+        if np.isfinite(fold):
+            # start inside the one-to-one region so Newton cannot wander onto the folded branch
+            r0 = np.hypot(x, y)
+            shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
+            x, y = x * shrink, y * shrink
     with np.errstate(all="ignore"):
         ex, ey = _residual_xy(x, y, xd, yd, d)
         err = np.hypot(ex, ey)
         lam = np.ones_like(err)  # per-point step length: halved after a step that did not help
-        active = np.nonzero(np.isfinite(err) & (err > tol))[0]
+        active = np.nonzero(np.isfinite(err))[0]
         it = 0
         for it in range(1, max_iterations + 1):
             if active.size == 0:
@@ -377,8 +389,11 @@ def undistort_robust(
             j11, j12, j21, j22 = _brown_jacobian(xa, ya, d)
             det = j11 * j22 - j12 * j21
             exa, eya = ex[active], ey[active]
-            xn = xa - la * (j22 * exa - j12 * eya) / det
-            yn = ya - la * (-j21 * exa + j11 * eya) / det
+            sx = (j22 * exa - j12 * eya) / det  # full Newton step = error estimate
+            sy = (-j21 * exa + j11 * eya) / det
+            small = np.hypot(sx, sy) <= tol
+            la = np.where(small, 1.0, la)
+            xn, yn = xa - la * sx, ya - la * sy
             if np.isfinite(fold):  # never step onto the folded branch: stop halfway to the fold
                 rn, ra = np.hypot(xn, yn), np.hypot(xa, ya)
                 over = rn >= fold
@@ -393,9 +408,10 @@ def undistort_robust(
             ey[active] = np.where(accept, ry, eya)
             err[active] = np.where(accept, en, err[active])
             lam[active] = np.where(accept, np.minimum(1.0, 2.0 * la), 0.5 * la)
-            # keep iterating points that are above tolerance and can still move
-            keep = (err[active] > tol) & (lam[active] > 1e-6) & np.isfinite(err[active])
-            active = active[keep]
+            # a point is done after taking a step below tolerance, or when it can no longer move
+            done = small | ~(lam[active] > 1e-6) | ~np.isfinite(err[active])
+            x[active[small]], y[active[small]] = xn[small], yn[small]
+            active = active[~done]
     xy = np.stack([x, y], axis=-1).reshape(*shape, 2)
     return _result(cam, pixels, xy, _fold_status(xy, d), tol_px, it)
 

@@ -62,12 +62,12 @@ from ..model.scan_frame import scan_frame, to_scan_plane
 from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from ..model.irradiance import band_irradiance_w_m2
 from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
+from .special import erf
 from .sensor import SIMULATOR_DEFAULT, SensorParams, sensor_frame
 from .truth import FrameTruth
 
 PLANCK_J_S = 6.62607015e-34
-#: Element-wise erf (numpy has none; scipy is not a dependency). Used once per renderer.
-_erf = np.frompyfunc(math.erf, 1, 1)
+
 LIGHT_M_S = 299792458.0
 BACKDROP_REFLECTIVITY = 0.2
 
@@ -327,8 +327,7 @@ class SceneRenderer:
         off = np.arange(-half, half + 1)
         r = np.floor(rows)[:, None] + off[None, :]
         s2 = math.sqrt(2) * sigma[:, None]
-        edges = _erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2).astype(np.float64)
-        frac = 0.5 * np.diff(edges, axis=1)
+        frac = 0.5 * (erf((r + 0.5 - rows[:, None]) / s2) - erf((r - 0.5 - rows[:, None]) / s2))
         val = rate[:, None] * frac
         r = r.astype(np.int64)
         c = np.broadcast_to(cols[:, None], r.shape)
