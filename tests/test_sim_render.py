@@ -174,3 +174,26 @@ def test_speckle_is_static_and_has_the_configured_contrast():
 def test_render_options_validate():
     with pytest.raises(ValueError, match="speckle_contrast"):
         RenderOptions(speckle_contrast=1.5)
+
+
+def test_any_image_size_renders_with_consistent_truth():
+    """A 416x232 camera (mode 5 scaled by 1/4): same geometry, smaller frames."""
+    import dataclasses
+
+    from device.model.camera import CameraModel, Intrinsics
+
+    k = CFG.camera.intrinsics
+    small = dataclasses.replace(
+        CFG, width=416, height=232, active_width=410, active_height=230,
+        camera=CameraModel(Intrinsics(k.fx / 4, k.fy / 4, k.cx / 4, k.cy / 4, 0.0, 416, 232), CFG.camera.distortion))
+    r = SceneRenderer(small, wall_scene(1.0), options=QUIET)
+    img, truth = r.render(full_pulse(), np.random.default_rng(0))
+    assert img.shape == (232, 416) and truth.row.shape == (416,) and truth.lit_rows.shape == (232,)
+    cols = np.nonzero(np.isfinite(truth.row))[0]
+    assert 300 < cols.size <= 410 and cols.max() < 410  # nothing outside the active area
+    e, _ = r.expected_electrons(full_pulse())
+    assert not e[:, 410:].any() and not e[230:].any()
+    rows = np.arange(e.shape[0])[:, None]
+    centroid = (e[:, cols] * rows).sum(0) / e[:, cols].sum(0)
+    inner = (truth.row[cols] > 6) & (truth.row[cols] < 223)  # the line's band is not cut by the frame edge
+    assert np.max(np.abs(centroid - truth.row[cols])[inner]) < 0.01
