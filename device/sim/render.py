@@ -34,7 +34,11 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    ambient irradiance give ambient electrons per second per pixel (no hit: a 20 % backdrop).
 7. *Rolling shutter.* Row r is exposed during [T - E + r t_line, T + r t_line] (Frame docstring);
    its laser electrons are the column rate times the overlap of that window with the laser's
-   pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor).
+   pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor). For
+   speed the temporal noise comes from a cached table of standard normals (2 frames long, drawn
+   once per renderer) read from a random offset per frame: a pixel gets another table entry in
+   every frame (unless two offsets coincide), but a frame's spatial pattern is a shifted copy of
+   part of an earlier frame's (``noise_table=False`` draws afresh, several times slower).
 
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse) costs nothing.
