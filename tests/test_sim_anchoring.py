@@ -7,34 +7,16 @@ measured: ~1.8 % range error at 2 m and ~2.4 % at 2.5 m on the 90 % wall indoors
 (Figure 6.7). A simulator easier than reality would fail the first two bands from below.
 """
 
-import numpy as np
 import pytest
 
-from device.config import load_preset
-from device.sim.render import FrameTiming, RenderOptions, SceneRenderer
-from device.sim.scene import wall_scene
-from device.vision.reference import ReferencePipeline
+from device.bench.sim import measure_wall
+from device.sim.render import RenderOptions
 
-CFG = load_preset("thesis-calibrated")
-T, E_US, LINE_NS = 10**9, 40000.0, 18904.0
-CENTRE = int(T + (921 * LINE_NS - E_US * 1e3) / 2)
-LIT = FrameTiming(T, E_US, LINE_NS, ((CENTRE - 8_700_000, CENTRE + 8_700_000),))  # 17.4 ms, all rows open
-DARK = FrameTiming(T, E_US, LINE_NS)
 OPTIONS = RenderOptions(ray_samples=8192, background_step=4)  # photometry unchanged, cheaper setup
 
 
 def measure(reflectivity, distance, ambient="indoor", pairs=2):
-    """(relative range errors of the valid columns of the last pair, number of valid columns)."""
-    r = SceneRenderer(CFG, wall_scene(distance, 0.0, reflectivity, ambient=ambient), options=OPTIONS, seed=7)
-    pipe = ReferencePipeline(CFG)
-    rng = np.random.default_rng(7)
-    for _ in range(pairs):  # the thesis's running blend (step 4) sees consecutive pairs
-        lit, truth = r.render(LIT, rng)
-        unlit, _ = r.render(DARK, rng)
-        m = pipe.process(lit, unlit)
-    true = truth.range_m[m.column]
-    ok = m.valid & np.isfinite(true)
-    return (m.range[ok] - true[ok]) / true[ok], int(ok.sum())
+    return measure_wall(reflectivity, distance, ambient, pairs=pairs, seed=7, options=OPTIONS)
 
 
 @pytest.mark.slow

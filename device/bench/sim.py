@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pairs", type=int, default=20, help="frame pairs per measurement")
     parser.add_argument("--budget", action="store_true",
                         help="print the photometric budget (signal vs noise electrons on 90 %% / 10 %% walls) instead")
+    parser.add_argument("--anchor", action="store_true",
+                        help="print the thesis anchoring table (reference pipeline on simulated walls) instead")
     parser.add_argument("--json", action="store_true")
 
 
@@ -104,7 +106,59 @@ def budget() -> list[dict]:
     return out
 
 
+def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor", pairs: int = 4, seed: int = 0,
+                 options=None):
+    """The thesis's reference pipeline on a simulated wall facing the sensor, thesis timing.
+
+    Returns (relative range errors of the valid columns of the last pair, their count). The
+    running blend (step 4) sees ``pairs`` consecutive lit/unlit pairs.
+    """
+    import numpy as np
+
+    from device.config import load_preset
+    from device.sim.render import RenderOptions, SceneRenderer
+    from device.sim.scene import wall_scene
+    from device.vision.reference import ReferencePipeline
+
+    cfg = load_preset("thesis-calibrated")
+    lit_t, dark_t = _timing()
+    r = SceneRenderer(cfg, wall_scene(distance_m, 0.0, reflectivity, ambient=ambient),
+                      options=options or RenderOptions(), seed=seed)
+    pipe = ReferencePipeline(cfg)
+    rng = np.random.default_rng(seed)
+    for _ in range(pairs):
+        lit, truth = r.render(lit_t, rng)
+        unlit, _ = r.render(dark_t, rng)
+        m = pipe.process(lit, unlit)
+    true = truth.range_m[m.column]
+    ok = m.valid & np.isfinite(true)
+    return (m.range[ok] - true[ok]) / true[ok], int(ok.sum())
+
+
+def anchor() -> list[dict]:
+    cases = [(0.9, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0)] + [(0.1, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0, 3.5)]
+    cases.append((0.9, 1.5, "sunlight"))
+    out = []
+    for rho, d, amb in cases:
+        err, n = measure_wall(rho, d, amb)
+        out.append({"reflectivity": rho, "distance_m": d, "ambient": amb, "columns": n,
+                    "mean_pct": float(100 * err.mean()) if n else None, "std_pct": float(100 * err.std()) if n else None})
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.anchor:
+        rows = anchor()
+        if args.json:
+            print(json.dumps(rows, indent=1))
+            return 0
+        print("reference pipeline (thesis Algorithm 2) on simulated walls, thesis timing, 4 pairs, seed 0")
+        print("wall  ambient   d (m)  columns  mean err  std err")
+        for a in rows:
+            m = "     -" if a["mean_pct"] is None else f"{a['mean_pct']:6.2f} %"
+            sd = "     -" if a["std_pct"] is None else f"{a['std_pct']:6.2f} %"
+            print(f"{a['reflectivity'] * 100:3.0f} %  {a['ambient']:<8} {a['distance_m']:5.1f}  {a['columns']:6d}  {m}  {sd}")
+        return 0
     if args.budget:
         rows = budget()
         if args.json:
