@@ -197,3 +197,23 @@ def test_any_image_size_renders_with_consistent_truth():
     centroid = (e[:, cols] * rows).sum(0) / e[:, cols].sum(0)
     inner = (truth.row[cols] > 6) & (truth.row[cols] < 223)  # the line's band is not cut by the frame edge
     assert np.max(np.abs(centroid - truth.row[cols])[inner]) < 0.01
+
+
+def test_isp_denoise_lowers_noise_and_sharpening_raises_the_line_peak():
+    scene = wall_scene(1.5)
+    base = RenderOptions(speckle=False)
+    plain = SceneRenderer(CFG, scene, options=base, seed=1)
+    denoised = SceneRenderer(CFG, scene, options=RenderOptions(speckle=False, isp_denoise=1.0), seed=1)
+    flat = np.s_[600:700, 200:1400]  # floor-less wall scene: backdrop/wall texture region far from the line
+    a, _ = plain.render(FrameTiming(10**9, 40000.0, LINE_NS), np.random.default_rng(0))
+    b, _ = denoised.render(FrameTiming(10**9, 40000.0, LINE_NS), np.random.default_rng(0))
+    assert np.diff(b[flat].astype(float), axis=1).std() < 0.8 * np.diff(a[flat].astype(float), axis=1).std()
+    far = wall_scene(3.0, ambient="dark")  # an unsaturated line
+    quiet = SceneRenderer(CFG, far, options=RenderOptions(speckle=False, noise=False), seed=1)
+    sharp = SceneRenderer(CFG, far, options=RenderOptions(speckle=False, noise=False, isp_sharpen=1.0), seed=1)
+    q, truth = quiet.render(full_pulse(), np.random.default_rng(0))
+    s, _ = sharp.render(full_pulse(), np.random.default_rng(0))
+    c = 820
+    assert 20 < q[:, c].max() < 200 and s[:, c].max() > 1.2 * q[:, c].max()
+    with pytest.raises(ValueError, match="isp_denoise"):
+        RenderOptions(isp_denoise=2.0)

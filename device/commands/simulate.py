@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jitter-us", type=float, default=0.0, help="mean SensorTimestamp latency (default 0)")
     parser.add_argument("--drop", type=float, default=0.0, help="probability that a frame is dropped (default 0)")
     parser.add_argument("--analog-gain", type=_positive, default=None, help="sensor analog gain (default: simulator's)")
+    parser.add_argument("--isp-denoise", type=float, default=0.0, help="ISP denoise strength 0..1 (default off)")
+    parser.add_argument("--isp-sharpen", type=float, default=0.0, help="ISP sharpening amount 0..2 (default off)")
     parser.add_argument("--off", action="append", default=[], choices=EFFECTS, help="switch an effect off (repeatable)")
 
 
@@ -68,7 +70,11 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, SceneError, ValueError) as exc:
         print(f"error: {exc}")
         return 2
-    options = RenderOptions().without(*args.off)
+    try:
+        options = RenderOptions(isp_denoise=args.isp_denoise, isp_sharpen=args.isp_sharpen).without(*args.off)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 2
     pulse_us = args.pulse_us or cfg.laser.pulse_s * 1e6
     start_ns = 1_000_000_000
     try:

@@ -93,6 +93,8 @@ class RenderOptions:
     ray_samples: int = 16384  # laser rays across the fan
     background_step: int = 2  # background rays every N pixels (texture detail, paid once)
     noise_table: bool = True  # draw noise from a cached table (fast) instead of per frame
+    isp_denoise: float = 0.0  # ISP spatial denoise: blend towards a 3x3 Gaussian, 0 (off) .. 1
+    isp_sharpen: float = 0.0  # ISP sharpening: unsharp-mask amount (5x5 Gaussian), 0 (off) .. 2
 
     def __post_init__(self) -> None:
         if not 0 <= self.speckle_contrast <= 1:
@@ -102,6 +104,9 @@ class RenderOptions:
                 raise ValueError(f"render: {name} must be positive, got {getattr(self, name)}")
         if self.blur_sigma_px < 0.3:
             raise ValueError(f"render: blur_sigma_px must be >= 0.3 px (a lens is never sharper), got {self.blur_sigma_px}")
+        if not 0 <= self.isp_denoise <= 1 or not 0 <= self.isp_sharpen <= 2:
+            raise ValueError(f"render: isp_denoise must be in [0, 1] and isp_sharpen in [0, 2], got "
+                             f"{self.isp_denoise}, {self.isp_sharpen}")
         if self.ray_samples < 16 or self.background_step < 1:
             raise ValueError("render: ray_samples must be >= 16 and background_step >= 1")
 
@@ -391,4 +396,22 @@ class SceneRenderer:
             off = int(rng.integers(0, n))
             normals = self._normals[off: off + n].reshape(e.shape)
         image = sensor_frame(e, rng if self.options.noise else None, self.sensor, normals=normals)
+        if self.options.isp_denoise or self.options.isp_sharpen:
+            image = isp_filter(image, self.options.isp_denoise, self.options.isp_sharpen)
         return image, replace(self.truth_template, lit_rows=overlap > 0)
+
+
+def isp_filter(image: np.ndarray, denoise: float, sharpen: float) -> np.ndarray:
+    """Optional ISP look on the 8-bit Y plane: spatial denoise, then unsharp-mask sharpening.
+
+    The Pi's ISP does both on its internal data before the Y output; applying them to the 8-bit
+    frame is an approximation (one extra rounding). OpenCV's Gaussian blur does the filtering.
+    """
+    import cv2
+
+    y = image.astype(np.float32)
+    if denoise:
+        y = (1 - denoise) * y + denoise * cv2.GaussianBlur(y, (3, 3), 0)
+    if sharpen:
+        y = y + sharpen * (y - cv2.GaussianBlur(y, (5, 5), 0))
+    return np.clip(np.rint(y), 0, 255).astype(np.uint8)
