@@ -23,8 +23,8 @@ def measure(reflectivity, distance, ambient="indoor", pairs=2):
 def test_90_percent_wall_indoors_matches_the_thesis_error():
     e2, n2 = measure(0.9, 2.0)
     e25, n25 = measure(0.9, 2.5)
-    assert n2 > 450 and n25 > 450  # nearly the whole 105-110 deg field of view
-    assert 1.4 < 100 * e2.std() < 2.3  # thesis: ~1.8 % at 2 m
+    assert n2 > 750 and n25 > 750  # nearly the whole field of view (820 columns processed)
+    assert 1.5 < 100 * e2.std() < 2.3  # thesis: ~1.8 % at 2 m
     assert 1.9 < 100 * e25.std() < 2.9  # thesis: ~2.4 % at 2.5 m
     assert e25.std() > e2.std()
     assert abs(e2.mean()) < 0.005  # no bias: the truth and the pipeline share the camera model
@@ -37,5 +37,5 @@ def test_no_output_in_sunlight_and_the_dark_wall_field_of_view_shrinks():
     _, bright = measure(0.9, 1.5, pairs=1)
     _, dark_near = measure(0.1, 1.5, pairs=1)
     _, dark_far = measure(0.1, 3.0, pairs=1)
-    assert dark_near > 0.9 * bright  # the 10 % wall is still seen across the view at 1.5 m
-    assert dark_far < 0.7 * dark_near  # and loses its edges beyond ~2.5 m
+    assert dark_near > 0.85 * bright  # the 10 % wall is still seen across most of the view at 1.5 m
+    assert dark_far < 0.7 * dark_near  # and loses its (farther, oblique) edges at long range

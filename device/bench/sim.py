@@ -164,7 +164,10 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(rows, indent=1))
             return 0
-        print("centre column, 17.4 ms pulse in a 40 ms exposure, SIMULATOR_DEFAULT sensor (gain 8, full well 18000 e-)")
+        from device.sim.sensor import SIMULATOR_DEFAULT as sd
+
+        print(f"centre column, 17.4 ms pulse in a 40 ms exposure, SIMULATOR_DEFAULT sensor (gain {sd.analog_gain:g}, "
+              f"full well {sd.full_well_e:.0f} e-, {sd.e_per_y:.2f} e- per Y code)")
         print("ambient   rho  d(m)  col sum e-  peak e- (Y)     ambient e- (Y)      diff noise e-  peak SNR")
         for b in rows:
             sat = " SATURATED" if b["ambient_e"] >= b["full_well_e"] else ""

@@ -44,12 +44,13 @@ Each effect can be switched off in :class:`RenderOptions`; an effect a scene doe
 (no gloss, no ambient, no pulse) costs nothing.
 
 Anchoring. The free numbers (speckle contrast 1.0 and grain 2.44 lambda N, defocus blur sigma
-1.2 px, analogue gain 8 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
+1.1 px, analogue gain 10 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
 were chosen so that the thesis's reference pipeline (device.vision.reference) on this simulator,
 at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure), reproduces the
 thesis's measurements (section 6.4): range error std ~1.9 % at 2 m and ~2.3 % at 2.5 m on the
-90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking beyond
-~2-2.5 m, and no output in sunlight. See BENCHMARKS.md "Simulator" for the budget.
+90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking with range
+(two thirds left at 2.5 m, half at 3 m), and no output in sunlight. `laserpi bench sim --anchor`
+prints the table, BENCHMARKS.md "Simulator" has it with the photometric budget.
 """
 
 from __future__ import annotations
@@ -63,15 +64,14 @@ import numpy as np
 from ..config import SensorConfig
 from ..model.camera import project_points, undistort_robust, pixel_grid
 from ..model.scan_frame import scan_frame, to_scan_plane
-from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from ..model.irradiance import band_irradiance_w_m2
+from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
-from .special import erf
 from .sensor import SIMULATOR_DEFAULT, SensorParams, sensor_frame
+from .special import erf
 from .truth import FrameTruth
 
 PLANCK_J_S = 6.62607015e-34
-
 LIGHT_M_S = 299792458.0
 BACKDROP_REFLECTIVITY = 0.2
 
@@ -88,7 +88,7 @@ class RenderOptions:
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
     speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
     speckle_grain_factor: float = 2.44  # grain = factor x lambda x N at the image (2.44: Airy diameter)
-    blur_sigma_px: float = 1.2  # lens defocus blur (Gaussian sigma) of the line, pixels
+    blur_sigma_px: float = 1.1  # lens defocus blur (Gaussian sigma) of the line, pixels
     optics_transmission: float = 0.8  # lens x bandpass filter at the laser wavelength (ASSUMPTION)
     ray_samples: int = 16384  # laser rays across the fan
     background_step: int = 2  # background rays every N pixels (texture detail, paid once)
@@ -336,7 +336,8 @@ class SceneRenderer:
         off = np.arange(-half, half + 1)
         r = np.floor(rows)[:, None] + off[None, :]
         s2 = math.sqrt(2) * sigma[:, None]
-        frac = 0.5 * (erf((r + 0.5 - rows[:, None]) / s2) - erf((r - 0.5 - rows[:, None]) / s2))
+        edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2)
+        frac = 0.5 * np.diff(edges, axis=1)  # each pixel's share: erf at its two edges
         val = rate[:, None] * frac
         r = r.astype(np.int64)
         c = np.broadcast_to(cols[:, None], r.shape)
