@@ -209,3 +209,18 @@ def test_picamera2_missing_module_is_a_clear_error(mocker):
     mocker.patch.dict(sys.modules, {"picamera2": None})
     with pytest.raises(CameraError, match="picamera2 is not installed"):
         Picamera2Camera().start()
+
+
+def test_simulated_camera_from_plain_timing_values():
+    train = frame_aligned_train(2 * 10**9, FRAME_NS / 1e3, 30000.0, 18904.0, CFG.height, 17400.0, every=2)
+    cam = SimulatedCamera(CFG, wall_scene(1.5), train, exposure_us=30000.0, frame_duration_us=50000.0,
+                          start_ns=2 * 10**9, line_time_ns=18904.0, options=FAST)
+    cam.start()
+    frames = [cam.capture() for _ in range(3)]
+    assert [f.sensor_timestamp_ns for f in frames] == [round(2 * 10**9 + k * FRAME_NS) for k in range(3)]  # no jitter
+    assert [f.lit for f in frames] == [True, False, True]
+    assert frames[0].exposure_us == pytest.approx(30000.0, abs=18.904)  # line-quantised
+    with pytest.raises(ValueError, match="not both"):
+        SimulatedCamera(CFG, wall_scene(1.5), train, timing=EXACT, exposure_us=30000.0)
+    with pytest.raises(ValueError, match="exceeds the frame duration"):
+        SimulatedCamera(CFG, wall_scene(1.5), train, exposure_us=60000.0, frame_duration_us=50000.0)

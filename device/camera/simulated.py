@@ -9,6 +9,8 @@ lit is decided by the pulse source's windows through the rolling shutter, never 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..config import SensorConfig
@@ -29,8 +31,30 @@ class SimulatedCamera:
     """Frames of a static scene with ground truth; deterministic for ``seed``."""
 
     def __init__(self, cfg: SensorConfig, scene: Scene, pulses: PulseSource, *,
-                 timing: CameraTimingConfig = DEFAULT_TIMING, seed: int = 0,
-                 options: RenderOptions = RenderOptions(), sensor: SensorParams = SIMULATOR_DEFAULT):
+                 timing: CameraTimingConfig | None = None, exposure_us: float | None = None,
+                 frame_duration_us: float | None = None, start_ns: int | None = None, line_time_ns: float | None = None,
+                 seed: int = 0, options: RenderOptions = RenderOptions(), sensor: SensorParams = SIMULATOR_DEFAULT):
+        """``timing``: the camera clock's configuration (default DEFAULT_TIMING). Or give plain
+        ``exposure_us``/``frame_duration_us``/``start_ns``/``line_time_ns`` (each optional) for an
+        ideal clock: the same line quantisation and control delay, no jitter, no dropped frames."""
+        plain = {"exposure_us": exposure_us, "frame_duration_us": frame_duration_us, "start_ns": start_ns,
+                 "line_time_ns": line_time_ns}
+        given = [k for k, v in plain.items() if v is not None]
+        if timing is not None and given:
+            raise ValueError(f"give either timing or plain values ({', '.join(given)}), not both")
+        if timing is None:
+            timing = replace(DEFAULT_TIMING, timestamp_jitter_s=0.0, drop_probability=0.0) if given else DEFAULT_TIMING
+            if exposure_us is not None:
+                timing = replace(timing, exposure_s=exposure_us * 1e-6)
+            if frame_duration_us is not None:
+                timing = replace(timing, frame_duration_s=frame_duration_us * 1e-6)
+            if start_ns is not None:
+                timing = replace(timing, start_time_s=start_ns * 1e-9)
+            if line_time_ns is not None:
+                timing = replace(timing, line_time_s=line_time_ns * 1e-9)
+        if timing.exposure_s > timing.frame_duration_s:
+            raise ValueError(f"exposure {timing.exposure_s * 1e6:g} us exceeds the frame duration "
+                             f"{timing.frame_duration_s * 1e6:g} us")
         if timing.active_rows > cfg.height:
             raise ValueError(f"timing has {timing.active_rows} active rows, the frame only {cfg.height}")
         self.renderer = SceneRenderer(cfg, scene, sensor, options, seed)
