@@ -217,3 +217,22 @@ def test_isp_denoise_lowers_noise_and_sharpening_raises_the_line_peak():
     assert 20 < q[:, c].max() < 200 and s[:, c].max() > 1.2 * q[:, c].max()
     with pytest.raises(ValueError, match="isp_denoise"):
         RenderOptions(isp_denoise=2.0)
+
+
+def test_builtin_scenes_do_what_their_names_say():
+    fast = RenderOptions(noise=False, speckle=False, ambient=False, texture=False, ray_samples=8192)
+    # targets: the 90 % strips return 9x the electrons of the 10 % strips at the same distance
+    r = SceneRenderer(CFG, get_scene("targets"), options=fast)
+    e, _ = r.expected_electrons(full_pulse())
+    t = r.truth_template
+    sums = e.sum(axis=0)
+    refl = np.array([s.material.reflectivity for s in r.scene.surfaces])
+    ok = np.isfinite(t.row) & (np.abs(t.angle_rad) < 0.15)  # near the axis: same range and incidence
+    hi = sums[ok & (refl[t.surface] == 0.9)].mean()
+    lo = sums[ok & (refl[t.surface] == 0.1)].mean()
+    assert hi / lo == pytest.approx(9.0, rel=0.05)
+    # far: every return beyond 3.5 m; near: returns closer than 5 cm
+    far = SceneRenderer(CFG, get_scene("far"), options=fast).truth_template
+    assert np.nanmin(far.range_m[np.isfinite(far.row)]) > 3.5
+    near = SceneRenderer(CFG, get_scene("near"), options=fast).truth_template
+    assert np.nanmin(near.range_m[np.isfinite(near.row)]) < 0.05
