@@ -140,11 +140,16 @@ class FastPipeline:
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
-        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
         det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
-        det2 = c2.valid & (s2 >= thr) & (c2.peak >= 0.5 * s2) & (c2.spread <= p.max_spread_px)
-        row, peak, found = self._choose(c1.row, c2.row, c1.peak, c2.peak, det1, det2)
+        # second candidates: refined only where they are strong enough to matter (few columns)
+        det2, r2, v2 = np.zeros(self.cols.size, bool), np.full(self.cols.size, np.nan), np.zeros(self.cols.size)
+        idx = np.nonzero(s2 >= thr)[0]
+        if idx.size:
+            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width, p.pedestal)
+            det2[idx] = c2.valid & (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
+            r2[idx], v2[idx] = c2.row, c2.peak
+        row, peak, found = self._choose(c1.row, r2, c1.peak, v2, det1, det2)
         row = row + self.top
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
@@ -199,22 +204,23 @@ class FastPipeline:
     def _choose(self, r1, r2, v1, v2, det1, det2):
         """Pick one of two candidate rows per column by neighbour support, then geometry."""
         h = self.params.support_half
-        cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
-        W = cand.shape[1]
-        support = np.zeros((2, W))
-        padded = np.pad(cand, ((0, 0), (h, h)), constant_values=np.nan)
-        for o in range(-h, h + 1):
-            if o == 0:
-                continue
-            nb = padded[:, h + o : h + o + W]  # neighbours' candidates at column offset o
-            tol = 1.0 + 0.5 * abs(o)
-            with np.errstate(invalid="ignore"):
-                agree = (np.abs(cand[:, None, :] - nb[None, :, :]) <= tol).any(axis=1)
-            support += agree
-        # the candidate nearer the horizon is the farther range: compare depths
-        z = np.stack([self.geometry.triangulate(cand[i] + self.top).depth for i in range(2)])
-        z = np.where(np.isfinite(z), z, -np.inf)
-        pick2 = det2 & (~det1 | (support[1] > support[0]) | ((support[1] == support[0]) & (z[1] > z[0])))
+        W = r1.size
+        pick2 = det2 & ~det1
+        idx = np.nonzero(det1 & det2)[0]
+        if idx.size:
+            cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
+            own = cand[:, idx]  # (2, n)
+            support = np.zeros(own.shape)
+            for o in range(-h, h + 1):
+                j = idx + o
+                if o == 0:
+                    continue
+                nb = np.where(((j >= 0) & (j < W))[None, :], cand[:, np.clip(j, 0, W - 1)], np.nan)  # (2, n)
+                with np.errstate(invalid="ignore"):
+                    support += (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
+            # the candidate nearer the horizon is the farther range: smaller inverse depth
+            iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
+            pick2[idx] = (support[1] > support[0]) | ((support[1] == support[0]) & (iz[1] < iz[0]))
         row = np.where(pick2, r2, r1)
         peak = np.where(pick2, v2, v1)
         return row, peak, det1 | det2
@@ -230,10 +236,9 @@ class FastPipeline:
         """
         p = self.params
         med = _running_median(np.where(found, row, np.nan), 2)
-        z = self.geometry.triangulate(med).depth
-        z1 = self.geometry.triangulate(med + 0.5).depth
+        iz, slope = self.geometry.inverse_depth(med)
         with np.errstate(invalid="ignore", divide="ignore"):
-            step = np.abs(p.jump_rel * z / ((z1 - z) * 2.0))  # rows for jump_rel of depth
+            step = np.abs(p.jump_rel * iz / slope)  # rows for a jump_rel change of depth
         step = np.where(np.isfinite(step), np.maximum(step, 1.0), 1.0)
         lim = np.minimum(step[1:], step[:-1])
         with np.errstate(invalid="ignore"):

@@ -97,6 +97,9 @@ class ReferencePipeline:
         self.gain = far_row_gain(config, params)[:, None]
         self.kernel = blur_kernel()
         self.columns = np.arange(0, config.width, params.stride)
+        spacing = np.abs(np.diff(self.geometry.column_angle))
+        #: effective angular resolution: the 5-column blur window (step 3)
+        self.resolution_deg = float(np.degrees(5 * np.median(spacing[np.isfinite(spacing)])))
         self._blend: np.ndarray | None = None
 
     def reset(self) -> None:
