@@ -103,7 +103,7 @@ class FastPipeline:
             self.near_top, self.near_bottom = 0, int(g.roi_lo.max())
             rn = np.arange(0, self.near_bottom)[:, None]
             near = rn < g.roi_lo[None, :]
-        self.near_mask = np.where(near, 255, 0).astype(np.uint8)
+        self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
@@ -164,11 +164,13 @@ class FastPipeline:
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         if self.near_bottom > self.near_top:
-            la = luminance(lit, "lit")[self.near_top : self.near_bottom]
-            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom]
+            # every other row: a line is at least two rows high
+            la = luminance(lit, "lit")[self.near_top : self.near_bottom : 2]
+            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom : 2]
             near = cv2.bitwise_and(cv2.subtract(la, ua), self.near_mask).max(axis=0)
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), self.near_mask).max(axis=0)
-            close = (near >= np.maximum(p.min_peak, p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
+            # stricter than in range (twice the noise ratio): a false "too close" stops a robot
+            close = (near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
             status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
