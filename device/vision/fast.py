@@ -126,27 +126,32 @@ class FastPipeline:
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
         d = cv2.subtract(a, b)
-        sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
-        pair = cv2.bitwise_and(sat[1:], sat[:-1])
-        sat = np.zeros_like(sat)
-        sat[1:] = pair
-        sat[:-1] |= pair
-        d = cv2.bitwise_and(cv2.max(d, sat), self.mask)
+        if a.max() == 255:
+            sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
+            pair = cv2.bitwise_and(sat[1:], sat[:-1])
+            sat = np.zeros_like(sat)
+            sat[1:] = pair
+            sat[:-1] |= pair
+            d = cv2.max(d, sat)
+        d = cv2.bitwise_and(d, self.mask)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
         sm = cv2.blur(d, DETECT_KERNEL)
-        noise = cv2.blur(cv2.bitwise_and(cv2.subtract(b, a), self.mask), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
+        # the band's rows are as noisy as the column's own interval, and it saves a pass)
+        noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
         k1, k2 = (self._local_max(d, k) for k in self._candidates(sm))
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
         det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
         # second candidates: refined only where they are strong enough to matter (few columns)
         det2, r2, v2 = np.zeros(self.cols.size, bool), np.full(self.cols.size, np.nan), np.zeros(self.cols.size)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
-            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width, p.pedestal)
+            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width,
+                              p.pedestal, 255)
             det2[idx] = c2.valid & (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx] = c2.row, c2.peak
         row, peak, found = self._choose(c1.row, r2, c1.peak, v2, det1, det2)
