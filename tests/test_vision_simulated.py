@@ -61,8 +61,10 @@ def test_no_false_returns(fast, scene):
         assert not np.isneginf(m.range).any()  # no false "too close" either
 
 
-def test_glossy_floor_ghost_never_measured(fast):
-    s = run_pipeline(fast, simulated_pairs(CFG, "glossy-floor", 1, seed=15))
+@pytest.mark.parametrize("variant", ["fast-com", "fast-blais-rioux"])
+def test_glossy_floor_ghost_never_measured(fast, variant):
+    pipe = fast if variant == "fast-com" else make_pipeline(variant, CFG, 0.1, 10.0)
+    s = run_pipeline(pipe, simulated_pairs(CFG, "glossy-floor", 1, seed=15))
     summary = s.summary()
     assert summary["gross_error_fraction"] == 0.0
     assert summary["false_return_fraction"] == 0.0

@@ -58,7 +58,7 @@ class FastParams:
     min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
     noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
-    min_run: int = 3  # continuous columns for a detection to count
+    min_run: int = 5  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
     jump_rel: float = 0.05  # relative depth step that separates surfaces
     support_half: int = 4  # neighbour columns consulted to pick among candidates
@@ -144,17 +144,27 @@ class FastPipeline:
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
+        # detection is decided before the estimator's own validity, so that a line whose sub-pixel
+        # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
-        det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        det1 = (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        r1 = np.where(c1.valid, c1.row, k1)
         # second candidates: refined only where they are strong enough to matter (few columns)
-        det2, r2, v2 = np.zeros(self.cols.size, bool), np.full(self.cols.size, np.nan), np.zeros(self.cols.size)
+        W = self.cols.size
+        det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
             c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width,
                               p.pedestal, 255)
-            det2[idx] = c2.valid & (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
-            r2[idx], v2[idx] = c2.row, c2.peak
-        row, peak, found = self._choose(c1.row, r2, c1.peak, v2, det1, det2)
+            det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
+            r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
+        pick2 = self._choose(r1, r2, det1, det2)
+        row = np.where(pick2, r2, r1)
+        peak = np.where(pick2, v2, c1.peak)
+        measured = np.where(pick2, ok2, c1.valid)
+        found = det1 | det2
+        failed = found & ~measured  # a line is there, its sub-pixel estimate is not
+        found &= measured
         row = row + self.top
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
@@ -162,9 +172,9 @@ class FastPipeline:
         if p.smooth_half:
             row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
-        status[found & outlier] = ColumnStatus.REJECTED
+        status[(found & outlier) | failed] = ColumnStatus.REJECTED
         # wide profiles with nothing else found: a line was there but could not be measured
-        wide = ~found & c1.valid & (s1 >= thr) & (c1.spread > p.max_spread_px)
+        wide = ~found & (s1 >= thr) & ~(c1.spread <= p.max_spread_px)
         status[wide] = ColumnStatus.REJECTED
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
@@ -198,7 +208,7 @@ class FastPipeline:
         bmax = blocks.max(axis=1)
         b1 = np.argmax(bmax, axis=0)
         k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
-        sep = 2 * self.params.half_width + 1
+        sep = self.params.half_width + 1
         blk = np.arange(nb)[:, None]
         near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
         b2 = np.argmax(np.where(near, 0, bmax), axis=0)
@@ -208,8 +218,8 @@ class FastPipeline:
         k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
         return k1, k2
 
-    def _choose(self, r1, r2, v1, v2, det1, det2):
-        """Pick one of two candidate rows per column by neighbour support, then geometry."""
+    def _choose(self, r1, r2, det1, det2) -> np.ndarray:
+        """Where to take the second candidate: by neighbour support, then geometry."""
         h = self.params.support_half
         W = r1.size
         pick2 = det2 & ~det1
@@ -228,9 +238,7 @@ class FastPipeline:
             # the candidate nearer the horizon is the farther range: smaller inverse depth
             iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
             pick2[idx] = (support[1] > support[0]) | ((support[1] == support[0]) & (iz[1] < iz[0]))
-        row = np.where(pick2, r2, r1)
-        peak = np.where(pick2, v2, v1)
-        return row, peak, det1 | det2
+        return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Label of the continuous surface run of each column (-1 where not found), and the
