@@ -85,7 +85,7 @@ def test_unneeded_coefficients_are_dropped(truth):
 def test_all_boards_at_one_depth(truth):
     spec = BoardSpec()
     cam, w, h = truth.camera, truth.width, truth.height
-    laser = generate_poses(cam, w, h, truth.plane, 5, seed=11, depth_range=(0.9, 0.9), laser_fraction=1.0, max_tilt_rad=0.0)
+    laser = generate_poses(cam, w, h, truth.plane, 5, seed=11, depth_range=(0.9, 0.9), laser_fraction=1.0, max_tilt_rad=0.0, face_camera=False)
     other = generate_poses(cam, w, h, truth.plane, 6, seed=12, laser_fraction=0.0)
     lit_poses, _ = simulate_capture(truth, 0, 11, poses=laser)
     dark_poses, _ = simulate_capture(truth, 0, 12, scene=Scene(laser_on=False), poses=other)

@@ -80,7 +80,7 @@ def _edge_width_estimate(image: np.ndarray) -> float:
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     g = np.hypot(gx, gy)
-    lo, hi = np.percentile(img, [1, 99])
+    lo, hi = np.percentile(img, [0.1, 99.9])
     gmax = float(np.percentile(g, 99.95))
     return float(1.02 * (hi - lo) / gmax) if gmax > 0 else float("inf")
 
@@ -91,8 +91,9 @@ def _border_edges(image: np.ndarray) -> list[str]:
 
     img = image.astype(np.float32)
     g = np.hypot(cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)) / 8.0
-    lo, hi = np.percentile(img, [1, 99])
-    strong = g > 0.25 * max(hi - lo, 1.0)
+    lo, hi = np.percentile(img, [0.1, 99.9])
+    noise = 1.4826 * float(np.median(g))  # most pixels are flat: their gradient is noise
+    strong = g > max(0.25 * (hi - lo), 8.0 * noise, 1.0)
     band = 3
     sides = {"top": strong[1:band + 1, 1:-1], "bottom": strong[-band - 1:-1, 1:-1], "left": strong[1:-1, 1:band + 1], "right": strong[1:-1, -band - 1:-1]}
     return [s for s, m in sides.items() if m.sum() >= 6]
@@ -104,6 +105,8 @@ def detect_corners(image: np.ndarray, pattern_size: tuple[int, int], name: str =
 
     image = _gray(image)
     found, corners = cv2.findChessboardCornersSB(image, pattern_size, flags=0)
+    if not found:  # small squares (a far board): the accuracy mode works on an upsampled image
+        found, corners = cv2.findChessboardCornersSB(image, pattern_size, flags=cv2.CALIB_CB_ACCURACY)
     if not found:
         width = _edge_width_estimate(image)
         if width > max_edge_width_px:
