@@ -4,7 +4,8 @@
     laserpi calibrate capture DIR --poses 20          (live, on the Pi)
     laserpi calibrate --simulate --poses 20 --seed 1 --out sensor.toml [--json] [--scale 0.5]
 
-DIR holds pose_NNN_unlit.png / pose_NNN_lit.png pairs (see device.calibration.pipeline).
+DIR holds pose_NNN_unlit.png / pose_NNN_lit.png pairs (see device.calibration.pipeline), or is a
+ReplayCamera recording (.npz) whose lit/unlit frame pairs are selected as a live capture does.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _board_args(parser)
     sub = parser.add_subparsers(dest="action", metavar="{run,capture}")
     run_p = sub.add_parser("run", help="calibrate from a capture-set folder")
-    run_p.add_argument("dir", help="folder of pose_NNN_lit.png / pose_NNN_unlit.png pairs")
+    run_p.add_argument("dir", help="folder of pose_NNN_lit.png / pose_NNN_unlit.png pairs, or a camera recording (.npz)")
     run_p.add_argument("--out", dest="run_out", required=True, help="sensor configuration to write (TOML)")
     run_p.add_argument("--json", dest="run_json", action="store_true", help="print the summary as JSON")
     run_p.add_argument("--sweep", help="wall-sweep CSV (x_m, z_measured_m, z_true_m[, wall]) for the post-calibration of section 6.3")
@@ -43,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cap.add_argument("dir", help="folder to write the pose pairs to")
     cap.add_argument("--count", type=int, default=20, help="poses to capture (default 20)")
     cap.add_argument("--camera", default="device.camera.picamera2:Picamera2Camera", help="camera backend MODULE:CLASS")
+    cap.add_argument("--lit-frames", default="flag", choices=["flag", "even", "odd"],
+                     help="which frames are lit: each frame's own flag (default), or even/odd sequence numbers")
     cap.add_argument("--squares", default="10x7")
     cap.add_argument("--square-mm", type=float, default=41.4)
 
@@ -129,7 +132,14 @@ def run(args: argparse.Namespace) -> int:
             from ..calibration.postcal import load_sweep_csv
 
             sweep = load_sweep_csv(args.sweep) if args.sweep else None
-            result = calibrate(load_capture_dir(args.dir), _base(args.base), _spec(args), args.model)
+            if Path(args.dir).suffix == ".npz":  # a ReplayCamera recording: pair and select poses as a live capture does
+                from ..calibration.capture import capture_poses
+                from ..camera.replay import ReplayCamera
+
+                poses = capture_poses(ReplayCamera(args.dir), 10**6, _spec(args).pattern_size)
+            else:
+                poses = load_capture_dir(args.dir)
+            result = calibrate(poses, _base(args.base), _spec(args), args.model)
             return _finish(result, args.run_out, args.report, args.run_json, sweep=sweep)
         if args.action == "capture":
             from ..calibration.capture import run_capture
