@@ -27,7 +27,7 @@ def test_run_writes_config_and_report(tmp_path, capture, capsys):
     truth, poses = capture
     save_capture_dir(poses, tmp_path / "set")
     out = tmp_path / "sensor.toml"
-    assert main(["calibrate", "run", str(tmp_path / "set"), "--out", str(out), "--json"]) == 0
+    assert main(["calibrate", "run", str(tmp_path / "set"), "--out", str(out), "--json", "--bootstrap", "0"]) == 0
     summary = json.loads(capsys.readouterr().out)
     cfg = load_config(out)
     assert cfg.camera.intrinsics.fx == pytest.approx(truth.camera.intrinsics.fx, rel=0.01)
@@ -48,12 +48,13 @@ def test_run_on_a_folder_without_pairs_is_a_clear_error(tmp_path, capsys):
 
 def test_simulate_prints_the_comparison(tmp_path, capsys):
     out = tmp_path / "sim.toml"
-    rc = main(["calibrate", "--simulate", "--poses", "10", "--seed", "3", "--scale", "0.5", "--out", str(out), "--json"])
+    rc = main(["calibrate", "--simulate", "--poses", "10", "--seed", "3", "--scale", "0.5", "--bootstrap", "3", "--out", str(out), "--json"])
     assert rc == 0
     cmp = json.loads(capsys.readouterr().out)
     for key in ("fx_err_pct", "fy_err_pct", "plane_normal_err_deg", "plane_offset_err_mm", "range_err_pct_at_2m"):
         assert key in cmp and math.isfinite(cmp[key])
     assert abs(cmp["fx_err_pct"]) < 1.0
+    assert cmp["view_bootstrap_samples"] >= 2 and cmp["view_bootstrap_normal_std_deg"] > 0
     assert load_config(out).post_calibration is not None or cmp["postcal_order"] == [-1, -1]
     assert (tmp_path / "sim_report" / "correction.png").exists()
 

@@ -310,3 +310,18 @@ def _fisheye_candidate(obj, img, size, selection):
     heldout = _heldout_rms(obj, img, size, "kannala-brandt", ("k1", "k2", "k3", "k4"))
     selection.append({"model": "kannala-brandt", "rms_px": float(rms), "heldout_px": heldout, "values": [float(x) for x in d]})
     return rms, k, d, rv, tv, std, per_view, ("k1", "k2", "k3", "k4"), "kannala-brandt", heldout
+
+
+def refit(corners: list[np.ndarray], object_points: np.ndarray, image_size: tuple[int, int], camera: CameraModel, kept: tuple[str, ...]):
+    """Calibrate again with the model already chosen (for resampling): -> (CameraModel, [(R, t)])."""
+    import cv2
+
+    model = "brown-conrady" if isinstance(camera.distortion, BrownConrady) else "kannala-brandt"
+    _, k, d, rv, tv, _, _ = _fit([object_points.astype(np.float64)] * len(corners), corners, image_size, model, kept)
+    w, h = image_size
+    intr = Intrinsics(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=w, height=h)
+    if model == "brown-conrady":
+        dist = BrownConrady(k1=float(d[0]), k2=float(d[1]), p1=float(d[2]), p2=float(d[3]), k3=float(d[4]))
+    else:
+        dist = KannalaBrandt(*[float(c) for c in d])
+    return CameraModel(intr, dist), [(cv2.Rodrigues(np.asarray(r, float))[0], np.asarray(t, float).ravel()) for r, t in zip(rv, tv)]

@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", type=float, default=1.0, help="simulate at this fraction of the resolution (faster)")
     parser.add_argument("--out", help="sensor configuration to write (TOML)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument("--bootstrap", type=int, default=30, help="view-bootstrap samples for the uncertainty (0: skip)")
     parser.add_argument("--no-sweep", action="store_true", help="with --simulate: skip the simulated wall sweep and post-calibration")
     _board_args(parser)
     sub = parser.add_subparsers(dest="action", metavar="{run,capture}")
@@ -38,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_p.add_argument("dir", help="folder of pose_NNN_lit.png / pose_NNN_unlit.png pairs, or a camera recording (.npz)")
     run_p.add_argument("--out", dest="run_out", required=True, help="sensor configuration to write (TOML)")
     run_p.add_argument("--json", dest="run_json", action="store_true", help="print the summary as JSON")
+    run_p.add_argument("--bootstrap", type=int, default=30, help="view-bootstrap samples for the uncertainty (0: skip)")
     run_p.add_argument("--sweep", help="wall-sweep CSV (x_m, z_measured_m, z_true_m[, wall]) for the post-calibration of section 6.3")
     _board_args(run_p)
     cap = sub.add_parser("capture", help="capture lit/unlit pose pairs live from the camera")
@@ -95,13 +97,19 @@ def _postcal(result, sweep):
     return info, (z, z - zt, after)
 
 
-def _finish(result, out: str | None, report: str | None, as_json: bool, comparison: dict | None = None, sweep=None) -> int:
+def _finish(result, out: str | None, report: str | None, as_json: bool, comparison: dict | None = None, sweep=None, spec=None, bootstrap: int = 0) -> int:
     """Attach the post-calibration, write config and report, print the summary (with --json: the
     true-vs-estimated comparison when simulating, else the summary)."""
     from ..calibration.report import _clean, write_report
     from ..config import save_config
 
     curve, extra = None, dict(comparison or {})
+    if bootstrap > 0:
+        from dataclasses import asdict
+
+        from ..calibration.pipeline import bootstrap_views
+
+        extra.update({f"view_bootstrap_{k}": v for k, v in asdict(bootstrap_views(result, spec, bootstrap)).items()})
     if sweep is not None:
         info, curve = _postcal(result, sweep)
         extra.update(info)
@@ -140,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 poses = load_capture_dir(args.dir)
             result = calibrate(poses, _base(args.base), _spec(args), args.model)
-            return _finish(result, args.run_out, args.report, args.run_json, sweep=sweep)
+            return _finish(result, args.run_out, args.report, args.run_json, sweep=sweep, spec=_spec(args), bootstrap=args.bootstrap)
         if args.action == "capture":
             from ..calibration.capture import run_capture
 
@@ -157,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
             cmp = compare(truth, result.config)
             # the thesis's sweep: walls every 10 cm from 0.3 to 3 m, line rows with 0.1 px noise
             sweep = None if args.no_sweep else simulated_wall_sweep(truth, result.config, np.arange(0.3, 3.001, 0.1), args.seed)
-            return _finish(result, args.out, args.report, args.json, cmp, sweep)
+            return _finish(result, args.out, args.report, args.json, cmp, sweep, _spec(args), args.bootstrap)
         print("laserpi calibrate: give 'run DIR --out FILE', 'capture DIR' or '--simulate'", file=sys.stderr)
         return 2
     except CalibrationError as exc:
