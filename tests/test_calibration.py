@@ -13,6 +13,7 @@ from device.calibration.pipeline import calibrate, triangulation_table
 from device.calibration.plane import BoardLine, fit_laser_plane
 from device.calibration.simulate import compare, scaled_config, simulate_capture
 from device.config import load_preset
+from device.model.camera import BrownConrady
 from device.sim.checkerboard import BoardSpec, Scene, generate_poses
 
 SCALE = 0.5
@@ -79,6 +80,7 @@ def test_laser_points_lie_on_the_true_plane(truth, twenty):
 def test_distortion_model_keeps_what_the_lens_has(twenty):
     result, _ = twenty
     # the true lens has all five coefficients clearly non-zero except p2 (0.00025)
+    assert isinstance(result.config.camera.distortion, BrownConrady)
     assert {"k1", "k2", "k3"} <= set(result.intrinsics.kept)
     assert result.intrinsics.rms_px < 0.2
 
@@ -191,3 +193,20 @@ def test_plane_fit_recovers_a_known_plane_with_outliers():
     assert math.degrees(math.acos(min(1, abs(np.dot(fit.plane.normal, n))))) < 0.05
     assert fit.plane.distance == pytest.approx(d, abs=2e-4)
     assert fit.inliers.sum() < 1000 and fit.inliers.sum() >= 950
+
+
+def test_a_fisheye_lens_gets_the_fisheye_model(truth):
+    from dataclasses import replace
+
+    from device.model.camera import CameraModel, KannalaBrandt
+
+    k = truth.camera.intrinsics
+    fisheye = replace(truth, camera=CameraModel(replace(k, fx=230.0, fy=230.0), KannalaBrandt(0.05, -0.02, 0.003, 0.0)))
+    poses, _ = simulate_capture(fisheye, 12, seed=4)
+    result = calibrate(poses, fisheye)
+    assert isinstance(result.config.camera.distortion, KannalaBrandt)
+    cmp = compare(fisheye, result.config)
+    assert abs(cmp["fx_err_pct"]) < 0.5 and abs(cmp["cy_err_px"]) < 1.0
+    assert cmp["plane_normal_err_deg"] < 0.3
+    # Brown-Conrady was tried and lost on held-out corners
+    assert result.intrinsics.selection[-1]["model"] == "kannala-brandt"
