@@ -35,7 +35,7 @@ class NackReason(enum.IntEnum):
     BUSY = 6             # SCHEDULE while running or in a fault (STOP first); detail = state
     BAD_TIME = 7         # start too close (< 100 us), in the past, or > 10 s ahead; detail = now (low 32 bits)
     BAD_PATTERN = 8      # n outside 1..32, no lit frame, or mask bits at or above n
-    BAD_VALUE = 9        # width or period below what the firmware can place
+    BAD_VALUE = 9        # width below 100 us (detail = minimum ticks) or a trimmed period too short
     NOT_RUNNING = 10     # TRIM without a running schedule
 
 
@@ -53,7 +53,7 @@ class Fault(enum.IntFlag):
 
 
 class EdgeFlag(enum.IntFlag):
-    FALL_FORCED = 0x01   # the fall was forced early because it could not be armed in time
+    FALL_FORCED = 0x01   # the fall could not be armed in time: software ended the pulse, late
     CUT = 0x02           # the pulse was cut by STOP or a fault
 
 
@@ -105,8 +105,9 @@ class Schedule(_Message):
 
 @dataclass(frozen=True, slots=True)
 class Trim(_Message):
-    """Applied at the next pulse boundary (after the pulse named in the ACK's info): the next
-    rise moves by phase_ticks + the new period, and the period changes by period_ticks."""
+    """Moves the first slot starting >= 100 us after arrival by phase_ticks; the slots after it
+    follow at period + period_ticks.  A pulse in flight or armed < 100 us ahead is never touched
+    (the trim then applies to the slot after it).  ACK.info = the slot moved."""
 
     MSG_TYPE: ClassVar[int] = 0x42
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<ii")
@@ -146,8 +147,8 @@ class Pong(_Message):
 
 @dataclass(frozen=True, slots=True)
 class Ack(_Message):
-    """info: SCHEDULE -> index of the first lit pulse; TRIM -> index of the last pulse on the
-    old timing; STOP -> pulses emitted so far; HEARTBEAT -> state | faults << 8."""
+    """info: SCHEDULE -> index of the first lit pulse; TRIM -> index of the slot it moved;
+    STOP -> pulses emitted so far; HEARTBEAT -> state | faults << 8."""
 
     MSG_TYPE: ClassVar[int] = 0x61
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<BI")

@@ -28,6 +28,7 @@ import numpy as np
 from ..model.camera import CameraModel, pixel_grid, project_points, undistort_robust
 from ..model.triangulation import LaserPlane
 from .sensor import IMX219_MODE5, SensorParams, sensor_frame
+from .special import erf
 
 
 @dataclass(frozen=True)
@@ -171,14 +172,6 @@ def reflectance(u: np.ndarray, v: np.ndarray, hit: np.ndarray, spec: BoardSpec, 
     return np.where(hit, board + (1.0 - mount) * scene.background, scene.background), mount
 
 
-def _erf(x: np.ndarray) -> np.ndarray:
-    """erf by Abramowitz & Stegun 7.1.26 (|error| < 1.5e-7); numpy has no erf and the project
-    does not depend on scipy."""
-    t = 1.0 / (1.0 + 0.3275911 * np.abs(x))
-    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))))
-    return np.sign(x) * (1.0 - poly * np.exp(-x * x))
-
-
 def laser_irradiance(pts: np.ndarray, hit: np.ndarray, plane: LaserPlane, scene: Scene) -> np.ndarray:
     """Laser light on the board plane per pixel, electrons on a white surface (before reflectance).
 
@@ -189,7 +182,7 @@ def laser_irradiance(pts: np.ndarray, hit: np.ndarray, plane: LaserPlane, scene:
     finite = np.where(np.isfinite(dist), dist, 1e3)
     w = np.maximum(_footprint(finite), 1e-9)
     s = scene.line_sigma_m * math.sqrt(2.0)
-    mean_profile = np.maximum((_erf((finite + w / 2) / s) - _erf((finite - w / 2) / s)) / (2 * w) * s * math.sqrt(math.pi), 0.0)
+    mean_profile = np.maximum((erf((finite + w / 2) / s) - erf((finite - w / 2) / s)) / (2 * w) * s * math.sqrt(math.pi), 0.0)
     rng_m = np.linalg.norm(np.where(hit[..., None], pts, 1.0), axis=-1)
     return np.where(hit, scene.laser_e_at_1m * mean_profile / np.maximum(rng_m, 1e-3), 0.0)
 
