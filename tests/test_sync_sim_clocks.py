@@ -1,6 +1,7 @@
 """The simulated IMX219 clock and the simulated co-MCU against their own definitions."""
 
 
+import copy
 import math
 
 import numpy as np
@@ -138,13 +139,13 @@ def test_simulated_camera_on_the_imx219_clock_lit_by_the_simulated_mcu():
     from device.sync.placement import roi_exposure_window
 
     cfg = load_preset("thesis-calibrated")
-    clock = CameraClock(CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.005, timestamp_jitter_s=10e-6,
-                                           drop_probability=0.0), np.random.default_rng(0))
+    timing = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.005, timestamp_jitter_s=10e-6, drop_probability=0.0)
     mcu = SimulatedMcu(McuConfig(drift_ppm=100.0, max_width_ticks=10**6), np.random.default_rng(1))
     cam = SimulatedCamera(cfg, wall_scene(1.5), mcu, options=RenderOptions(ray_samples=1024, background_step=8),
-                          clock=clock)
-    # place one pulse on frame 1's rows 200-400 using the truth of the clocks (what the controller estimates)
-    probe = CameraClock(clock.cfg, np.random.default_rng(0))
+                          timing=timing)
+    # place one pulse on frame 1's rows 200-400 using the truth of the clocks (what the controller
+    # estimates): a copy of the camera's own clock, random state included, foretells its frames
+    probe = copy.deepcopy(cam.clock)
     probe.next_frame()
     f1 = probe.next_frame()
     ws, we = roi_exposure_window(f1.true_start_s, f1.exposure_s, f1.line_time_s, 200, 400)
