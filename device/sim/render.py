@@ -16,6 +16,8 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    height; the lens (f-number N, transmission T) gives image irradiance pi L / (4 N^2), and one
    pixel row covers z / f_y metres of the surface, so the column collects
    ``T pitch^2 rho P cos(i) f_y / (4 N^2 phi r z)`` watts, times QE * lambda / (h c) electrons/J.
+   Off-axis factors (cos^4 falloff, the pixel's footprint growing off axis and with the wall's
+   tilt to the ray, distortion's local scale) are left out; the anchoring absorbs their mean.
 3. *Line profile.* A Gaussian in the row direction of sigma^2 = blur^2 + (f_y h / 4 / z)^2
    (h = [laser] line_height_m as the 1/e^2 full height, plus lens defocus blur), integrated
    over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
