@@ -252,6 +252,7 @@ class SyncController:
         self._last_pair_ns: int | None = None
         self._now_ns = 0
         self.events: list[tuple[int, str]] = []  # (Pi ns, what happened): resets, restarts, locks
+        self.refusals = 0
 
     # --- inputs --------------------------------------------------------------------------------
     def on_ping(self, send_ns: int, tick: int, recv_ns: int) -> None:
@@ -385,7 +386,8 @@ class SyncController:
         period = int(round(period_s / est.fit.b * cfg.tick_hz))
         width = t1 - t0 + 1
         pattern = [cfg.lit(seq + i) for i in range(len(cfg.pattern))]
-        self.mcu.schedule(t0, period, width, pattern)
+        if not self._command(self.mcu.schedule, t0, period, width, pattern):
+            return
         self.train = _Train(frame0=seq, ref_slot=0, ref_tick=t0, period=period, width=width, guard_s=guard,
                             scheduled_ns=self._now_ns)
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
@@ -405,8 +407,22 @@ class SyncController:
         phase = want - tr.start(slot)
         if phase == 0 and period == tr.period:
             return
-        self.mcu.trim(phase, period)  # trims waiting for the same slot add up, as the copy assumes
+        if not self._command(self.mcu.trim, phase, period):  # trims waiting for one slot add up, as the copy assumes
+            return
         tr.ref_slot, tr.ref_tick, tr.period = slot, want, period
+
+    def _command(self, send: Callable, *args) -> bool:
+        """Send a schedule/trim; a refusal or a dead link drops to ACQUIRING (a new train next frame)."""
+        try:
+            send(*args)
+            return True
+        except (ValueError, RuntimeError) as exc:  # ScheduleRefused / CoMcuNack / CoMcuTimeout name the reason
+            why = f"co-MCU refused a command: {exc}"
+            (log.debug if why == self.reason else log.warning)("%s (%s)", why, getattr(send, "__name__", send))
+            self.refusals += 1
+            self._unlock(why)
+            self.train = None
+            return False
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
