@@ -127,7 +127,9 @@ class SyncConfig:
     gpio_prior_jitter_s: float = 50e-6
     gpio_window: int = 256
     gpio_stale_s: float = 2.0
-    link_min_rtt_s: float = 2 * 16 * 10 / 115200
+    # PING (14 bytes on the line incl. delimiters) and PONG (29 bytes) at device.comcu's 250000 baud 8N1
+    link_up_min_s: float = 14 * 10 / 250_000
+    link_down_min_s: float = 29 * 10 / 250_000
     camera_window: int = 256
     camera_prior_jitter_s: float = 50e-6
     camera_jump_s: float = 1e-3
@@ -240,7 +242,7 @@ class SyncController:
         self.cfg = cfg
         self.mcu = scheduler
         self.gpio_map = GpioClockMap(cfg.tick_hz, cfg.gpio_latency_min_s, cfg.gpio_window, cfg.gpio_prior_jitter_s)
-        self.ping_map = PingClockMap(cfg.tick_hz, cfg.link_min_rtt_s)
+        self.ping_map = PingClockMap(cfg.tick_hz, cfg.link_up_min_s, cfg.link_down_min_s)
         self.pairing = EdgePairing()
         self.camera = CameraTimeline(cfg.camera_window, cfg.camera_prior_jitter_s, cfg.camera_jump_s)
         self.state = SyncState.ACQUIRING
