@@ -25,9 +25,10 @@ Lock: ``lock_pulses`` consecutive lit pulses measured inside the window with the
 guard is ``guard_sigmas`` times the 1-sigma placement uncertainty, at least ``min_guard_s``).
 Re-lock: dropped frames are bridged by the camera line (sequence numbers); a camera restart
 (sequence going back, or timestamps off the line) or an MCU reset (its tick going back, or the
-expected pulse reports missing) drops to ACQUIRING and starts a new train. An MCU drift beyond
-``max_drift_ppm`` or a guard above ``max_guard_s`` is an ERROR state with a reason: the laser is
-stopped rather than run on a schedule that cannot be trusted.
+expected pulse reports missing) drops to ACQUIRING and starts a new train; so does a command
+the co-MCU refuses (the reason is kept). A guard above ``max_guard_s`` stops the laser and stays
+ACQUIRING; an MCU drift beyond ``max_drift_ppm`` is the ERROR state: the laser is stopped rather
+than run on a schedule that cannot be trusted, and ``reason`` says why.
 
 Which frames are lit follows ``pattern`` on the camera's sequence number
 (``lit = pattern[sequence % len(pattern)]``, e.g. every other frame for differencing, ERRATA 10);
@@ -529,7 +530,10 @@ def thesis_error_s(t_pts_s: float, t_pwm_s: float, period_s: float, delta_s: flo
 
 
 class ThesisController:
-    """Baseline: P controller on the camera frame rate against the predicted pulse train (open loop in drift)."""
+    """Baseline: P controller on the camera frame rate against the predicted pulse train (open loop in drift).
+
+    With a pattern (ERRATA 10) a frame is labelled lit if the slot eq. 5.1 assigns it is lit.
+    """
 
     def __init__(self, cfg: SyncConfig, camera: FrameDurationControl, t_pwm_ns: int, interval_ns: int,
                  delta_s: float, pattern: Sequence[bool], lock_frames: int = 5) -> None:
@@ -544,12 +548,10 @@ class ThesisController:
         self.lock_frames = lock_frames
         self.state = SyncState.ACQUIRING
         self._good = 0
-        self.last_error_s = math.nan
 
     def on_frame(self, frame: FrameInfo, now_ns: int) -> FrameLabel:
         p = self.cfg.frame_duration_s
         e = thesis_error_s(frame.sensor_timestamp_ns * 1e-9, self.t_pwm_s, p, self.delta_s, self.interval_s)
-        self.last_error_s = e
         f = self.f0 + self.gain * (e / p)
         self.camera.request(frame_duration_s=1.0 / f)
         self._good = self._good + 1 if abs(e) < self.interval_s else 0
