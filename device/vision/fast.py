@@ -7,7 +7,7 @@ Per frame pair:
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
    frame.
-2. Two candidate peaks per column: the maximum, and the maximum at least ``2 half_width + 1``
+2. Two candidate peaks per column: the maximum, and the maximum at least ``half_width + 1``
    rows away from it, both found through 16-row block maxima (contiguous reductions, much
    faster than a strided argmax over the whole band). Each is refined by the selected
    sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
@@ -15,15 +15,17 @@ Per frame pair:
    peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
    (a noise peak is alone; a line is not).
-4. Several peaks in a column (a glossy floor's mirror image, multipath): the candidate that more
-   neighbouring columns agree with wins; on a tie the one nearer the plane's horizon (the farther
-   range), because a mirror image in a floor below the laser plane, or a secondary reflection
-   off it, always appears farther from the horizon than the line that causes it. Never by
-   brightness alone.
+4. Several peaks in a column (a glossy floor's mirror image, multipath): the one nearer the
+   plane's horizon (the farther range) wins unless neighbouring columns back it less than half
+   as well as the other (it is then an isolated reflection), because a mirror image in a floor
+   below the laser plane, or a secondary reflection off it, always appears farther from the
+   horizon than the line that causes it. Never by brightness alone.
 5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
-   columns, only within a run of columns whose rows are continuous (no depth jump: adjacent
-   rows differ by less than the row step of a ``jump_rel`` depth change, at least 1 px), so no
-   point is ever pulled towards another surface. The effective angular resolution is the fit
+   columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
+   running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
+   change, at least 1 px, and their raw rows by less than ``jump_factor`` times that), so no
+   point is ever pulled towards another surface; a column far from its median is an outlier
+   (REJECTED, NaN). The effective angular resolution is the fit
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 7. Nearer than the region of interest: the rows on the near side of it are not searched for a
@@ -60,7 +62,8 @@ class FastParams:
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
     min_run: int = 5  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
-    jump_rel: float = 0.05  # relative depth step that separates surfaces
+    jump_rel: float = 0.08  # relative depth step that separates surfaces (on the running median)
+    jump_factor: float = 3.0  # adjacent raw rows may differ by this x the jump step (speckle)
     support_half: int = 4  # neighbour columns consulted to pick among candidates
 
     def __post_init__(self) -> None:
@@ -237,7 +240,10 @@ class FastPipeline:
                     support += (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
             # the candidate nearer the horizon is the farther range: smaller inverse depth
             iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
-            pick2[idx] = (support[1] > support[0]) | ((support[1] == support[0]) & (iz[1] < iz[0]))
+            # prefer the farther one unless its neighbours back it less than half as well: both
+            # lines are continuous, and speckle drops some columns of either from detection
+            far2 = iz[1] < iz[0]
+            pick2[idx] = np.where(far2, 2 * support[1] >= support[0], support[1] > 2 * support[0])
         return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -258,7 +264,7 @@ class FastPipeline:
         lim = np.minimum(step[1:], step[:-1])
         with np.errstate(invalid="ignore"):
             outlier = found & ~(np.abs(row - med) <= step)
-            near = (np.abs(np.diff(row)) <= lim) | outlier[1:] | outlier[:-1]
+            near = (np.abs(np.diff(row)) <= p.jump_factor * lim) | outlier[1:] | outlier[:-1]
             cont = found[1:] & found[:-1] & (np.abs(np.diff(med)) <= lim) & near
         start = np.concatenate([[True], ~cont])
         label = np.cumsum(start) - 1
