@@ -56,7 +56,7 @@ DETECT_KERNEL = (5, 3)
 class FastParams:
     estimator: str = "com"
     half_width: int = 4  # centre-of-mass window (rows each side)
-    pedestal: float = 0.1  # centre-of-mass threshold, fraction of the peak
+    pedestal: float = 0.0  # centre-of-mass threshold, fraction of the peak (0: best under speckle)
     min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
     noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
