@@ -15,11 +15,11 @@ Per frame pair:
    peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
    (a noise peak is alone; a line is not).
-4. Several peaks in a column (a glossy floor's mirror image, multipath): the one nearer the
-   plane's horizon (the farther range) wins unless neighbouring columns back it less than half
-   as well as the other (it is then an isolated reflection), because a mirror image in a floor
-   below the laser plane, or a secondary reflection off it, always appears farther from the
-   horizon than the line that causes it. Never by brightness alone.
+4. Several peaks in a column (a glossy floor's mirror image, multipath, an occlusion edge): by
+   consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
+   in a floor below the laser plane, or a secondary reflection off it, always appears farther
+   from the horizon than the line that causes it and runs alongside it; the nearer line of an
+   occlusion edge continues alone on its side. See :meth:`FastPipeline._choose`.
 5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
    columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
    running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
@@ -222,28 +222,43 @@ class FastPipeline:
         return k1, k2
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
-        """Where to take the second candidate: by neighbour support, then geometry."""
+        """Where to take the second candidate, for columns with two detected lines.
+
+        ``support``: neighbour columns (+-support_half) with a candidate that agrees with it;
+        ``alone``: those of them whose only detection agrees with it. A mirror image (glossy
+        floor) runs alongside the line that causes it, so it is rarely alone; the nearer line of
+        an occlusion edge (two real surfaces overlapping over a few columns) continues alone on
+        its side. So: the nearer candidate wins when it is alone in at least half the
+        neighbours (a real edge: the nearer surface is the one that matters), else the farther
+        one (nearer the horizon) unless it is backed less than half as well as the other.
+        """
         h = self.params.support_half
         W = r1.size
         pick2 = det2 & ~det1
         idx = np.nonzero(det1 & det2)[0]
         if idx.size:
             cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
+            single = det1 != det2
             own = cand[:, idx]  # (2, n)
             support = np.zeros(own.shape)
+            alone = np.zeros(own.shape)
             for o in range(-h, h + 1):
                 j = idx + o
                 if o == 0:
                     continue
-                nb = np.where(((j >= 0) & (j < W))[None, :], cand[:, np.clip(j, 0, W - 1)], np.nan)  # (2, n)
+                inside = (j >= 0) & (j < W)
+                jc = np.clip(j, 0, W - 1)
+                nb = np.where(inside[None, :], cand[:, jc], np.nan)  # (2, n)
                 with np.errstate(invalid="ignore"):
-                    support += (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
-            # the candidate nearer the horizon is the farther range: smaller inverse depth
+                    agree = (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
+                support += agree
+                alone += agree & (inside & single[jc])[None, :]
+            # which candidate is farther: smaller inverse depth (nearer the horizon)
             iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
-            # prefer the farther one unless its neighbours back it less than half as well: both
-            # lines are continuous, and speckle drops some columns of either from detection
             far2 = iz[1] < iz[0]
-            pick2[idx] = np.where(far2, 2 * support[1] >= support[0], support[1] > 2 * support[0])
+            near_alone = np.where(far2, alone[0], alone[1]) >= h
+            take_far = np.where(far2, 2 * support[1] >= support[0], 2 * support[0] >= support[1])
+            pick2[idx] = np.where(near_alone, ~far2, np.where(take_far, far2, ~far2))
         return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
