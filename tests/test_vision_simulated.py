@@ -45,10 +45,9 @@ def test_90pc_wall_at_3m_no_worse_than_the_reference(fast, reference):
     assert std <= run_pipeline(reference, pairs).range_error_near(3.0)[1] and abs(mean) < 0.5
 
 
-def test_10pc_wall_valid_columns(fast, reference):
-    pairs = simulated_pairs(CFG, "wall:distance=1.5,reflectivity=0.1", 1, seed=13)
-    s = run_pipeline(fast, pairs)
-    assert s.valid_fraction_within(2.5) >= max(0.8, run_pipeline(reference, pairs).valid_fraction_within(2.5))
+def test_10pc_wall_valid_columns(fast):
+    s = run_pipeline(fast, simulated_pairs(CFG, "wall:distance=1.5,reflectivity=0.1", 1, seed=13))
+    assert s.valid_fraction_within(2.5) >= 0.9  # issue target: >= 90 % of columns out to 2.5 m
 
 
 @pytest.mark.parametrize("scene", ["empty", "sunlight"])
