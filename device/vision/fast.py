@@ -43,7 +43,7 @@ import numpy as np
 from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
-from .peaks import ESTIMATORS, refine_peaks
+from .peaks import ESTIMATORS, clamp, refine_peaks
 
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
@@ -200,7 +200,7 @@ class FastPipeline:
     def _local_max(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
         """Move each row k to the largest of d[k-1], d[k], d[k+1] (the smoothed peak can sit a
         row off the unsmoothed one)."""
-        r = np.clip(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
+        r = clamp(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
         return r[np.argmax(d[r, self.cols], axis=0), self.cols]
 
     def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -240,19 +240,16 @@ class FastPipeline:
             cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
             single = det1 != det2
             own = cand[:, idx]  # (2, n)
-            support = np.zeros(own.shape)
-            alone = np.zeros(own.shape)
-            for o in range(-h, h + 1):
-                j = idx + o
-                if o == 0:
-                    continue
-                inside = (j >= 0) & (j < W)
-                jc = np.clip(j, 0, W - 1)
-                nb = np.where(inside[None, :], cand[:, jc], np.nan)  # (2, n)
-                with np.errstate(invalid="ignore"):
-                    agree = (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
-                support += agree
-                alone += agree & (inside & single[jc])[None, :]
+            offs = np.array([o for o in range(-h, h + 1) if o != 0])
+            j = idx[None, :] + offs[:, None]  # (2h, n) neighbour columns
+            inside = (j >= 0) & (j < W)
+            jc = clamp(j, 0, W - 1)
+            nb = np.where(inside[None], cand[:, jc], np.nan)  # (2, 2h, n)
+            tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
+            with np.errstate(invalid="ignore"):
+                agree = (np.abs(own[:, None, None, :] - nb[None]) <= tol).any(axis=1)  # (2, 2h, n)
+            support = agree.sum(axis=1)
+            alone = (agree & (inside & single[jc])[None]).sum(axis=1)
             # which candidate is farther: smaller inverse depth (nearer the horizon)
             iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
             far2 = iz[1] < iz[0]
@@ -297,7 +294,7 @@ class FastPipeline:
         ok = status == ColumnStatus.OK
         r = np.where(ok, np.rint(row), 0).astype(np.intp)
         w = self.params.half_width
-        near_dark = dark[np.clip(r + w + 1, 0, H)] - dark[np.clip(r - w, 0, H)] > 0
+        near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[ok & near_dark] = ColumnStatus.UNLIT
         return status
 
