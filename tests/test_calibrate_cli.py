@@ -92,8 +92,9 @@ def test_capture_keeps_still_new_poses_only(capture):
             seq += 2
     cam = FakeCamera(frames, truth.width, truth.height)
     seen = []
-    kept = capture_poses(cam, 5, BoardSpec().pattern_size, on_progress=seen.append)
-    assert len(kept) == 2 and cam.started and cam.stopped
+    saved = []
+    kept = capture_poses(cam, 5, BoardSpec().pattern_size, on_progress=seen.append, on_pose=saved.append)
+    assert len(kept) == 2 and cam.started and cam.stopped and saved == kept
     assert np.array_equal(kept[0].unlit, poses[0].unlit) and np.array_equal(kept[1].lit, poses[2].lit)
     text = render_progress(seen[-1])
     assert text.startswith("[##...] 2/5") and "|" in text

@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cap = sub.add_parser("capture", help="capture lit/unlit pose pairs live from the camera")
     cap.add_argument("dir", help="folder to write the pose pairs to")
     cap.add_argument("--count", type=int, default=20, help="poses to capture (default 20)")
-    cap.add_argument("--camera", default="device.camera.picamera2:Picamera2Camera", help="camera backend MODULE:CLASS")
+    cap.add_argument("--camera", default="device.camera.picamera2_camera:Picamera2Camera", help="camera backend MODULE:CLASS")
     cap.add_argument("--lit-frames", default="flag", choices=["flag", "even", "odd"],
                      help="which frames are lit: each frame's own flag (default), or even/odd sequence numbers")
     cap.add_argument("--squares", default="10x7")
