@@ -35,6 +35,9 @@ def test_run_writes_config_and_report(tmp_path, capture, capsys):
     assert summary["views"] == 9 and summary["theta_deg"] > 0
     report = json.loads((tmp_path / "sensor_report" / "report.json").read_text())
     assert set(report) >= {"camera", "views", "laser_plane", "triangulation"}
+    assert report["triangulation"]["calibrated"]["theta_deg"] == pytest.approx(summary["theta_deg"])
+    assert report["triangulation"]["original"]["s_m"] > 0
+    assert all(v["used"] == (v["reason"] is None) for v in report["views"].values())
     for png in ("reprojection.png", "plane_residuals.png", "coverage.png"):
         assert (tmp_path / "sensor_report" / png).stat().st_size > 1000
 
