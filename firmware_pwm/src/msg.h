@@ -45,6 +45,7 @@
 #define NACK_BAD_PATTERN 8     /* n outside 1..32, no lit frame, or mask bits beyond n */
 #define NACK_BAD_VALUE 9       /* width or period below the minimum the firmware can place */
 #define NACK_NOT_RUNNING 10    /* TRIM without a running schedule */
+#define NACK_ENVELOPE_RATE 11  /* pulses closer than MIN_PERIOD_TICKS (rise to rise or fall to fall); detail = it */
 
 /* states */
 #define STATE_IDLE 0
@@ -56,6 +57,7 @@
 #define FAULT_WIDTH 0x02       /* run-time guard: pulse exceeded MAX_PULSE_TICKS */
 #define FAULT_DUTY 0x04        /* run-time guard: next pulse would violate the duty envelope */
 #define FAULT_LATE 0x08        /* a rise could not be armed in time */
+#define FAULT_RATE 0x10        /* run-time guard: next pulse would come closer than MIN_PERIOD_TICKS */
 
 /* edge flags */
 #define EDGE_FALL_FORCED 0x01  /* the fall could not be armed in time: software ended the pulse, late */
