@@ -211,13 +211,14 @@ class Info(_Message):
     """Sent unsolicited at boot (seq 0) and on InfoRequest: the compiled-in envelope."""
 
     MSG_TYPE: ClassVar[int] = 0x65
-    FORMAT: ClassVar[struct.Struct] = struct.Struct("<BBHIII")
+    FORMAT: ClassVar[struct.Struct] = struct.Struct("<BBHIIII")
     firmware_version: int
     reset_cause: int
     heartbeat_timeout_ms: int
     max_pulse_ticks: int
     max_duty_ppm: int
     ticks_per_second: int
+    min_period_ticks: int   # shortest rise-to-rise (and fall-to-fall) interval of two pulses
 
 
 MESSAGES: dict[int, type[_Message]] = {

@@ -13,6 +13,7 @@ few that need a denser train to measure timing (the 2 kHz exactness test, the he
 switch-off time) run a separate test ELF built in firmware_pwm/build/test-envelope with only
 MIN_PERIOD_TICKS relaxed to the placement minimum; the production build is never touched.
 """
+import math
 import random
 import re
 from pathlib import Path
@@ -22,6 +23,7 @@ import serial
 
 from device.comcu import CoMcu, CoMcuNack
 from device.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
+from device.model.envelope import FirmwareEnvelope, LineLaserOptics, verify_envelope
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
 
@@ -94,6 +96,11 @@ def test_boot_info_and_ping_track_the_timer(link):
     info = comcu.info()
     assert comcu.boot_infos == [info], "the MCU announces its boot with an INFO frame"
     assert (info.max_pulse_ticks, info.max_duty_ppm, info.ticks_per_second) == (34_800, 200_000, 2_000_000)
+    assert info.min_period_ticks == MIN_PERIOD and info.firmware_version == 2
+    # the envelope the running firmware reports is Class 1 for the thesis laser (25 mW, eyes >= 10 mm)
+    env = FirmwareEnvelope(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks)
+    thesis = LineLaserOptics(808, math.radians(120), 4e-3, 1e-3)
+    assert verify_envelope(thesis, 0.025, 0.010, env, width_points=60).class1
     a = comcu.ping()
     port.advance(0.01)
     b = comcu.ping()

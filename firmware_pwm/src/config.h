@@ -49,7 +49,7 @@
 #define MAX_LEAD_TICKS (10UL * TICKS_PER_SECOND) /* 10 s */
 #define MAX_PATTERN_LEN 32
 
-#define FIRMWARE_VERSION 1
+#define FIRMWARE_VERSION 2 /* 2: MIN_PERIOD_TICKS, INFO carries it */
 
 /* A rise is armed on OC1A only when it is less than ARM_WINDOW_TICKS ahead, so that a stale
  * compare flag can never be mistaken for the rise (see hw_avr.c); farther rises are deferred. */

@@ -119,6 +119,7 @@ void core_send_info(core_t *c, uint16_t seq)
     put_u32(p + 4, MAX_PULSE_TICKS);
     put_u32(p + 8, MAX_DUTY_PPM);
     put_u32(p + 12, TICKS_PER_SECOND);
+    put_u32(p + 16, MIN_PERIOD_TICKS);
     reply(MSG_INFO, seq, p, sizeof p);
 }
 

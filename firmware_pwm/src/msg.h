@@ -21,7 +21,7 @@
 #define MSG_NACK 0x62   /* <BBI acked_type, reason, detail                        (6) */
 #define MSG_STATUS 0x63 /* <BBBBIHHHHHIIQQ see README                             (42) */
 #define MSG_EDGE 0x64   /* <IQQB index, rise, fall, flags                         (21) */
-#define MSG_INFO 0x65   /* <BBHIII version, reset_cause, hb_ms, max_pulse, max_duty_ppm, ticks/s (16) */
+#define MSG_INFO 0x65   /* <BBHIIII version, reset_cause, hb_ms, max_pulse, max_duty_ppm, ticks/s, min_period (20) */
 
 #define LEN_SCHEDULE 22
 #define LEN_TRIM 8
@@ -30,7 +30,7 @@
 #define LEN_NACK 6
 #define LEN_STATUS 42
 #define LEN_EDGE 21
-#define LEN_INFO 16
+#define LEN_INFO 20
 
 #define SCHEDULE_FLAG_STREAM_EDGES 0x01
 

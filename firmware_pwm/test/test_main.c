@@ -479,7 +479,8 @@ static void test_parser_garbage(void)
     CHECK(r.msg_type == MSG_STATUS && r.len == LEN_STATUS && get_u16(r.payload + 12) == 1, "status counters");
     r = command(&c, MSG_INFO_REQ, NULL, 0);
     CHECK(r.msg_type == MSG_INFO && get_u32(r.payload + 4) == MAX_PULSE_TICKS &&
-              get_u32(r.payload + 8) == MAX_DUTY_PPM, "info carries the envelope");
+              get_u32(r.payload + 8) == MAX_DUTY_PPM && get_u32(r.payload + 16) == MIN_PERIOD_TICKS,
+          "info carries the envelope");
 }
 
 static void test_stop_and_edges(void)
