@@ -9,6 +9,9 @@ The link and the wire:
 
 - Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
   ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency).
+  Trims behave as the firmware's (firmware_pwm/README.md, TRIM): the first slot, lit or not,
+  that starts at least 100 us after the trim arrives moves by the phase and the slots after it
+  follow the new period; trims waiting together add up.
 - Every pulse is reported with its rising and falling tick; the report arrives after the falling
   edge plus a link latency.
 - The laser trigger is wired to a Pi GPIO whose edges the kernel timestamps in its interrupt
@@ -26,6 +29,7 @@ Pi's clock) before it lets the controller send commands, and ``advance_to`` runs
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -33,6 +37,7 @@ from typing import Sequence
 import numpy as np
 
 TICK_HZ = 16e6 / 8
+TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM moves the first slot starting at least 100 us after it arrives
 
 
 class ScheduleRefused(ValueError):
@@ -56,8 +61,8 @@ class McuConfig:
     gpio_jitter_s: float = 20e-6
     gpio_outlier_prob: float = 0.005
     gpio_spurious_hz: float = 0.0
-    max_width_ticks: int = 40_000  # 20 ms
-    max_duty: float = 0.5
+    max_width_ticks: int = 34_800  # 17.4 ms, firmware_pwm/src/config.h MAX_PULSE_TICKS
+    max_duty: float = 0.2  # the firmware's compiled-in 200 000 ppm
 
 
 @dataclass
@@ -139,7 +144,8 @@ class SimulatedMcu:
         pattern = self._train["pattern"] if self._train else next(a[3] for _, k, a in reversed(self._pending) if k == "schedule")
         width = self._train["width"] if self._train else next(a[2] for _, k, a in reversed(self._pending) if k == "schedule")
         self._check_envelope(period_ticks, width, pattern)
-        self._pending.append((self._receipt(), "trim", (int(phase_ticks), int(period_ticks))))
+        # effective for the first slot starting TRIM_LEAD_S after it arrives (a slot in flight is never moved)
+        self._pending.append((self._receipt() + TRIM_LEAD_S, "trim", (int(phase_ticks), int(period_ticks))))
 
     def stop(self) -> None:
         self._pending.append((self._receipt(), "stop", ()))
@@ -162,9 +168,11 @@ class SimulatedMcu:
         elif kind == "start":
             p, w, pat = args
             self._train = {"next": math.ceil(self.tick_at(at)), "period": p, "width": w, "pattern": pat, "slot": 0, "trim": None}
-        elif kind == "trim":
+        elif kind == "trim":  # trims add up until they apply, as in the firmware
             if self._train is not None:
-                self._train["trim"] = args
+                pending = self._train["trim"]
+                phase = args[0] + (pending[0] if pending is not None else 0)
+                self._train["trim"] = (phase, args[1])
         elif kind == "stop":
             self._train = None
         elif kind == "reset":
@@ -184,11 +192,10 @@ class SimulatedMcu:
             if next_cmd <= next_slot:
                 self._apply(*self._pending.pop(0))
                 continue
-            if tr["trim"] is not None:  # a trim applies at the first slot boundary after its receipt
-                phase, period = tr["trim"]
-                tr["next"] += phase
-                tr["period"] = period
+            if tr["trim"] is not None:  # this slot moves by the phase; the slots after it follow the new period
+                phase, tr["period"] = tr["trim"]
                 tr["trim"] = None
+                tr["next"] += phase
                 continue
             start = tr["next"]
             if tr["pattern"][tr["slot"] % len(tr["pattern"])]:
@@ -235,6 +242,17 @@ class SimulatedMcu:
         got = [e for e in self._gpio if e[0] <= lim]
         self._gpio = self._gpio[len(got):]
         return got
+
+    def windows(self, start_ns: int, end_ns: int) -> list[tuple[int, int]]:
+        """The laser's true on-windows overlapping [start_ns, end_ns] (a ``device.sim.pulses.PulseSource``).
+
+        Runs the MCU up to ``end_ns`` first, so the renderer sees every pulse of the frame.
+        """
+        self.advance_to(max(self._t, end_ns * 1e-9))
+        p = self.pulses
+        i = max(bisect.bisect_left(p.rise_s, start_ns * 1e-9) - 1, 0)
+        return [(int(round(r * 1e9)), int(round(f * 1e9))) for r, f in zip(p.rise_s[i:], p.fall_s[i:])
+                if f * 1e9 >= start_ns and r * 1e9 <= end_ns]
 
     def ping(self, t_send_s: float) -> tuple[int, int, int]:
         """A PING exchange sent at ``t_send_s``: (Pi send ns, MCU tick, Pi receive ns)."""

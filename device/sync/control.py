@@ -49,16 +49,18 @@ from device.sync.placement import check_separation, roi_exposure_window
 log = logging.getLogger(__name__)
 
 THESIS_GAIN_PER_HZ = 7.0 / 30.0  # thesis 5.3.2: P = 7 at 30 Hz, i.e. 0.233 f
+TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM never moves a slot starting sooner than this after it arrives
 
 
 class LaserScheduler(Protocol):
     """The co-MCU's pulse train, as the controllers use it (the real one is ``device.comcu``).
 
-    - ``schedule``: replace the train from ``first_start_tick`` on: slot n starts at
+    - ``schedule``: replace the train (stopping a running one) from ``first_start_tick`` on: slot n starts at
       ``first_start_tick + n * period_ticks`` and is lit (for ``width_ticks``) if
       ``pattern[n % len(pattern)]``.
-    - ``trim``: at the first slot start after the command arrives, add ``phase_ticks`` to that
-      start and use ``period_ticks`` from then on.
+    - ``trim``: as the firmware's TRIM (firmware_pwm/README.md) with the new period absolute: the
+      first slot, lit or not, starting at least ``TRIM_LEAD_S`` after the trim arrives moves by
+      ``phase_ticks``; the slots after it follow at ``period_ticks``; trims waiting together add up.
     - ``stop``: laser off, train cleared.
     Out-of-envelope or impossible requests raise an exception naming the reason.
     """
@@ -225,7 +227,6 @@ class _Train:
     width: int
     guard_s: float
     scheduled_ns: int
-    last_trim_slot: int = -1
     pending_reports: dict[int, int] = field(default_factory=dict)  # rise tick -> fall tick
 
     def start(self, slot: int) -> int:
@@ -390,23 +391,22 @@ class SyncController:
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
 
     def _trim(self, frame: FrameInfo, est: ClockEstimate) -> None:
+        """Move the first slot the trim can still reach onto its frame's window (``LaserScheduler.trim``)."""
         cfg, tr = self.cfg, self.train
-        lat = cfg.cmd_latency_max_s * 1e9
+        reach = self._now_ns + (cfg.cmd_latency_max_s + TRIM_LEAD_S) * 1e9
         slot = max(frame.sequence - tr.frame0 + 1, 0)
-        while est.mcu_to_pi_ns(tr.start(slot)) <= self._now_ns + lat:
+        while est.mcu_to_pi_ns(tr.start(slot)) <= reach:
             slot += 1
-        if slot - 1 >= tr.ref_slot and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
-            return  # the command could land on either side of the previous boundary: wait a frame
-        if slot <= tr.last_trim_slot:
-            return  # one trim per boundary: the MCU would replace, not add to, a pending one
+        if slot - 1 >= 0 and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
+            return  # the trim could move this slot or the one before: wait a frame
         ws, _ = self._window_ns(tr.frame0 + slot, frame)
         want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9)))
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
         phase = want - tr.start(slot)
         if phase == 0 and period == tr.period:
             return
-        self.mcu.trim(phase, period)
-        tr.ref_tick, tr.ref_slot, tr.period, tr.last_trim_slot = tr.start(slot) + phase, slot, period, slot
+        self.mcu.trim(phase, period)  # trims waiting for the same slot add up, as the copy assumes
+        tr.ref_slot, tr.ref_tick, tr.period = slot, want, period
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
@@ -446,8 +446,10 @@ class SyncController:
             self.train = None
         if self.state is not SyncState.LOCKED:
             return self._label(frame, None, self.reason)
-        if status == "n/a":
-            return FrameLabel(frame.sequence, False, self.state, True)
+        if status == "n/a":  # an unlit slot; a lit one before the current train began is not known
+            lit = cfg.lit(frame.sequence)
+            return FrameLabel(frame.sequence, None if lit else False, self.state, not lit,
+                              "before the current pulse train" if lit else "")
         if status == "ok":
             return FrameLabel(frame.sequence, True, self.state, True)
         return FrameLabel(frame.sequence, None, self.state, False, f"this frame's pulse is {status}")
