@@ -1,1 +1,14 @@
-"""The robot side of LaserPi: ``host_sdk.LaserPi('/dev/ttyUSB0').scans()``."""
+"""The robot side of LaserPi: ``host_sdk.LaserPi('/dev/ttyUSB0').scans()``.
+
+Needs numpy, pyserial and cobs only (no OpenCV). See docs/on-your-robot.md.
+"""
+
+from host_sdk.device import LaserPi
+from host_sdk.errors import (CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, LaserPiError,
+                             PortError)
+from host_sdk.receiver import Stats
+from host_sdk.recording import replay
+from host_sdk.scan import LaserScan, Scan
+
+__all__ = ["LaserPi", "Scan", "LaserScan", "Stats", "replay", "LaserPiError", "PortError", "DisconnectedError",
+           "DeviceTimeout", "CommandRefused", "IncompatibleDevice"]

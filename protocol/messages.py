@@ -19,7 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from protocol.framing import PROTOCOL_VERSION
+from protocol.framing import OVERHEAD, PROTOCOL_VERSION
 
 #: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
 PROTOCOL_MINOR = 0
@@ -265,6 +265,8 @@ class Info:
             raise MessageError("value", "INFO angles contain NaN or inf")
         if not 0 <= rmin < rmax:
             raise MessageError("value", f"range limits [{rmin}, {rmax}] m are not increasing")
+        if not rate > 0:
+            raise MessageError("value", f"scan_rate_hz {rate} is not positive")
         return cls(major, minor, sw, serial, rate, rmin, rmax, angles, settings, limit)
 
 
@@ -472,3 +474,15 @@ def decode_message(msg_type: int, payload: bytes):
         return cls.decode(payload)
     except struct.error as exc:  # defensive: every decode checks sizes first
         raise MessageError("short", f"{cls.__name__}: {exc}") from None
+
+
+# --- wire budget ------------------------------------------------------------------------------
+#: A UART at 8N1 sends 10 bits per byte (start, 8 data, stop).
+UART_BITS_PER_BYTE = 10
+
+
+def scan_wire_bytes(n_points: int) -> int:
+    """Bytes on the wire for one scan frame of n_points: payload, frame header and CRC, COBS
+    overhead (at most one byte per 254) and the delimiter."""
+    body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + OVERHEAD
+    return body + body // 254 + 1 + 1

@@ -1,0 +1,406 @@
+"""Device end of the host link: answer host commands and stream scans from a scan source.
+
+The same server runs the mock device (device/analytic_source.py behind ``sim://`` or
+``laserpi serve --simulate``) and the real device process (the image pipeline as the source).
+It needs no OpenCV.
+
+Scan-source interface (ScanSource, below): six small methods. ``next_scan(timeout_s)`` blocks
+until the source has a scan or the timeout passes; the server calls it only while scanning. All
+times are the device clock: ``device_clock_us()`` = CLOCK_MONOTONIC in microseconds.
+
+Threads (all owned by LinkServer, stopped by ``close()``):
+  reader  reads host bytes, decodes frames (protocol/stream.py), handles each request and puts
+          the reply on the control queue;
+  scanner pulls scans from the source while scanning and puts them on the scan queue, which is
+          bounded (``DeviceConfig.queue_scans``): when it is full the oldest queued scan is
+          dropped whole and counted (HEALTH.scans_dropped) - a slow link never gets half scans
+          and never grows memory;
+  writer  sends control replies first, then scans, one whole frame at a time.
+Every reply is preceded by one extra 0x00 (idle fill) so that a host that just opened the port
+and discards its partial first frame does not lose the reply.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from protocol import messages as m
+from protocol.framing import PROTOCOL_VERSION, encode_frame
+from protocol.stream import StreamDecoder
+
+log = logging.getLogger(__name__)
+
+
+def device_clock_us() -> int:
+    """The device clock every device_time_us refers to: CLOCK_MONOTONIC in microseconds."""
+    return time.monotonic_ns() // 1000
+
+
+# --- scan-source interface ---------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class ScanGeometry:
+    """What the source can see: the bearing of every column and the range limits.
+
+    angles: float32 (n,), rad, counter-clockwise from +x (REP 103); column i of a scan with
+    first_index f is at angles[f + i].
+    """
+
+    angles: np.ndarray
+    range_min_m: float
+    range_max_m: float
+
+    def __post_init__(self):
+        a = np.asarray(self.angles)
+        if a.ndim != 1 or a.size == 0 or not np.isfinite(a).all():
+            raise ValueError(f"angles must be a finite non-empty 1-D array, got shape {a.shape}")
+        if not 0 <= self.range_min_m < self.range_max_m:
+            raise ValueError(f"range limits [{self.range_min_m}, {self.range_max_m}] m are not increasing")
+
+
+@dataclass(frozen=True, eq=False)
+class SourceScan:
+    """One scan as a source delivers it.
+
+    device_time_us: device_clock_us() when the first ray (column first_index) was exposed.
+    ranges_m: float32 (n,), REP 117 (NaN invalid, +inf no return, -inf too close).
+    quality: uint8 (n,), 0 = no signal .. 255 = strongest.
+    ray_interval_ns: time between consecutive rays (0 for a global exposure).
+    """
+
+    device_time_us: int
+    ranges_m: np.ndarray
+    quality: np.ndarray
+    first_index: int = 0
+    ray_interval_ns: int = 0
+
+
+@dataclass(frozen=True)
+class SourceStatus:
+    laser_on: bool = False
+    sync_locked: bool = False
+    frames_dropped: int = 0
+    errors: tuple[int, ...] = ()  # protocol.messages.ErrorCode values active now
+
+
+class ScanSource(Protocol):
+    """What the link server needs from whatever produces scans (the pipeline, a simulator)."""
+
+    def geometry(self) -> ScanGeometry:
+        """Bearings and range limits; constant while the server runs."""
+
+    def apply(self, settings: m.ScanSettings) -> None:
+        """Take all of ``settings`` (complete, already range-checked by the server) or none of
+        them; raise ValueError with a reason to refuse."""
+
+    def start(self) -> None:
+        """Begin producing scans (laser on)."""
+
+    def stop(self) -> None:
+        """Stop producing scans (laser off)."""
+
+    def next_scan(self, timeout_s: float) -> SourceScan | None:
+        """The next scan, or None if none is ready within timeout_s."""
+
+    def status(self) -> SourceStatus:
+        """Laser, sync and error state for HEALTH."""
+
+
+# --- device configuration and the settings check -----------------------------------------------
+@dataclass(frozen=True)
+class DeviceConfig:
+    """Fixed facts about this device that the server enforces and reports.
+
+    laser_limit_mw: the IEC 60825-1 Class 1 limit on peak laser power; any set-config above it
+    is refused (NackCode.EYE_SAFETY). Passed in by whoever builds the device (the eye-safety
+    model computes it), never chosen by the host.
+    """
+
+    laser_limit_mw: float
+    settings: m.ScanSettings  # settings at power-on; every field set
+    software_version: str = "0.1.0"
+    serial_number: str = "LP-SIM-0001"
+    scan_rate_range_hz: tuple[float, float] = (1.0, 30.0)
+    exposure_range_us: tuple[int, int] = (10, 50_000)
+    max_median_window: int = 15
+    queue_scans: int = 4  # bounded outgoing scan queue, in whole scans
+
+    def __post_init__(self):
+        missing = [n for n in m.ScanSettings.FIELDS if getattr(self.settings, n) is None]
+        if missing:
+            raise ValueError(f"DeviceConfig.settings must set every field; missing {missing}")
+        if self.queue_scans < 1:
+            raise ValueError("queue_scans must be at least 1")
+
+
+def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) -> tuple[m.NackCode, str] | None:
+    """Why the complete settings ``s`` cannot be applied, or None if they can."""
+    lo, hi = config.scan_rate_range_hz
+    if not lo <= s.scan_rate_hz <= hi:
+        return m.NackCode.OUT_OF_RANGE, f"scan_rate_hz {s.scan_rate_hz:g} outside [{lo:g}, {hi:g}]"
+    lo, hi = config.exposure_range_us
+    if not lo <= s.exposure_us <= hi:
+        return m.NackCode.OUT_OF_RANGE, f"exposure_us {s.exposure_us} outside [{lo}, {hi}]"
+    # frame differencing takes a lit and an unlit frame per scan (ERRATA 10)
+    frame_budget_us = 1e6 / (2 * s.scan_rate_hz)
+    if s.exposure_us > frame_budget_us:
+        return m.NackCode.OUT_OF_RANGE, (
+            f"exposure_us {s.exposure_us} longer than a frame ({frame_budget_us:.0f} us at "
+            f"{s.scan_rate_hz:g} Hz, two frames per scan)")
+    if s.roi_count < 1 or s.roi_first + s.roi_count > n_columns:
+        return m.NackCode.OUT_OF_RANGE, (
+            f"region of interest columns [{s.roi_first}, {s.roi_first + s.roi_count}) not inside [0, {n_columns})")
+    if s.median_window % 2 == 0 or not 1 <= s.median_window <= config.max_median_window:
+        return m.NackCode.OUT_OF_RANGE, f"median_window {s.median_window} must be odd in [1, {config.max_median_window}]"
+    if not s.laser_power_mw >= 0:
+        return m.NackCode.OUT_OF_RANGE, f"laser_power_mw {s.laser_power_mw:g} is negative"
+    if s.laser_power_mw > config.laser_limit_mw:
+        return m.NackCode.EYE_SAFETY, (
+            f"laser_power_mw {s.laser_power_mw:g} exceeds the Class 1 limit of {config.laser_limit_mw:g} mW")
+    return None
+
+
+# --- the server -------------------------------------------------------------------------------
+@dataclass
+class LinkCounters:
+    scans_sent: int = 0
+    scans_dropped: int = 0
+    requests: int = 0
+    refused: int = 0
+    faults: list[str] = field(default_factory=list)
+
+
+class LinkServer:
+    """Serve one host over ``port`` (anything with read(size) -> bytes and write(data), where
+    read returns what arrived, b"" after a short timeout) with scans from ``source``."""
+
+    def __init__(self, port, source: ScanSource, config: DeviceConfig):
+        self.port = port
+        self.source = source
+        self.config = config
+        self.geometry = source.geometry()
+        self.settings = config.settings
+        refusal = settings_refusal(self.settings, config, self.geometry.angles.size)
+        if refusal:
+            raise ValueError(f"DeviceConfig.settings refused: {refusal[1]}")
+        source.apply(self.settings)
+        self.counters = LinkCounters()
+        self.decoder = StreamDecoder()
+        self._lock = threading.Condition()
+        self._control: collections.deque[bytes] = collections.deque()
+        self._scans: collections.deque[m.ScanMessage] = collections.deque(maxlen=config.queue_scans)
+        self._scanning = False
+        self._fault: str | None = None
+        self._seq = 0
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    # lifecycle
+    def start(self) -> LinkServer:
+        for name, target in (("reader", self._read_loop), ("scanner", self._scan_loop), ("writer", self._write_loop)):
+            t = threading.Thread(target=target, name=f"link-{name}", daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def close(self) -> None:
+        """Stop the threads and the source; safe to call twice."""
+        self._stop.set()
+        with self._lock:
+            self._lock.notify_all()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        if self._scanning:
+            self.source.stop()
+            self._scanning = False
+
+    def serve(self, stop: threading.Event) -> None:
+        """Run until ``stop`` is set or the port fails."""
+        self.start()
+        while not stop.wait(0.1) and not self._stop.is_set():
+            pass
+        self.close()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def __enter__(self) -> LinkServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # reader: requests
+    def _read_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.port.read(4096)
+            except Exception as exc:  # any port failure ends the session, cleanly
+                if not self._stop.is_set():
+                    log.warning("link port read failed, stopping: %s", exc)
+                self._stop.set()
+                break
+            for rec in self.decoder.feed(data):
+                self._handle(rec.frame)
+
+    def _handle(self, frame) -> None:
+        self.counters.requests += 1
+        try:
+            msg = m.decode_message(frame.msg_type, frame.payload)
+        except m.MessageError as exc:
+            code = m.NackCode.UNKNOWN_MESSAGE if exc.reason == "type" else m.NackCode.BAD_PAYLOAD
+            self._nack(frame, code, str(exc))
+            return
+        if isinstance(msg, m.GetInfo):
+            if msg.host_major != PROTOCOL_VERSION:
+                log.warning("host speaks protocol %d.%d, device %d", msg.host_major, msg.host_minor, PROTOCOL_VERSION)
+            self._reply(m.Info(PROTOCOL_VERSION, m.PROTOCOL_MINOR, self.config.software_version,
+                               self.config.serial_number, self.settings.scan_rate_hz, self.geometry.range_min_m,
+                               self.geometry.range_max_m, self.geometry.angles, self.settings,
+                               self.config.laser_limit_mw))
+        elif isinstance(msg, m.GetHealth):
+            self._reply(self._health())
+        elif isinstance(msg, m.Start):
+            self._start(frame)
+        elif isinstance(msg, m.Stop):
+            self._stop_scanning()
+            self._reply(m.Ack(frame.msg_type, frame.seq))
+        elif isinstance(msg, m.SetConfig):
+            self._configure(frame, msg.settings)
+        else:
+            self._nack(frame, m.NackCode.UNKNOWN_MESSAGE, f"{type(msg).__name__} is not a request")
+
+    def _health(self) -> m.Health:
+        st = self.source.status()
+        errors = st.errors + ((m.ErrorCode.SOURCE_FAILED,) if self._fault else ())
+        state = m.DeviceState.FAULT if self._fault else (m.DeviceState.SCANNING if self._scanning else m.DeviceState.IDLE)
+        return m.Health(state, st.laser_on, st.sync_locked, st.frames_dropped, self.counters.scans_dropped,
+                        self.counters.scans_sent, device_clock_us(), tuple(int(e) for e in errors))
+
+    def _start(self, frame) -> None:
+        with self._lock:
+            if not self._scanning:
+                try:
+                    self.source.start()
+                except Exception as exc:
+                    self._nack(frame, m.NackCode.SOURCE_ERROR, f"source failed to start: {exc}")
+                    return
+                self._fault = None
+                self._scanning = True
+                self._lock.notify_all()
+        self._reply(m.Ack(frame.msg_type, frame.seq))
+
+    def _stop_scanning(self) -> None:
+        with self._lock:
+            if self._scanning:
+                self._scanning = False
+                self.source.stop()
+            self._scans.clear()  # nothing of before the stop is sent after its ACK
+
+    def _configure(self, frame, update: m.ScanSettings) -> None:
+        new = self.settings.merged(update)
+        refusal = settings_refusal(new, self.config, self.geometry.angles.size)
+        if refusal is None:
+            try:
+                self.source.apply(new)
+            except ValueError as exc:
+                refusal = (m.NackCode.SOURCE_ERROR, f"source refused the settings: {exc}")
+        if refusal:
+            self.counters.refused += 1
+            self._nack(frame, *refusal)
+            return
+        self.settings = new
+        self._reply(m.Ack(frame.msg_type, frame.seq))
+
+    def _nack(self, frame, code: m.NackCode, reason: str) -> None:
+        log.info("refusing request 0x%02x: %s", frame.msg_type, reason)
+        self._reply(m.Nack(frame.msg_type, frame.seq, code, reason))
+
+    def _reply(self, msg) -> None:
+        with self._lock:
+            self._control.append(msg)
+            self._lock.notify_all()
+
+    # scanner: source -> bounded queue
+    def _scan_loop(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            with self._lock:
+                if not self._scanning:
+                    self._lock.wait(0.1)
+                    continue
+            try:
+                scan = self.source.next_scan(0.1)
+            except Exception as exc:
+                self._source_failed(exc)
+                continue
+            if scan is None:
+                continue
+            msg = m.ScanMessage(seq, scan.device_time_us, scan.ray_interval_ns, 0, scan.first_index,
+                                scan.ranges_m, scan.quality)
+            seq += 1
+            with self._lock:
+                if not self._scanning:
+                    continue  # stopped while the source was working: discard, do not count
+                if len(self._scans) == self._scans.maxlen:
+                    self.counters.scans_dropped += 1
+                self._scans.append(msg)  # deque(maxlen) drops the oldest whole scan
+                self._lock.notify_all()
+
+    def _source_failed(self, exc: Exception) -> None:
+        log.error("scan source failed: %s", exc)
+        with self._lock:
+            self._fault = f"{type(exc).__name__}: {exc}"
+            self.counters.faults.append(self._fault)
+            if self._scanning:
+                self._scanning = False
+                try:
+                    self.source.stop()
+                except Exception as stop_exc:
+                    log.error("scan source failed to stop: %s", stop_exc)
+            self._control.append(m.Log(logging.ERROR, device_clock_us(), f"scan source failed: {self._fault}"))
+            self._lock.notify_all()
+
+    # writer: control first, then scans
+    def _write_loop(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                if self._control:
+                    msg, prefix = self._control.popleft(), b"\x00"
+                elif self._scans:
+                    msg, prefix = self._scans.popleft(), b""
+                else:
+                    self._lock.wait(0.1)
+                    continue
+            try:
+                wire = prefix + self._encode(msg)
+            except ValueError as exc:  # e.g. a source delivered an unencodable range
+                self._source_failed(exc)
+                continue
+            try:
+                self.port.write(wire)
+            except Exception as exc:
+                if not self._stop.is_set():
+                    log.warning("link port write failed, stopping: %s", exc)
+                self._stop.set()
+                break
+            if isinstance(msg, m.ScanMessage):
+                self.counters.scans_sent += 1
+
+    def _encode(self, msg) -> bytes:
+        if isinstance(msg, m.ScanMessage):
+            age = max(0, device_clock_us() - msg.device_time_us)
+            payload = m.ScanMessage(msg.scan_seq, msg.device_time_us, msg.ray_interval_ns, age, msg.first_index,
+                                    msg.ranges_m, msg.quality).encode()
+        else:
+            payload = msg.encode()
+        wire = encode_frame(msg.TYPE, self._seq, payload)
+        self._seq = (self._seq + 1) & 0xFFFF
+        return wire

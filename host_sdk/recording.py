@@ -1,0 +1,133 @@
+"""Recordings of the raw wire bytes a sensor sent, with host arrival times (``.lpr`` files).
+
+Format (all little-endian), version 1:
+
+    header
+      8  magic          b"LPREC\\r\\n\\x1a" (a text-mode copy or a truncated download shows)
+      2  version        u16, 1
+      4  baudrate       u32, of the port while recording (for time stamps)
+      8  wall_start_ns  i64, time.time_ns() when recording began (UTC, for ROS bags)
+      8  mono_start_ns  i64, time.monotonic_ns() at the same moment
+      2  name_len       u16, then name_len bytes: the port name, UTF-8
+    records, until end of file
+      8  t_ns           i64, host time.monotonic_ns() when the chunk was read
+      4  length         u32
+      n  bytes          the chunk exactly as read from the port (device -> host only)
+
+The bytes are not decoded or cleaned: a recording keeps corrupt frames, so replaying it
+exercises the decoder exactly as the live link did. A file cut short in the middle of a record
+(the recorder was killed) is read up to its last complete record.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Iterator
+
+from host_sdk.receiver import Receiver, Stats
+from host_sdk.scan import Scan
+from protocol import messages as m
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"LPREC\r\n\x1a"
+VERSION = 1
+_HEAD = struct.Struct("<8sHIqqH")
+_RECORD = struct.Struct("<qI")
+MAX_CHUNK = 1 << 20  # a longer record length means the file is corrupt
+
+
+@dataclass(frozen=True)
+class RecordingHeader:
+    baudrate: int
+    wall_start_ns: int
+    mono_start_ns: int
+    port: str
+
+
+class RecordingWriter:
+    """Append chunks to a new recording; use as a context manager."""
+
+    def __init__(self, path: str | Path, header: RecordingHeader):
+        self._f: BinaryIO = open(path, "xb")
+        name = header.port.encode()
+        self._f.write(_HEAD.pack(MAGIC, VERSION, header.baudrate, header.wall_start_ns, header.mono_start_ns,
+                                 len(name)) + name)
+
+    def write(self, t_ns: int, data: bytes) -> None:
+        self._f.write(_RECORD.pack(t_ns, len(data)) + data)
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_recording(path: str | Path) -> tuple[RecordingHeader, Iterator[tuple[int, bytes]]]:
+    """The header and an iterator of (t_ns, chunk). ValueError if the file is not a recording."""
+    data = Path(path).read_bytes()
+    if len(data) < _HEAD.size or data[:8] != MAGIC:
+        raise ValueError(f"{path} is not a LaserPi recording (bad magic)")
+    magic, version, baud, wall, mono, n = _HEAD.unpack_from(data)
+    if version != VERSION:
+        raise ValueError(f"{path} is a version {version} recording; this SDK reads version {VERSION}")
+    off = _HEAD.size + n
+    if len(data) < off:
+        raise ValueError(f"{path}: header cut short")
+    header = RecordingHeader(baud, wall, mono, data[_HEAD.size:off].decode("utf-8", errors="replace"))
+
+    def records() -> Iterator[tuple[int, bytes]]:
+        pos = off
+        while pos + _RECORD.size <= len(data):
+            t_ns, length = _RECORD.unpack_from(data, pos)
+            pos += _RECORD.size
+            if length > MAX_CHUNK or pos + length > len(data):
+                log.warning("%s: record at byte %d is cut short or corrupt; stopping there", path, pos - _RECORD.size)
+                return
+            yield t_ns, data[pos:pos + length]
+            pos += length
+        if pos != len(data):
+            log.warning("%s: %d trailing bytes after the last complete record", path, len(data) - pos)
+
+    return header, records()
+
+
+class Replay:
+    """Iterate the scans of a recording, decoded by the same Receiver as the live link.
+
+    ``stats`` counts what was dropped (corrupt frames, gaps); ``info`` is the INFO the recording
+    carried (scans before it cannot be placed and are counted in stats.scans_without_info).
+    Scan.stamp is in the recording host's time.monotonic() (header.mono_start_ns is its start).
+    """
+
+    def __init__(self, path: str | Path, link_rate_bps: float | None = None):
+        self.path = Path(path)
+        self.header, self._records = read_recording(path)
+        self._receiver = Receiver(link_rate_bps or self.header.baudrate)
+
+    @property
+    def stats(self) -> Stats:
+        return self._receiver.stats
+
+    @property
+    def info(self) -> m.Info | None:
+        return self._receiver.info
+
+    def __iter__(self) -> Iterator[Scan]:
+        for t_ns, chunk in self._records:
+            for item in self._receiver.feed(chunk, t_ns * 1e-9):
+                if isinstance(item, Scan):
+                    yield item
+
+
+def replay(path: str | Path) -> Replay:
+    """``for scan in host_sdk.replay("run.lpr"): ...`` (see Replay)."""
+    return Replay(path)

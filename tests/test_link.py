@@ -1,0 +1,196 @@
+"""Device end of the link: settings checks, request handling, bounded scan queue, source faults."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from device.analytic_source import AnalyticWallSource, default_settings, wall_ranges
+from device.link import DeviceConfig, LinkServer, ScanGeometry, SourceScan, SourceStatus, settings_refusal
+from device.ports import pipe_pair
+from protocol import messages as m
+from protocol.framing import encode_frame
+from protocol.stream import StreamDecoder
+
+N = 32
+
+
+def config(**kw):
+    return DeviceConfig(laser_limit_mw=5.0, settings=default_settings(N), **kw)
+
+
+@pytest.mark.parametrize("change, code, words", [
+    (dict(laser_power_mw=5.01), m.NackCode.EYE_SAFETY, "Class 1 limit of 5 mW"),
+    (dict(laser_power_mw=-1.0), m.NackCode.OUT_OF_RANGE, "negative"),
+    (dict(scan_rate_hz=100.0), m.NackCode.OUT_OF_RANGE, "scan_rate_hz 100"),
+    (dict(scan_rate_hz=20.0, exposure_us=30_000), m.NackCode.OUT_OF_RANGE, "longer than a frame"),
+    (dict(roi_first=30, roi_count=3), m.NackCode.OUT_OF_RANGE, "region of interest"),
+    (dict(roi_count=0), m.NackCode.OUT_OF_RANGE, "region of interest"),
+    (dict(median_window=4), m.NackCode.OUT_OF_RANGE, "odd"),
+])
+def test_settings_refusal_names_the_setting(change, code, words):
+    s = default_settings(N).merged(m.ScanSettings(**change))
+    got = settings_refusal(s, config(), N)
+    assert got is not None and got[0] == code and words in got[1]
+
+
+def test_power_on_settings_are_acceptable():
+    assert settings_refusal(default_settings(N), config(), N) is None
+
+
+class Host:
+    """The host side of a pipe, speaking raw frames."""
+
+    def __init__(self, end):
+        self.end, self.dec, self.seq = end, StreamDecoder(), 0
+
+    def send(self, msg):
+        self.seq += 1
+        self.end.write(b"\x00" + encode_frame(msg.TYPE, self.seq, msg.encode()))
+        return self.seq
+
+    def receive(self, until, timeout=2.0):
+        out, deadline = [], time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for rec in self.dec.feed(self.end.read(4096)):
+                out.append(m.decode_message(rec.frame.msg_type, rec.frame.payload))
+                if until(out):
+                    return out
+        raise AssertionError(f"timed out; got {[type(x).__name__ for x in out]}")
+
+
+@pytest.fixture
+def link():
+    host_end, dev_end = pipe_pair()
+    source = AnalyticWallSource(1.0, n_points=N, dropout=0.0, noise_floor_m=0.0, noise_rel_per_m=0.0)
+    with LinkServer(dev_end, source, config()) as server:
+        yield Host(host_end), server
+
+
+def test_info_then_config_ack_and_nack(link):
+    host, _ = link
+    host.send(m.GetInfo())
+    info = host.receive(lambda o: isinstance(o[-1], m.Info))[-1]
+    assert info.angles.size == N and info.laser_limit_mw == 5.0 and info.settings == default_settings(N)
+    seq = host.send(m.SetConfig(m.ScanSettings(laser_power_mw=7.0)))
+    nack = host.receive(lambda o: isinstance(o[-1], m.Nack))[-1]
+    assert (nack.request_seq, nack.code) == (seq, m.NackCode.EYE_SAFETY)
+    seq = host.send(m.SetConfig(m.ScanSettings(laser_power_mw=2.0, roi_first=4, roi_count=8)))
+    ack = host.receive(lambda o: isinstance(o[-1], m.Ack))[-1]
+    assert ack.request_seq == seq
+    host.send(m.GetInfo())
+    info = host.receive(lambda o: isinstance(o[-1], m.Info))[-1]
+    assert info.settings.laser_power_mw == 2.0 and info.settings.roi_count == 8
+
+
+def test_refused_config_changes_nothing(link):
+    host, server = link
+    before = server.settings
+    host.send(m.SetConfig(m.ScanSettings(scan_rate_hz=20.0, laser_power_mw=50.0)))
+    host.receive(lambda o: isinstance(o[-1], m.Nack))
+    assert server.settings == before
+
+
+def test_unknown_and_malformed_requests_are_nacked(link):
+    host, _ = link
+    host.end.write(b"\x00" + encode_frame(0x3A, 1, b""))
+    host.end.write(encode_frame(m.MsgType.SET_CONFIG, 2, b"\x01"))
+    host.end.write(encode_frame(m.MsgType.SCAN, 3, b""))  # device->host message sent to the device
+    nacks = host.receive(lambda o: sum(isinstance(x, m.Nack) for x in o) == 3)
+    assert [n.code for n in nacks] == [m.NackCode.UNKNOWN_MESSAGE, m.NackCode.BAD_PAYLOAD, m.NackCode.BAD_PAYLOAD]
+
+
+def test_scans_match_the_wall_and_stop_means_stop(link):
+    host, server = link
+    host.send(m.Start())
+    got = host.receive(lambda o: sum(isinstance(x, m.ScanMessage) for x in o) >= 2)
+    scan = [x for x in got if isinstance(x, m.ScanMessage)][-1]
+    truth = wall_ranges(server.geometry.angles, 1.0)
+    np.testing.assert_allclose(scan.ranges_m, truth, atol=m.RANGE_UNIT_M)
+    seq = host.send(m.Stop())
+    got = host.receive(lambda o: any(isinstance(x, m.Ack) and x.request_seq == seq for x in o))
+    time.sleep(0.3)
+    after = host.dec.feed(host.end.read(65536))
+    assert not any(r.frame.msg_type == m.MsgType.SCAN for r in after)
+
+
+class FastSource:
+    """A source that has a scan ready at once, every time: a link can never keep up."""
+
+    def __init__(self, fail_after=None):
+        self.n, self.fail_after = 0, fail_after
+
+    def geometry(self):
+        return ScanGeometry(np.linspace(0.5, -0.5, 400, dtype=np.float32), 0.1, 3.0)
+
+    def apply(self, settings):
+        pass
+
+    def start(self):
+        pass
+
+    def stop(self):
+        pass
+
+    def status(self):
+        return SourceStatus(laser_on=True)
+
+    def next_scan(self, timeout_s):
+        self.n += 1
+        if self.fail_after is not None and self.n > self.fail_after:
+            raise RuntimeError("camera timeout")
+        time.sleep(0.001)
+        return SourceScan(self.n, np.full(400, 1.5, np.float32), np.full(400, 9, np.uint8))
+
+
+def test_slow_link_drops_whole_scans_and_counts_them():
+    host_end, dev_end = pipe_pair(capacity=4096)  # the host does not read: the pipe fills
+    cfg = DeviceConfig(laser_limit_mw=5.0, settings=default_settings(400), queue_scans=3)
+    with LinkServer(dev_end, FastSource(), cfg) as server:
+        host = Host(host_end)
+        host.send(m.Start())
+        time.sleep(0.5)
+        assert server.counters.scans_dropped > 10
+        assert len(server._scans) <= 3
+        # everything that did arrive is whole: every SCAN frame decodes to 400 points
+        host.send(m.Stop())
+        got = host.receive(lambda o: any(isinstance(x, m.Ack) and x.request_type == m.MsgType.STOP for x in o))
+        scans = [x for x in got if isinstance(x, m.ScanMessage)]
+        assert scans and all(s.ranges_m.size == 400 for s in scans)
+        assert host.dec.stats.crc_errors == host.dec.stats.decode_errors == 0
+
+
+def test_source_failure_is_reported_not_fatal():
+    host_end, dev_end = pipe_pair()
+    cfg = DeviceConfig(laser_limit_mw=5.0, settings=default_settings(400))
+    with LinkServer(dev_end, FastSource(fail_after=3), cfg):
+        host = Host(host_end)
+        host.send(m.Start())
+        logs = host.receive(lambda o: any(isinstance(x, m.Log) for x in o))
+        assert "camera timeout" in [x for x in logs if isinstance(x, m.Log)][0].text
+        host.send(m.GetHealth())
+        health = host.receive(lambda o: isinstance(o[-1], m.Health))[-1]
+        assert health.state == m.DeviceState.FAULT and m.ErrorCode.SOURCE_FAILED in health.errors
+
+
+def test_server_stops_when_the_port_goes_away():
+    host_end, dev_end = pipe_pair()
+    server = LinkServer(dev_end, AnalyticWallSource(n_points=N), config()).start()
+    host_end.close()
+    deadline = time.monotonic() + 2
+    while not server.stopped and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert server.stopped
+    server.close()
+    assert not any(t.is_alive() for t in server._threads)
+
+
+def test_config_without_every_field_is_refused():
+    with pytest.raises(ValueError, match="missing"):
+        DeviceConfig(laser_limit_mw=1.0, settings=m.ScanSettings(scan_rate_hz=10.0))
+
+
+def test_power_on_settings_above_the_limit_are_refused():
+    with pytest.raises(ValueError, match="Class 1"):
+        LinkServer(None, AnalyticWallSource(n_points=N), DeviceConfig(laser_limit_mw=1.0, settings=default_settings(N)))
