@@ -343,14 +343,15 @@ class SensorSource:
 
 # --- the link, reopened when the host side fails -----------------------------------------------
 class LinkSupervisor:
-    """Serve ``source`` to a host over ports from ``open_port`` until ``stop`` is set.
+    """Serve ``source`` (a ScanSource, usually a SensorSource) to a host over ports from
+    ``open_port`` until ``stop`` is set.
 
     A link server whose port fails (host unplugged from a USB gadget port, serial error) ends its
     session; the supervisor opens the port again with back-off and serves a new session with
     the same source, so the sensor keeps running. On exit the source is stopped (laser off).
     """
 
-    def __init__(self, open_port: Callable[[], object], source: SensorSource, config: DeviceConfig, *,
+    def __init__(self, open_port: Callable[[], object], source, config: DeviceConfig, *,
                  health_log_s: float = 10.0, reopen_backoff_s: tuple[float, float] = (0.1, 2.0)):
         self.open_port = open_port
         self.source = source
@@ -366,7 +367,7 @@ class LinkSupervisor:
         st = self.source.status()
         return ProcessHealth(
             scanning=bool(self.server and self.server._scanning), laser_on=st.laser_on, sync_locked=st.sync_locked,
-            errors=st.errors, source=SourceCounters(**vars(self.source.counters)),
+            errors=st.errors, source=SourceCounters(**vars(getattr(self.source, "counters", SourceCounters()))),
             scans_sent=int(totals[0]), scans_dropped=int(totals[1]), host_garbage_bytes=int(totals[2]),
             host_bad_frames=int(totals[3]), host_sessions=self.sessions)
 
