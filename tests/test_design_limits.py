@@ -149,3 +149,50 @@ def test_bad_design_inputs():
         limits.resolution_at_pixels(pinhole_geometry(), np.array([CX, 500.0]), 0.0)
     with pytest.raises(ValueError, match="1-D"):
         limits.resolution_table(pinhole_geometry(), [[0.1]], [2.0])
+
+
+def test_resolution_table_cross_checked_with_opencv():
+    """The calibrated preset's table recomputed independently: OpenCV's iterative undistortion,
+    eq. 3.17 for z and eq. 3.14 for q with alpha = 90 deg - atan(1/|b_c|) (beta = 90 deg)."""
+    import cv2
+
+    cfg = load_preset("thesis-calibrated")
+    g = limits.geometry_from_config(cfg)
+    a, b, c = cfg.plane.to_abc()
+    alpha = math.pi / 2 - math.atan(1 / abs(b))
+    K = cfg.camera.intrinsics.matrix
+    D = cfg.camera.distortion.opencv_coefficients()
+    u = cfg.camera.intrinsics.cx
+
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    undistort = getattr(cv2, "undistortPointsIter", None)    # OpenCV 4; folded into undistortPoints in 5
+
+    def q_cv(v):
+        args = (np.array([[[u, v]]], dtype=np.float64), K, D, None, None)
+        xy = (undistort(*args, crit) if undistort else cv2.undistortPoints(*args, None, crit))[0, 0]
+        z = c / (1 - a * xy[0] - b * xy[1])
+        return z * math.hypot(math.sin(alpha) - xy[1] * math.cos(alpha), xy[0])
+
+    table = limits.resolution_table(g, [0.1, 0.5], [2.0, 3.5])
+    for j, q in enumerate((2.0, 3.5)):
+        lo, hi = 60.0, 400.0  # q_cv decreases with the row: bisect independently of limits.py
+        while hi - lo > 1e-10:
+            lo, hi = (lo, 0.5 * (lo + hi)) if q_cv(0.5 * (lo + hi)) < q else (0.5 * (lo + hi), hi)
+        v = 0.5 * (lo + hi)
+        assert limits.row_at_range(g, u, q) == pytest.approx(v, abs=1e-5)
+        for i, sigma in enumerate((0.1, 0.5)):
+            expected = min(abs(q_cv(v + sigma) - q), abs(q_cv(v - sigma) - q)) / q
+            assert table[i, j] == pytest.approx(expected, rel=1e-5)
+
+
+def test_plane_behind_the_baseline_is_not_folded_forward():
+    """A short focal length sees the laser plane behind the line s (y_n > tan(alpha)); eq. 3.14's
+    square root would report those points as small positive distances: they must be NaN."""
+    cam = CameraModel(Intrinsics(200.0, 200.0, CX, CY, width=W, height=H), BrownConrady())
+    p = TriangulationParams(math.radians(60.0), math.pi / 2, math.pi / 2, 0.05)
+    g = limits.RangeGeometry(cam, LaserPlane.from_abc(*plane_from_params(p)), p, W, H)
+    behind_row = CY + 200.0 * (math.tan(math.radians(60.0)) + 0.1)
+    q = limits.range_at_pixels(g, np.array([[CX, behind_row], [CX, CY]]))
+    assert np.isnan(q[0]) and q[1] == pytest.approx(0.05 / math.cos(math.radians(60.0)) * math.sin(math.radians(60.0)))
+    col = limits.column_limits(g, [CX])
+    assert 0 < col.q_min[0] < 0.01 and np.isposinf(col.q_max[0])

@@ -245,3 +245,15 @@ def test_nohd_grows_with_power_and_power_per_pulse_energy_is_monotonic(p1, p2, p
     assert sf.nohd_m(laser, lo) <= sf.nohd_m(laser, hi)
     # a lower rate never lowers the allowed power
     assert sf.max_power_w(thesis_laser(pulse_s=pulse, rate_hz=5), 0.01) >= sf.max_power_w(laser, 0.01)
+
+
+def test_average_condition_uses_the_factors_of_duration_T():
+    """A 5 mm source (50 mrad) exceeds alpha_max of a 17.4 ms pulse (26.4 mrad) but not that of
+    T = 100 s (100 mrad): C6 is 17.6 for the pulse and 33.3 for the 100 s average."""
+    lim = sf.pulse_energy_limit(thesis_laser(source_diameter_m=5e-3))
+    subtense = 2000 * math.atan(0.025)
+    assert lim.c6 == pytest.approx(200 * math.sqrt(17.4e-3) / 1.5)
+    assert lim.average_power_j == pytest.approx(7e-4 * 100 ** 0.75 * lim.c4 * (subtense / 1.5) / 1000, rel=1e-12)
+    # alpha > alpha_max with N = ceil(T2 f) pulses in T2 (<= 625): C5 = N^-1/4
+    n = math.ceil(10 * 10 ** ((subtense - 1.5) / 98.5) * 10)
+    assert lim.pulses_in_t2 == n and lim.c5 == pytest.approx(n ** -0.25)

@@ -55,9 +55,20 @@ def range_at_pixels(geom: RangeGeometry, pixels: np.ndarray) -> np.ndarray:
     NaN where the backward projection is not valid (robust solver, flagged points)."""
     un = undistort_robust(pixels, geom.camera)
     tri = intersect_plane(un.xy, geom.plane)
-    q = ideal_range(un.xy, geom.params)
+    q = _forward_range(un.xy, geom.params)
     q = np.where(tri.status == RangeStatus.BEYOND_HORIZON, np.inf, q)
     return np.where(un.valid, q, np.nan)
+
+
+def _forward_range(xy: np.ndarray, params: TriangulationParams) -> np.ndarray:
+    """Eq. 3.14 for points in front of the baseline line s; NaN behind it.
+
+    A wide lens can see the laser plane behind the line s (q_y = z (sin a - y_n cos a) < 0);
+    the square root of eq. 3.14 would fold those points forward into small positive distances.
+    """
+    with np.errstate(invalid="ignore"):
+        ahead = math.sin(params.alpha) - xy[..., 1] * math.cos(params.alpha) > 0
+    return np.where(ahead, ideal_range(xy, params), np.nan)
 
 
 def _column_pixels(column: float | np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -108,22 +119,19 @@ def column_limits(geom: RangeGeometry, columns: np.ndarray | float) -> ColumnLim
     """
     columns = np.atleast_1d(np.asarray(columns, dtype=float))
     q = range_at_pixels(geom, _column_pixels(columns, np.arange(geom.rows)))
-    seen = np.isfinite(q) | np.isposinf(q)
-    with np.errstate(invalid="ignore"):
-        q_min = np.where(seen.any(axis=1), np.nanmin(np.where(seen, q, np.nan), axis=1), np.nan)
-        q_max = np.where(seen.any(axis=1), np.nanmax(np.where(seen, q, np.nan), axis=1), np.nan)
+    seen = ~np.isnan(q)
+    any_seen = seen.any(axis=1)
+    q_min = np.where(any_seen, np.where(seen, q, np.inf).min(axis=1), np.nan)
+    q_max = np.where(any_seen, np.where(seen, q, -np.inf).max(axis=1), np.nan)
     return ColumnLimits(columns, q_min, q_max)
 
 
 def row_at_range(geom: RangeGeometry, column: float, q_m: float) -> float:
     """Fractional row v where the model gives q(v) = ``q_m`` on ``column``; NaN if not seen.
 
-    Brackets the crossing between whole rows, then solves on the continuous row with Brent's
-    method (scipy) to 1e-9 px. Where q(v) is not monotonic and ``q_m`` is crossed more than
+    Brackets the crossing between whole rows, then bisects on the continuous row to 1e-9 px. Where q(v) is not monotonic and ``q_m`` is crossed more than
     once, the crossing nearest the horizon (smallest v) is returned.
     """
-    from scipy.optimize import brentq
-
     rows = np.arange(geom.rows, dtype=float)
     q = range_at_pixels(geom, _column_pixels(column, rows))[0]
     with np.errstate(invalid="ignore"):
@@ -139,7 +147,42 @@ def row_at_range(geom: RangeGeometry, column: float, q_m: float) -> float:
     def f(v: float) -> float:
         return float(range_at_pixels(geom, np.array([column, v]))) - q_m
 
-    return float(brentq(f, rows[i], rows[i + 1], xtol=1e-9))
+    return _bisect(f, rows[i], rows[i + 1], xtol=1e-9)
+
+
+def _bisect(f, lo: float, hi: float, xtol: float) -> float:
+    """Root of f in [lo, hi] where f changes sign. Plain bisection: a bracketed root one pixel
+    wide needs ~30 halvings, not a SciPy dependency."""
+    f_lo = f(lo)
+    while hi - lo > xtol:
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        if f_mid == 0:
+            return mid
+        if (f_mid < 0) == (f_lo < 0):
+            lo, f_lo = mid, f_mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def _golden_max(f, lo: float, hi: float, xtol: float) -> tuple[float, float]:
+    """(x, f(x)) maximising a unimodal f on [lo, hi] by golden-section search (no SciPy needed)."""
+    g = (math.sqrt(5) - 1) / 2
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    while b - a > xtol:
+        if fc > fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = f(d)
+    x = 0.5 * (a + b)
+    return x, f(x)
 
 
 def resolution_table(geom: RangeGeometry, subpixels, ranges_m, column: float | None = None) -> np.ndarray:
@@ -231,7 +274,7 @@ def alpha_sweep(camera: CameraModel, rows: int, columns, alphas_rad, subpixel: f
 
     def extent(alpha: float) -> tuple[np.ndarray, np.ndarray]:
         p = TriangulationParams(alpha=alpha, beta=beta, psi=psi, s=1.0)
-        q, q_before, q_after = (ideal_range(xy, p) for xy in xys)
+        q, q_before, q_after = (_forward_range(xy, p) for xy in xys)
         return _qualifying_extent(q, relative_resolution(q, q_before, q_after), max_resolution, min_range_over_s)
 
     def usable(q_high: np.ndarray) -> float:
@@ -251,13 +294,11 @@ def alpha_sweep(camera: CameraModel, rows: int, columns, alphas_rad, subpixel: f
     k = int(np.argmax(candidates))
     best_alpha, best = float(alphas[k]), float(merit[k])
     if refine and alphas.size > 1:
-        from scipy.optimize import minimize_scalar
-
         lo, hi = alphas[max(k - 1, 0)], alphas[min(k + 1, alphas.size - 1)]
-        res = minimize_scalar(lambda a: -np.nan_to_num(usable(extent(a)[1]), nan=0.0) if is_feasible(a) else 0.0,
-                              bounds=(lo, hi), method="bounded", options={"xatol": math.radians(1e-3)})
-        if -res.fun > best:
-            best_alpha, best = float(res.x), float(-res.fun)
+        x, fx = _golden_max(lambda a: float(np.nan_to_num(usable(extent(a)[1]), nan=0.0)) if is_feasible(a) else 0.0,
+                            float(lo), float(hi), math.radians(1e-3))
+        if fx > best:
+            best_alpha, best = float(x), float(fx)
     return AlphaSweep(alphas, columns, q_low, q_high, merit, feasible, best_alpha, best)
 
 

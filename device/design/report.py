@@ -132,8 +132,9 @@ def format_report(rep: DesignReport) -> str:
         else:
             out.append("  no tilt in the sweep meets the constraints on every column")
         infeasible = sw.alphas[~sw.feasible]
-        if infeasible.size:
-            k = int(np.nanargmax(np.where(sw.feasible, -np.inf, np.nan_to_num(sw.usable, nan=-np.inf))))
+        raw = np.where(sw.feasible, -np.inf, np.nan_to_num(sw.usable, nan=-np.inf))
+        if infeasible.size and np.isfinite(raw.max()):
+            k = int(np.argmax(raw))
             out.append(f"  (tilts >= {math.degrees(infeasible.min()):.0f} deg put the laser axis behind the camera, theta <= 0: "
                        f"no usable laser plane; best of those q = {sw.usable[k]:.2f} s at {math.degrees(sw.alphas[k]):.0f} deg)")
     sa = rep.safety

@@ -343,8 +343,10 @@ def undistort_robust(
 
     Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
     fisheye), started at p_d, with step halving whenever a step does not reduce the residual.
-    Points stop iterating once their residual is below ``tol_px``. A solution is valid only if
-    it converged *and* lies inside the radial fold, where the forward model is one-to-one.
+    A point stops iterating once its full Newton step, times the focal length, is below
+    ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
+    near a fold it is much larger than the reprojection residual. A solution is valid only if it
+    converged *and* lies inside the radial fold, where the forward model is one-to-one.
     """
     if tol_px <= 0:
         raise ValueError(f"tol_px must be positive, got {tol_px}")
@@ -368,7 +370,7 @@ def undistort_robust(
         ex, ey = _residual_xy(x, y, xd, yd, d)
         err = np.hypot(ex, ey)
         lam = np.ones_like(err)  # per-point step length: halved after a step that did not help
-        active = np.nonzero(np.isfinite(err) & (err > tol))[0]
+        active = np.nonzero(np.isfinite(err))[0]
         it = 0
         for it in range(1, max_iterations + 1):
             if active.size == 0:
@@ -377,8 +379,11 @@ def undistort_robust(
             j11, j12, j21, j22 = _brown_jacobian(xa, ya, d)
             det = j11 * j22 - j12 * j21
             exa, eya = ex[active], ey[active]
-            xn = xa - la * (j22 * exa - j12 * eya) / det
-            yn = ya - la * (-j21 * exa + j11 * eya) / det
+            sx = (j22 * exa - j12 * eya) / det  # full Newton step = error estimate
+            sy = (-j21 * exa + j11 * eya) / det
+            small = np.hypot(sx, sy) <= tol
+            la = np.where(small, 1.0, la)
+            xn, yn = xa - la * sx, ya - la * sy
             if np.isfinite(fold):  # never step onto the folded branch: stop halfway to the fold
                 rn, ra = np.hypot(xn, yn), np.hypot(xa, ya)
                 over = rn >= fold
@@ -393,9 +398,10 @@ def undistort_robust(
             ey[active] = np.where(accept, ry, eya)
             err[active] = np.where(accept, en, err[active])
             lam[active] = np.where(accept, np.minimum(1.0, 2.0 * la), 0.5 * la)
-            # keep iterating points that are above tolerance and can still move
-            keep = (err[active] > tol) & (lam[active] > 1e-6) & np.isfinite(err[active])
-            active = active[keep]
+            # a point is done after taking a step below tolerance, or when it can no longer move
+            done = small | ~(lam[active] > 1e-6) | ~np.isfinite(err[active])
+            x[active[small]], y[active[small]] = xn[small], yn[small]
+            active = active[~done]
     xy = np.stack([x, y], axis=-1).reshape(*shape, 2)
     return _result(cam, pixels, xy, _fold_status(xy, d), tol_px, it)
 
