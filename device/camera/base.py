@@ -1,0 +1,47 @@
+"""The one camera interface every backend implements (picamera2, simulator, replay)."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from .frame import Frame
+
+#: IMX219 line (row readout) time in sensor modes 4 and 5, thesis Table B.3.
+IMX219_LINE_TIME_NS = 18904.0
+
+
+class CameraError(RuntimeError):
+    """A camera that cannot deliver frames; the message says why."""
+
+
+class CaptureTimeout(CameraError):
+    """No frame arrived within the timeout."""
+
+
+class EndOfRecording(CameraError):
+    """A replayed recording has no more frames."""
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """Luminance frames with their timing metadata.
+
+    ``width``/``height`` are the frame buffer's size (e.g. 1664 x 928 in mode 5, the active
+    1640 x 922 pixels at the top left); ``line_time_ns`` the rolling-shutter row time.
+    ``set_frame_duration``/``set_exposure`` request new values; a backend applies them as its
+    hardware does (on the IMX219 two frames later) and each Frame reports what it got.
+    """
+
+    width: int
+    height: int
+    line_time_ns: float
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def capture(self, timeout_s: float = 1.0) -> Frame: ...
+
+    def set_frame_duration(self, frame_duration_us: float) -> None: ...
+
+    def set_exposure(self, exposure_us: float) -> None: ...

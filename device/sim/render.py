@@ -1,0 +1,380 @@
+"""Scene renderer: luminance frames of the line laser on a scene, with exact ground truth.
+
+How a frame is made (everything static is computed once per :class:`SceneRenderer`):
+
+1. *Laser curve.* The laser fan (half-angle = fan/2 about the scan x axis, source at the scan
+   origin) is cast in its own plane against the scene (``options.ray_samples`` rays); the first
+   hit of each ray is a lit point. A lit point is kept if the camera sees it (a 3-D ray from the
+   optical centre reaches it unoccluded) and projected with the project's forward camera model
+   (``device.model.camera.project_points``, distortion included). Between consecutive samples on
+   the same surface, the curve is resampled at every integer image column: that column's true
+   laser row (sub-pixel), 3-D point, range and surface are the truth (FrameTruth).
+2. *Photometry* (per column, electrons per second summed over the line's rows):
+   the line laser spreads ``P`` over the fan angle ``phi``: at range r the surface receives
+   ``P cos(i) / (phi r)`` watts per metre of line (irradiance ~ 1/r, thesis eq. 3.46); a
+   Lambertian surface of reflectivity rho has radiance rho/pi times that, integrated over the line
+   height; the lens (f-number N, transmission T) gives image irradiance pi L / (4 N^2), and one
+   pixel row covers z / f_y metres of the surface, so the column collects
+   ``T pitch^2 rho P cos(i) f_y / (4 N^2 phi r z)`` watts, times QE * lambda / (h c) electrons/J.
+3. *Line profile.* A Gaussian in the row direction of sigma^2 = blur^2 + (f_y h / 4 / z)^2
+   (h = [laser] line_height_m as the 1/e^2 full height, plus lens defocus blur), integrated
+   over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
+4. *Speckle* (Dorsch, Haeusler & Herrmann, Appl. Opt. 33, 1994): a static, spatially correlated,
+   multiplicative pattern over the line: complex Gaussian noise low-passed by the lens's
+   coherent cutoff (pupil radius pitch / (2 lambda N) cycles per pixel, i.e. grains about
+   lambda x N at the image), intensity |.|^2, rescaled to the configured contrast. Seeded by the
+   renderer's seed: static while the scene is static, not redrawn per frame.
+5. *Gloss.* A glossy flat surface (floor or wall, ``gloss`` > 0) mirrors the lit points: the
+   camera sees their mirror images (virtual points) where the reflection point lies on the
+   mirror, with ``gloss`` times the radiance: a ghost line. Occlusion of the mirrored path is
+   not modelled.
+6. *Background.* Once per renderer, a ray per 2x2 pixel block (backward projection) is cast
+   into the scene; the hit surface's reflectivity and procedural texture under the scene's
+   ambient irradiance give ambient electrons per second per pixel (no hit: a 20 % backdrop).
+7. *Rolling shutter.* Row r is exposed during [T - E + r t_line, T + r t_line] (Frame docstring);
+   its laser electrons are the column rate times the overlap of that window with the laser's
+   pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor).
+
+Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
+(no gloss, no ambient, no pulse) costs nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+from scipy.special import erf
+
+from ..config import SensorConfig
+from ..model.camera import project_points, undistort_robust, pixel_grid
+from ..model.scan_frame import scan_frame, to_scan_plane
+from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
+from ..model.irradiance import band_irradiance_w_m2
+from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
+from .sensor import IMX219_MODE5, SensorParams, sensor_frame
+from .truth import FrameTruth
+
+PLANCK_J_S = 6.62607015e-34
+LIGHT_M_S = 299792458.0
+BACKDROP_REFLECTIVITY = 0.2
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """Switches and knobs of the renderer; every effect can be turned off to isolate it."""
+
+    noise: bool = True  # shot + read noise in the sensor
+    speckle: bool = True
+    ambient: bool = True  # the scene's ambient light (background image)
+    gloss: bool = True  # ghost reflections of glossy surfaces
+    texture: bool = True  # procedural reflectivity texture
+    rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
+    speckle_contrast: float = 0.55  # std/mean of the speckle on the line
+    speckle_grain_factor: float = 1.0  # grain = factor x lambda x N at the image
+    blur_sigma_px: float = 0.8  # lens defocus blur (Gaussian sigma) of the line, pixels
+    optics_transmission: float = 0.8  # lens x bandpass filter at the laser wavelength (ASSUMPTION)
+    ray_samples: int = 16384  # laser rays across the fan
+    background_step: int = 2  # background rays every N pixels (texture detail, paid once)
+    noise_table: bool = True  # draw noise from a cached table (fast) instead of per frame
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.speckle_contrast <= 1:
+            raise ValueError(f"render: speckle_contrast must be in [0, 1], got {self.speckle_contrast}")
+        for name in ("speckle_grain_factor", "optics_transmission"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"render: {name} must be positive, got {getattr(self, name)}")
+        if self.blur_sigma_px < 0.3:
+            raise ValueError(f"render: blur_sigma_px must be >= 0.3 px (a lens is never sharper), got {self.blur_sigma_px}")
+        if self.ray_samples < 16 or self.background_step < 1:
+            raise ValueError("render: ray_samples must be >= 16 and background_step >= 1")
+
+    def without(self, *effects: str) -> "RenderOptions":
+        """These options with the named effects switched off, e.g. ``without('noise', 'speckle')``."""
+        return replace(self, **{e: False for e in effects})
+
+
+@dataclass(frozen=True)
+class FrameTiming:
+    """When a frame was exposed and when the laser was on (CLOCK_MONOTONIC ns).
+
+    ``sensor_timestamp_ns``: T, start of row-0 readout; ``exposure_us``: E; ``pulses_ns``: laser
+    on-windows [(on, off), ...] overlapping this frame.
+    """
+
+    sensor_timestamp_ns: int
+    exposure_us: float
+    line_time_ns: float
+    pulses_ns: tuple[tuple[int, int], ...] = ()
+
+
+def row_overlap_s(timing: FrameTiming, height: int, rolling_shutter: bool = True) -> np.ndarray:
+    """(height,) seconds each row's exposure window overlaps the laser pulses."""
+    r = np.arange(height, dtype=np.float64) * (timing.line_time_ns if rolling_shutter else 0.0)
+    end = timing.sensor_timestamp_ns + r
+    start = end - timing.exposure_us * 1e3
+    total = np.zeros(height)
+    for on, off in timing.pulses_ns:
+        if off < on:
+            raise ValueError(f"pulse window ({on}, {off}) ends before it starts")
+        total += np.clip(np.minimum(end, off) - np.maximum(start, on), 0.0, None)
+    return total * 1e-9
+
+
+def ambient_irradiance_w_m2(scene: Scene, cfg: SensorConfig) -> float:
+    """In-band ambient irradiance on the scene's surfaces: the scene's own figure, or its fraction
+    (AMBIENT_FRACTION) of the AM1.5 solar irradiance through the configured bandpass (thesis 3.4)."""
+    if scene.ambient_w_m2 is not None:
+        return scene.ambient_w_m2
+    sun = band_irradiance_w_m2(cfg.laser.wavelength_m * 1e9, cfg.optics.bandpass_width_m * 1e9)
+    return AMBIENT_FRACTION[scene.ambient] * sun
+
+
+def photons_per_joule(wavelength_m: float) -> float:
+    return wavelength_m / (PLANCK_J_S * LIGHT_M_S)
+
+
+def column_gain(cfg: SensorConfig, sensor: SensorParams, options: RenderOptions) -> float:
+    """K of ``electrons/s per column = K rho cos(i) / (r z)`` (module docstring, step 2), e- m^2 / s."""
+    o, las = cfg.optics, cfg.laser
+    return (options.optics_transmission * o.pixel_pitch_m**2 * las.power_w * cfg.camera.intrinsics.fy
+            / (4 * o.f_number**2 * las.fan_angle_rad) * sensor.qe * photons_per_joule(las.wavelength_m))
+
+
+def ambient_gain(cfg: SensorConfig, sensor: SensorParams, options: RenderOptions) -> float:
+    """Electrons/s per pixel per (reflectivity x W/m^2 of ambient irradiance on the surface)."""
+    o = cfg.optics
+    return (options.optics_transmission * o.pixel_pitch_m**2 / (4 * o.f_number**2) * sensor.qe
+            * photons_per_joule(cfg.laser.wavelength_m))
+
+
+@dataclass(frozen=True)
+class _Crossings:
+    """The lit curve resampled at integer columns (one entry per column crossing)."""
+
+    col: np.ndarray
+    row: np.ndarray
+    rate: np.ndarray  # electrons/s summed over the column
+    depth: np.ndarray  # camera z, metres
+    points: np.ndarray  # (M, 3) camera frame
+    surface: np.ndarray
+
+
+def _resample_columns(u, v, ok, surface, rate, depth, points) -> _Crossings:
+    """Interpolate per-sample curve values at every integer column between consecutive samples
+    that are both valid and on the same surface (never across a depth jump or an occlusion)."""
+    pair = ok[:-1] & ok[1:] & (surface[:-1] == surface[1:])
+    k = np.nonzero(pair)[0]
+    u0, u1 = u[k], u[k + 1]
+    lo, hi = np.minimum(u0, u1), np.maximum(u0, u1)
+    first = np.ceil(lo)
+    count = np.maximum(np.ceil(hi) - first, 0).astype(int)  # integers c with lo <= c < hi
+    kk = np.repeat(k, count)
+    c = np.repeat(first, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = (c - u[kk]) / (u[kk + 1] - u[kk])
+    lerp = lambda a: a[kk] + w * (a[kk + 1] - a[kk])  # noqa: E731
+    pts = points[kk] + w[:, None] * (points[kk + 1] - points[kk])
+    return _Crossings(c.astype(int), lerp(v), lerp(rate), lerp(depth), pts, surface[kk])
+
+
+class SceneRenderer:
+    """Renders frames of one scene seen by one sensor configuration; caches everything static.
+
+    ``render(timing, rng)`` -> (uint8 image, FrameTruth); ``expected_electrons(timing)`` -> the
+    noise-free expected electrons per pixel (float32) that the sensor model turns into a frame.
+    """
+
+    def __init__(self, cfg: SensorConfig, scene: Scene, sensor: SensorParams = IMX219_MODE5,
+                 options: RenderOptions = RenderOptions(), seed: int = 0):
+        self.cfg, self.scene, self.sensor, self.options, self.seed = cfg, scene, sensor, options, seed
+        self.height, self.width = cfg.height, cfg.width
+        self.active_height = cfg.active_height or cfg.height
+        self.active_width = cfg.active_width or cfg.width
+        self.frame = scan_frame(cfg.plane)
+        self.camera_scan = -self.frame.rotation @ self.frame.origin  # optical centre in the scan frame
+        self._prims = primitives(scene)
+        self._tex_seed = seed
+        k_col = column_gain(cfg, sensor, options)
+        primary, lit = self._laser_curve(k_col)
+        self.crossings = primary
+        self.truth_template = self._truth(primary)
+        ghosts = self._ghosts(lit, k_col) if options.gloss else []
+        self._splat = self._splat_table([primary, *ghosts])
+        self.ambient_w_m2 = ambient_irradiance_w_m2(scene, cfg)
+        self._ambient = self._ambient_rate() if options.ambient and self.ambient_w_m2 > 0 else None
+        self._normals = None
+
+    # ------------------------------------------------------------ static geometry
+    def _laser_curve(self, k_col: float) -> tuple[_Crossings, dict]:
+        cfg = self.cfg
+        half = cfg.laser.fan_angle_rad / 2
+        theta = np.linspace(-half, half, self.options.ray_samples)
+        dirs = np.stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)], axis=-1)
+        hits = cast(np.zeros(3), dirs, laser_prims(self._prims))
+        hit = hits.surface >= 0
+        p_scan = dirs * np.where(hit, hits.t, 0.0)[:, None]
+        cos_i = np.abs(np.sum(hits.normal * dirs, axis=-1))
+        refl = self._reflectivity(hits)
+        lit = {"p_scan": p_scan, "hit": hit, "surface": hits.surface, "r": hits.t, "cos_i": cos_i, "refl": refl}
+        # visible from the camera: nothing between the optical centre and the point
+        to_p = p_scan - self.camera_scan
+        seen = cast(self.camera_scan, to_p, self._prims)
+        visible = hit & (seen.t >= 1 - 1e-7)
+        cross = self._project_and_resample(p_scan, visible, hits.surface, k_col * refl * cos_i / np.where(hit, hits.t, 1.0))
+        return cross, lit
+
+    def _project_and_resample(self, p_scan, ok, surface, rate_times_z) -> _Crossings:
+        p_cam = p_scan @ self.frame.rotation + self.frame.origin
+        uv = project_points(p_cam, self.cfg.camera)
+        depth = p_cam[:, 2]
+        ok = ok & np.all(np.isfinite(uv), axis=-1) & (depth > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rate = np.where(ok, rate_times_z / depth, 0.0)
+        c = _resample_columns(uv[:, 0], uv[:, 1], ok, surface, rate, depth, p_cam)
+        inside = (c.col >= 0) & (c.col < self.active_width) & (c.row >= -0.5) & (c.row <= self.active_height - 0.5)
+        return _Crossings(*(getattr(c, f)[inside] for f in ("col", "row", "rate", "depth", "points", "surface")))
+
+    def _reflectivity(self, hits: Hits) -> np.ndarray:
+        """Diffuse reflectivity x texture at each hit (BACKDROP_REFLECTIVITY where nothing is hit)."""
+        refl = np.full(hits.t.shape, BACKDROP_REFLECTIVITY)
+        for i, s in enumerate(self.scene.surfaces):
+            m = hits.surface == i
+            if not m.any():
+                continue
+            f = 1.0
+            if self.options.texture and s.material.texture != "plain":
+                f = texture_factor(s.material.texture, hits.texcoord[m], s.material.texture_scale_m, self._tex_seed + i)
+            refl[m] = np.minimum(s.material.reflectivity * f, 1.0)
+        return refl
+
+    def _ghosts(self, lit: dict, k_col: float) -> list[_Crossings]:
+        out = []
+        for i, s in enumerate(self.scene.surfaces):
+            if not (isinstance(s, (Wall, Floor)) and s.material.gloss > 0):
+                continue
+            src = lit["hit"] & (lit["surface"] != i)
+            virt = mirror(lit["p_scan"], s)
+            c = self.camera_scan
+            d = virt - c
+            if isinstance(s, Floor):
+                same_side = (c[2] > s.z) & (lit["p_scan"][:, 2] > s.z)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t = (s.z - c[2]) / d[:, 2]
+                on_mirror = same_side & (t > 0) & (t < 1)
+            else:
+                a, e = np.asarray(s.start), np.asarray(s.end) - np.asarray(s.start)
+                nrm = np.array([e[1], -e[0]])
+                same_side = np.sign((lit["p_scan"][:, :2] - a) @ nrm) == np.sign((c[:2] - a) @ nrm)
+                one = cast(c, d, primitives(Scene("mirror", walls=(s,))))
+                on_mirror = same_side & (one.t > 0) & (one.t < 1)
+            rate_z = s.material.gloss * k_col * lit["refl"] * lit["cos_i"] / np.where(lit["hit"], lit["r"], 1.0)
+            out.append(self._project_and_resample(virt, src & on_mirror, lit["surface"], rate_z))
+        return out
+
+    def _truth(self, c: _Crossings) -> FrameTruth:
+        w = self.width
+        row = np.full(w, np.nan)
+        points = np.full((w, 3), np.nan)
+        surface = np.full(w, -1, dtype=int)
+        depth = np.full(w, np.inf)
+        # the nearest visible crossing of each column is its true return
+        order = np.lexsort((c.depth, c.col))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = c.col[order][1:] != c.col[order][:-1]
+        sel = order[first]
+        row[c.col[sel]], points[c.col[sel]], surface[c.col[sel]], depth[c.col[sel]] = c.row[sel], c.points[sel], c.surface[sel], c.depth[sel]
+        angle, rng_m = to_scan_plane(points, self.frame)
+        rng_m = np.where(np.isfinite(row), rng_m, np.inf)
+        return FrameTruth(row, rng_m, angle, points, surface, np.zeros(self.height, dtype=bool))
+
+    def _speckle(self) -> np.ndarray:
+        """Static (H, W) multiplicative speckle field, mean 1, std = contrast."""
+        h, w = self.height, self.width
+        rng = np.random.default_rng([self.seed, 0x5BEC])
+        field = rng.standard_normal((h, w)) + 1j * rng.standard_normal((h, w))
+        fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
+        o = self.cfg.optics
+        cutoff = min(0.5, o.pixel_pitch_m / (2 * self.options.speckle_grain_factor * self.cfg.laser.wavelength_m * o.f_number))
+        amp = np.fft.ifft2(np.fft.fft2(field) * (fx * fx + fy * fy <= cutoff * cutoff))
+        inten = np.abs(amp) ** 2
+        inten = (inten - inten.mean()) / inten.std()
+        return np.clip(1.0 + self.options.speckle_contrast * inten, 0.0, None)
+
+    def _splat_table(self, curves: Sequence[_Crossings]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(flat pixel index, electrons/s, row) of the laser line, duplicates summed."""
+        cols = np.concatenate([c.col for c in curves])
+        rows = np.concatenate([c.row for c in curves])
+        rate = np.concatenate([c.rate for c in curves])
+        depth = np.concatenate([c.depth for c in curves])
+        if cols.size == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.int64)
+        fyp = self.cfg.camera.intrinsics.fy
+        sigma = np.sqrt(self.options.blur_sigma_px**2 + (fyp * self.cfg.laser.line_height_m / 4 / depth) ** 2)
+        half = int(math.ceil(4 * sigma.max())) + 1
+        off = np.arange(-half, half + 1)
+        r = np.floor(rows)[:, None] + off[None, :]
+        s2 = math.sqrt(2) * sigma[:, None]
+        frac = 0.5 * (erf((r + 0.5 - rows[:, None]) / s2) - erf((r - 0.5 - rows[:, None]) / s2))
+        val = rate[:, None] * frac
+        r = r.astype(np.int64)
+        c = np.broadcast_to(cols[:, None], r.shape)
+        keep = (r >= 0) & (r < self.active_height) & (val > 0)
+        r, c, val = r[keep], c[keep], val[keep]
+        if self.options.speckle:
+            val = val * self._speckle()[r, c]
+        flat = r * self.width + c
+        uniq, inv = np.unique(flat, return_inverse=True)
+        summed = np.bincount(inv, weights=val)
+        return uniq, summed.astype(np.float32), uniq // self.width
+
+    def _ambient_rate(self) -> np.ndarray:
+        """(H, W) float32 ambient electrons per second per pixel, zero outside the active area."""
+        step = self.options.background_step
+        hh, ww = -(-self.active_height // step), -(-self.active_width // step)
+        grid = pixel_grid(ww, hh) * step + (step - 1) / 2
+        un = undistort_robust(grid.reshape(-1, 2), self.cfg.camera, tol_px=1e-3)
+        xy = np.where(un.valid[:, None], un.xy, 0.0)
+        d_cam = np.concatenate([xy, np.ones_like(xy[:, :1])], axis=-1)
+        d_scan = d_cam @ self.frame.rotation.T
+        hits = cast(self.camera_scan, d_scan, self._prims)
+        refl = self._reflectivity(hits)
+        nohit = hits.surface < 0
+        if nohit.any() and self.options.texture:  # backdrop: texture by direction
+            az = np.arctan2(d_scan[nohit, 1], d_scan[nohit, 0]) * 40
+            el = d_scan[nohit, 2] / np.linalg.norm(d_scan[nohit], axis=-1) * 40
+            refl[nohit] *= 1 + 0.3 * (2 * value_noise(az, el, self.seed + 99) - 1)
+        refl[~un.valid] = 0.0
+        rate = (refl * self.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)).reshape(hh, ww)
+        full = np.repeat(np.repeat(rate, step, axis=0), step, axis=1)[: self.active_height, : self.active_width]
+        out = np.zeros((self.height, self.width), dtype=np.float32)
+        out[: self.active_height, : self.active_width] = full
+        return out
+
+    # ------------------------------------------------------------ per frame
+    def expected_electrons(self, timing: FrameTiming) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) float32 expected electrons and the (H,) per-row pulse overlap in seconds."""
+        overlap = row_overlap_s(timing, self.height, self.options.rolling_shutter)
+        if self._ambient is not None:
+            e = self._ambient * np.float32(timing.exposure_us * 1e-6)
+        else:
+            e = np.zeros((self.height, self.width), dtype=np.float32)
+        flat, val, rows = self._splat
+        if flat.size and overlap.any():
+            e.ravel()[flat] += val * overlap[rows].astype(np.float32)
+        return e, overlap
+
+    def render(self, timing: FrameTiming, rng: np.random.Generator) -> tuple[np.ndarray, FrameTruth]:
+        """One frame (uint8 (H, W)) and its ground truth; deterministic for the rng's state."""
+        e, overlap = self.expected_electrons(timing)
+        normals = None
+        if self.options.noise and self.options.noise_table:
+            n = e.size
+            if self._normals is None:
+                self._normals = np.random.default_rng([self.seed, 0x4015E]).standard_normal(2 * n, dtype=np.float32)
+            off = int(rng.integers(0, n))
+            normals = self._normals[off: off + n].reshape(e.shape)
+        image = sensor_frame(e, rng if self.options.noise else None, self.sensor, normals=normals)
+        return image, replace(self.truth_template, lit_rows=overlap > 0)

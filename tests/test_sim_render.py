@@ -1,0 +1,176 @@
+import math
+
+import numpy as np
+import pytest
+
+from device.config import load_preset
+from device.model.camera import undistort_robust
+from device.model.scan_frame import scan_frame
+from device.model.triangulation import intersect_plane
+from device.sim.render import FrameTiming, RenderOptions, SceneRenderer, column_gain, row_overlap_s
+from device.sim.scene import get_scene, wall_scene
+
+CFG = load_preset("thesis-calibrated")
+QUIET = RenderOptions().without("noise", "speckle", "ambient")
+LINE_NS = 18904.0
+
+
+def full_pulse(exposure_us=40000.0, t=10**9):
+    """A pulse that covers every row's whole exposure window."""
+    return FrameTiming(t, exposure_us, LINE_NS, ((t - int(exposure_us * 1e3) - 1, t + int(CFG.height * LINE_NS) + 1),))
+
+
+def model_rows(cols, distance, angle_deg):
+    """Where the model says the line is: bisect, per column, the row whose back-projected ray meets
+    the laser plane on the wall (signed distance of the triangulated point to the wall = 0)."""
+    frame = scan_frame(CFG.plane)
+    a = math.radians(angle_deg)
+    nrm = np.array([math.cos(a), math.sin(a)])
+
+    def f(v):
+        un = undistort_robust(np.stack([cols.astype(float), v], axis=-1), CFG.camera)
+        p = intersect_plane(un.xy, CFG.plane).points
+        q = (p - frame.origin) @ frame.rotation.T
+        d = q[:, :2] @ nrm - distance
+        return np.where(np.isfinite(d), d, 1e9)  # beyond the plane's horizon: infinitely far
+
+    lo, hi = np.full(cols.shape, 0.0), np.full(cols.shape, 900.0)
+    flo = f(lo)
+    assert np.all(flo > 0) and np.all(f(hi) < 0)  # the root is bracketed
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        fm = f(mid)
+        same = np.sign(fm) == np.sign(flo)
+        lo, flo = np.where(same, mid, lo), np.where(same, fm, flo)
+        hi = np.where(same, hi, mid)
+    return (lo + hi) / 2
+
+
+@pytest.mark.parametrize("distance,angle", [(2.0, 0.0), (0.6, 30.0), (3.0, -20.0)])
+def test_wall_line_row_matches_the_model(distance, angle):
+    r = SceneRenderer(CFG, wall_scene(distance, angle), options=QUIET)
+    truth = r.truth_template
+    cols = np.arange(40, 1600, 37)
+    cols = cols[np.isfinite(truth.row[cols])]
+    assert cols.size > 30
+    expected = model_rows(cols, distance, angle)
+    assert np.max(np.abs(truth.row[cols] - expected)) < 0.01
+    # and the rendered (noise-free) line's centroid is at the true row
+    e, _ = r.expected_electrons(full_pulse())
+    rows = np.arange(e.shape[0])[:, None]
+    centroid = (e[:, cols] * rows).sum(0) / e[:, cols].sum(0)
+    assert np.max(np.abs(centroid - truth.row[cols])) < 0.01
+    # truth range: the wall's distance along the wall normal
+    frame = scan_frame(CFG.plane)
+    q = (truth.points[cols] - frame.origin) @ frame.rotation.T
+    n = np.array([math.cos(math.radians(angle)), math.sin(math.radians(angle))])
+    assert np.max(np.abs(q[:, :2] @ n - distance)) < 1e-6
+    assert np.allclose(truth.range_m[cols], np.hypot(q[:, 0], q[:, 1]))
+
+
+def test_irradiance_falls_as_the_model_says():
+    """Column sum of electrons = K rho cos(i) / (r z) x pulse overlap (render docstring, step 2)."""
+    k = column_gain(CFG, SceneRenderer(CFG, get_scene("empty")).sensor, QUIET)
+    timing = full_pulse()
+    overlap = row_overlap_s(timing, CFG.height)[0]
+    sums = {}
+    for d in (0.5, 1.0, 2.0, 4.0):
+        r = SceneRenderer(CFG, wall_scene(d, 0.0, reflectivity=0.5), options=QUIET)
+        e, _ = r.expected_electrons(timing)
+        c = 820
+        p = r.truth_template.points[c]
+        rng_m, z = r.truth_template.range_m[c], p[2]
+        ang = r.truth_template.angle_rad[c]
+        expected = k * 0.5 * math.cos(ang) / (rng_m * z) * overlap  # wall faces the sensor: cos(i) = cos(angle)
+        sums[d] = e[:, c].sum()
+        assert sums[d] == pytest.approx(expected, rel=2e-3)
+    # surface irradiance ~ 1/r and the pixel footprint ~ 1/z: about 1/d^2 on axis
+    assert sums[1.0] / sums[2.0] == pytest.approx(4.0, rel=0.03)
+    assert sums[2.0] / sums[4.0] == pytest.approx(4.0, rel=0.03)
+
+
+def test_pulse_over_rows_200_to_400_lights_exactly_those_rows():
+    exposure_us = 50 * LINE_NS / 1e3  # 50 line times
+    t = 10**9
+    on = t + 199.5 * LINE_NS  # after row 199 has finished exposing
+    off = t - exposure_us * 1e3 + 400.5 * LINE_NS  # before row 401 starts
+    timing = FrameTiming(t, exposure_us, LINE_NS, ((int(on), int(off)),))
+    scene = wall_scene(0.08, 60.0)  # a near, steep wall: the line crosses many rows
+    r = SceneRenderer(CFG, scene, options=QUIET)
+    img, truth = r.render(timing, np.random.default_rng(0))
+    assert np.array_equal(np.nonzero(truth.lit_rows)[0], np.arange(200, 401))
+    rows_with_light = np.nonzero(img.max(axis=1) > 0)[0]
+    assert rows_with_light.min() >= 200 and rows_with_light.max() <= 400
+    true_rows = truth.row[np.isfinite(truth.row)]
+    assert true_rows.min() < 150 and true_rows.max() > 450  # the line itself spans more than the pulse
+    # the unlit frame of the same scene is dark, the all-rows pulse lights the whole line
+    dark, dtruth = r.render(FrameTiming(t, exposure_us, LINE_NS), np.random.default_rng(0))
+    assert dark.max() == 0 and not dtruth.lit_rows.any()
+
+
+def test_deterministic_for_a_seed():
+    scene = get_scene("clutter")
+    out = []
+    for _ in range(2):
+        r = SceneRenderer(CFG, scene, seed=3, options=RenderOptions(ray_samples=4096))
+        rng = np.random.default_rng(11)
+        out.append([r.render(full_pulse(), rng)[0] for _ in range(2)])
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    assert not np.array_equal(out[0][0], out[0][1])  # noise differs from frame to frame
+    other = SceneRenderer(CFG, scene, seed=4, options=RenderOptions(ray_samples=4096)).render(full_pulse(), np.random.default_rng(11))[0]
+    assert not np.array_equal(other, out[0][0])
+
+
+def test_empty_scene_has_no_return_and_clutter_has_depth_jumps():
+    r = SceneRenderer(CFG, get_scene("empty"), options=QUIET)
+    t = r.truth_template
+    assert np.all(np.isnan(t.row)) and np.all(np.isinf(t.range_m)) and np.all(t.surface == -1)
+    e, _ = r.expected_electrons(full_pulse())
+    assert e.max() == 0
+    c = SceneRenderer(CFG, get_scene("clutter"), options=QUIET).truth_template
+    ok = np.isfinite(c.range_m)
+    assert len(set(c.surface[ok].tolist())) >= 4
+    jumps = np.abs(np.diff(c.range_m[ok]))
+    assert jumps.max() > 0.5
+
+
+def test_glossy_floor_makes_a_ghost_line_below_the_real_one():
+    scene = get_scene("glossy-floor")
+    with_gloss = SceneRenderer(CFG, scene, options=QUIET)
+    no_gloss = SceneRenderer(CFG, scene, options=QUIET.without("gloss"))
+    e1, _ = with_gloss.expected_electrons(full_pulse())
+    e0, _ = no_gloss.expected_electrons(full_pulse())
+    c = 820
+    row = with_gloss.truth_template.row[c]
+    ghost = e1[:, c] - e0[:, c]
+    assert ghost.max() > 0 and np.argmax(ghost) > row + 3  # the mirror image lies further down
+    assert ghost.sum() == pytest.approx(0.4 * e0[:, c].sum(), rel=0.3)  # gloss 0.4, slightly farther virtual point
+
+
+def test_sunlight_saturates_the_background_at_a_long_exposure():
+    r = SceneRenderer(CFG, get_scene("sunlight"), options=RenderOptions().without("noise"))
+    img, _ = r.render(full_pulse(), np.random.default_rng(0))
+    truth = r.truth_template
+    cols = np.nonzero(np.isfinite(truth.row))[0]
+    rows = np.round(truth.row[cols]).astype(int)
+    assert np.mean(img[rows, cols] == 255) > 0.9  # the wall is white: nothing left to see the laser in
+
+
+def test_speckle_is_static_and_has_the_configured_contrast():
+    opts = QUIET.without("texture")
+    opts = RenderOptions(noise=False, ambient=False, texture=False, speckle=True, speckle_contrast=0.5)
+    r = SceneRenderer(CFG, wall_scene(1.0), options=opts)
+    flat = SceneRenderer(CFG, wall_scene(1.0), options=opts.without("speckle"))
+    e, _ = r.expected_electrons(full_pulse())
+    e0, _ = flat.expected_electrons(full_pulse())
+    m = e0 > 0.2 * e0.max()
+    ratio = e[m] / e0[m]
+    assert ratio.mean() == pytest.approx(1.0, abs=0.05)
+    assert ratio.std() == pytest.approx(0.5, abs=0.08)
+    e2, _ = r.expected_electrons(full_pulse(t=2 * 10**9))
+    assert np.array_equal(e, e2)
+
+
+def test_render_options_validate():
+    with pytest.raises(ValueError, match="speckle_contrast"):
+        RenderOptions(speckle_contrast=1.5)
