@@ -3,10 +3,13 @@
  * Time unit: one MCU tick = one Timer1 count = 8 CPU cycles at 16 MHz = 0.5 us.
  * The eye-safety envelope (MAX_PULSE_TICKS, MAX_DUTY_PPM) is compiled in and can only be changed
  * by rebuilding (`make MAX_PULSE_TICKS=... MAX_DUTY_PPM=...`); nothing on the serial link can
- * widen it.  The defaults are the Class 1 envelope of the thesis laser (808 nm, 25 mW, 120 deg
- * fan, 4 mm line, 1 mm source): 17.4 ms maximum pulse (thesis section 4.1.4, IEC 60825-1
- * single-pulse AEL with the C5 repetitive-pulse reduction, errata note 1) and 20 % duty; the
- * sensor-model issue (device/model, eye safety) computes these numbers for other lasers.
+ * widen it.  Defaults, for the thesis laser (808 nm, 25 mW, 120 deg fan, 4 mm line, 1 mm
+ * source): 17.4 ms maximum pulse, the pulse the thesis's Class 1 analysis was done for (mode-5
+ * exposure, parameter t of sections 4.1.1/4.2; appendix B NOHD analysis: 25 mW keeps the NOHD
+ * under 10 mm with 17.4 ms pulses), and 20 % maximum duty, just above the thesis operating
+ * point (17.4 ms at 10 Hz = 17.4 %).  The sensor-model issue (device/model eye safety, IEC
+ * 60825-1 AEL with the C5 reduction of errata note 1) computes the envelope for other lasers
+ * and configurations; rebuild with its numbers.
  */
 #ifndef LASERPI_CONFIG_H
 #define LASERPI_CONFIG_H

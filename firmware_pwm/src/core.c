@@ -410,6 +410,8 @@ void core_rx_byte(core_t *c, uint8_t b, uint64_t rx_tick)
     c->rx_overflow = 0;
 }
 
+void core_rx_damaged(core_t *c) { c->rx_overflow = 1; }
+
 void core_poll(core_t *c)
 {
     uint8_t s = hw_irq_save();

@@ -47,6 +47,8 @@ typedef struct {
 void core_init(core_t *c, uint8_t reset_cause);
 /* Main context: one received byte, rx_tick = MCU time the byte arrived (used for PONG). */
 void core_rx_byte(core_t *c, uint8_t b, uint64_t rx_tick);
+/* Main context: the receiver dropped bytes; the frame being assembled is refused (malformed). */
+void core_rx_damaged(core_t *c);
 /* Main context: sends queued EDGE reports; runs the guards. */
 void core_poll(core_t *c);
 /* Interrupt context (interrupts disabled): the armed rise happened at tick t.

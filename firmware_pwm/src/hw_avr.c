@@ -35,6 +35,7 @@ static uint64_t arm_target;
 #define RX_RING 64
 static volatile uint8_t rx_ring[RX_RING];
 static volatile uint8_t rx_head, rx_tail;
+static volatile uint8_t rx_lost; /* a byte was dropped: the frame being assembled is damaged */
 #define DELIM_RING 4
 static volatile uint64_t delim_tick[DELIM_RING];
 static volatile uint8_t delim_head, delim_tail;
@@ -187,9 +188,11 @@ ISR(USART_RX_vect)
 {
     uint8_t b = UDR0;
     uint8_t next = (uint8_t)((rx_head + 1) % RX_RING);
-    if (next != rx_tail) { /* on overflow the byte is lost; the frame then fails its CRC */
+    if (next != rx_tail) {
         rx_ring[rx_head] = b;
         rx_head = next;
+    } else {
+        rx_lost = 1;
     }
     if (b == 0) {
         uint8_t dn = (uint8_t)((delim_head + 1) % DELIM_RING);
@@ -223,11 +226,17 @@ int main(void)
     sei();
     core_send_info(&core, 0); /* unsolicited at boot: tells the Pi the MCU (re)started */
     for (;;) {
+        /* one byte per pass, so that the watchdog is fed and the guards run even while a
+         * stream of garbage keeps the receiver busy and every bad frame is answered */
         wdt_reset();
-        while (rx_tail != rx_head) {
+        if (rx_tail != rx_head) {
             uint8_t b = rx_ring[rx_tail];
             rx_tail = (uint8_t)((rx_tail + 1) % RX_RING);
             uint64_t tick = 0;
+            if (rx_lost) { /* bytes (maybe a delimiter) were dropped: never act on a merged frame */
+                rx_lost = 0;
+                core_rx_damaged(&core);
+            }
             if (b == 0) {
                 uint8_t s = hw_irq_save();
                 if (delim_tail != delim_head) {

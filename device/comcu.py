@@ -1,0 +1,173 @@
+"""Pi side of the co-MCU link: CoMcu speaks protocol/mcu.py over any pyserial-like port.
+
+The port needs ``write(bytes)``, ``read(size) -> bytes`` (returning fewer bytes, or none, when
+its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at 250000 baud 8N1 on the Pi, or
+device.comcu_emulator.SteppedMcuPort for the firmware running in simavr.
+
+Every command waits for its reply (matched by sequence number).  EDGE reports and unsolicited
+INFO frames (the MCU announces every boot with one) that arrive meanwhile are kept, see
+``edges()`` and ``boot_infos``.  A refusal raises CoMcuNack naming the reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from protocol import mcu
+from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
+
+log = logging.getLogger(__name__)
+
+BAUDRATE = 250_000
+_REPLY_TYPES = {mcu.Ack.MSG_TYPE, mcu.Nack.MSG_TYPE, mcu.Pong.MSG_TYPE, mcu.Status.MSG_TYPE, mcu.Info.MSG_TYPE}
+_NAMES = {cls.MSG_TYPE: cls.__name__.upper() for cls in mcu.MESSAGES.values()}
+
+
+class CoMcuError(RuntimeError):
+    """The co-MCU did not answer as the protocol says."""
+
+
+class CoMcuTimeout(CoMcuError):
+    """No reply before the port's read timeout."""
+
+
+class CoMcuNack(CoMcuError):
+    """The co-MCU refused a command; ``reason`` is a NackReason name such as 'envelope_width'."""
+
+    def __init__(self, nack: mcu.Nack):
+        self.nack = nack
+        self.reason = nack.reason_name
+        self.detail = nack.detail
+        super().__init__(f"{_NAMES.get(nack.acked_type, hex(nack.acked_type))} refused by the co-MCU: "
+                         f"{self.reason} (detail {nack.detail})")
+
+
+@dataclass(frozen=True, slots=True)
+class PingResult:
+    """MCU time of the reply, bracketed by host CLOCK_MONOTONIC times (ns): the MCU read its
+    clock (mcu_ticks) somewhere between host_send_ns and host_recv_ns."""
+
+    mcu_ticks: int
+    host_send_ns: int
+    host_recv_ns: int
+    mcu_rx_ticks: int  # MCU time the PING's last byte arrived
+
+    @property
+    def round_trip_ns(self) -> int:
+        return self.host_recv_ns - self.host_send_ns
+
+
+class CoMcu:
+    """Commands to the laser co-MCU; one instance per port, not thread-safe."""
+
+    def __init__(self, port, *, clock_ns: Callable[[], int] = time.monotonic_ns, max_skipped_frames: int = 256):
+        self.port = port
+        self._clock_ns = clock_ns
+        self._max_skipped = max_skipped_frames
+        self._seq = 0
+        self._buf = bytearray()
+        self._edges: list[mcu.Edge] = []
+        self.boot_infos: list[mcu.Info] = []
+        self.bad_frames = 0
+
+    # ---- commands -----------------------------------------------------------------------
+    def ping(self) -> PingResult:
+        send_ns = self._clock_ns()
+        pong = self._request(mcu.Ping(), mcu.Pong)
+        recv_ns = self._clock_ns()
+        return PingResult(pong.tx_ticks, send_ns, recv_ns, pong.rx_ticks)
+
+    def schedule(self, first_rise_ticks: int, period_ticks: int, width_ticks: int, mask: int = 1, n: int = 1,
+                 stream_edges: bool = False) -> int:
+        """Start a pulse pattern (see protocol.mcu.Schedule); returns the index of the first lit pulse."""
+        msg = mcu.Schedule(first_rise_ticks, period_ticks, width_ticks, mask, n, stream_edges)
+        return self._request(msg, mcu.Ack).info
+
+    def trim(self, phase_ticks: int = 0, period_ticks: int = 0) -> int:
+        """Shift the phase and change the period at the next pulse boundary; returns the index of
+        the last pulse that keeps the old timing."""
+        return self._request(mcu.Trim(phase_ticks, period_ticks), mcu.Ack).info
+
+    def stop(self) -> int:
+        """Laser off now, schedule dropped, faults cleared; returns the pulse count."""
+        return self._request(mcu.Stop(), mcu.Ack).info
+
+    def status(self) -> mcu.Status:
+        return self._request(mcu.StatusRequest(), mcu.Status)
+
+    def info(self) -> mcu.Info:
+        return self._request(mcu.InfoRequest(), mcu.Info)
+
+    def heartbeat(self) -> tuple[mcu.McuState, mcu.Fault]:
+        """Keep a running schedule alive (the MCU switches the laser off without one for
+        Info.heartbeat_timeout_ms); returns the MCU's state and latched faults."""
+        info = self._request(mcu.Heartbeat(), mcu.Ack).info
+        return mcu.McuState(info & 0xFF), mcu.Fault((info >> 8) & 0xFF)
+
+    def edges(self) -> list[mcu.Edge]:
+        """EDGE reports received so far (streamed when the schedule asked for them), oldest
+        first; also takes any complete frames already waiting on the port, without blocking."""
+        waiting = self.port.in_waiting
+        if waiting:
+            self._buf += self.port.read(waiting)
+            while (frame := self._next_buffered_frame()) is not None:
+                self._keep_unsolicited(frame)
+        out, self._edges = self._edges, []
+        return out
+
+    # ---- plumbing -----------------------------------------------------------------------
+    def _request(self, msg, reply_cls):
+        self._seq = (self._seq + 1) & 0xFFFF or 1  # seq 0 is the MCU's unsolicited traffic
+        # A leading delimiter ends any partial frame line noise left in the MCU's receiver.
+        self.port.write(b"\x00" + mcu.encode_message(msg, self._seq))
+        for _ in range(self._max_skipped):
+            frame = self._read_frame()
+            if frame.seq == self._seq and frame.msg_type in _REPLY_TYPES:
+                reply = mcu.decode_message(frame)
+                if isinstance(reply, mcu.Nack):
+                    raise CoMcuNack(reply)
+                if not isinstance(reply, reply_cls):
+                    raise CoMcuError(f"{type(msg).__name__} answered by {type(reply).__name__}, "
+                                     f"expected {reply_cls.__name__}")
+                return reply
+            self._keep_unsolicited(frame)
+        raise CoMcuError(f"no reply to {type(msg).__name__} among {self._max_skipped} frames")
+
+    def _keep_unsolicited(self, frame) -> None:
+        try:
+            msg = mcu.decode_message(frame)
+        except FrameError as exc:
+            self.bad_frames += 1
+            log.warning("co-MCU frame dropped: %s", exc)
+            return
+        if isinstance(msg, mcu.Edge):
+            self._edges.append(msg)
+        elif isinstance(msg, mcu.Info) and frame.seq == 0:
+            log.info("co-MCU (re)started: reset cause 0x%02x", msg.reset_cause)
+            self.boot_infos.append(msg)
+        else:
+            log.debug("co-MCU frame ignored: %s seq %d", type(msg).__name__, frame.seq)
+
+    def _next_buffered_frame(self):
+        while (end := self._buf.find(b"\x00")) >= 0:
+            encoded = bytes(self._buf[:end])
+            del self._buf[: end + 1]
+            if not encoded:
+                continue
+            try:
+                return decode_frame(encoded, max_payload=MAX_PAYLOAD_MCU)
+            except FrameError as exc:
+                self.bad_frames += 1
+                log.warning("co-MCU frame dropped: %s", exc)
+        return None
+
+    def _read_frame(self):
+        while (frame := self._next_buffered_frame()) is None:
+            chunk = self.port.read(max(1, self.port.in_waiting))
+            if not chunk:
+                raise CoMcuTimeout("co-MCU did not answer before the port timeout")
+            self._buf += chunk
+        return frame

@@ -1,0 +1,182 @@
+"""The real co-MCU firmware running in simavr (firmware_pwm/harness), for tests and simulation.
+
+    with SteppedMcuPort() as port:          # builds nothing; see build_emulator()
+        mcu = CoMcu(port)
+        mcu.ping()
+        port.advance(0.1)                    # 100 ms of simulated time
+        port.edges                           # [(cpu_cycle, level), ...] of the laser pin
+
+SteppedMcuPort is pyserial-like (write, read, in_waiting, timeout) and advances simulated time
+only while the host waits for bytes or calls advance(), so runs are deterministic whatever the
+load of the machine; its ``timeout`` is in simulated seconds.  The harness's free-running mode
+(a pty for pyserial, simulated time paced to the wall clock) is FreeRunningEmulator.  simavr's UART moves bytes in batches, not like a physical line: link
+latency is not measured here; pin edges and timer counts are cycle-exact.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+from pathlib import Path
+
+FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware_pwm"
+HARNESS = FIRMWARE_DIR / "build" / "laserpi_harness"
+ELF = FIRMWARE_DIR / "build" / "laserpi_pwm.elf"
+CPU_HZ = 16_000_000
+CYCLES_PER_TICK = 8  # Timer1 prescaler
+
+
+class EmulatorError(RuntimeError):
+    """The harness could not be built or stopped answering."""
+
+
+def build_emulator() -> tuple[Path, Path]:
+    """Builds the firmware ELF and the simavr harness (make -C firmware_pwm all harness)."""
+    proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE_DIR), "all", "harness"],
+                          capture_output=True, text=True, timeout=300)
+    if proc.returncode != 0:
+        raise EmulatorError("cannot build the firmware emulator (needs gcc-avr, avr-libc, simavr and "
+                            "libsimavr-dev: run `make bootstrap`):\n" + proc.stdout + proc.stderr)
+    return HARNESS, ELF
+
+
+class SteppedMcuPort:
+    """pyserial-like port onto the firmware in the harness, in lock-step with simulated time."""
+
+    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, *, timeout: float = 0.05, step_s: float = 0.0005,
+                 boot_s: float = 0.005):
+        if not Path(harness).exists() or not Path(elf).exists():
+            raise EmulatorError(f"{harness} or {elf} missing: call build_emulator() first")
+        self.timeout = timeout
+        self.step_cycles = int(step_s * CPU_HZ)
+        self.cycle = 0
+        self.edges: list[tuple[int, int]] = []   # (cpu cycle, new level) of the laser pin
+        self.rx_delims: list[int] = []           # cpu cycle at which each 0x00 entered the MCU UART
+        self.timer_starts: list[int] = []        # cpu cycle of each TCCR1B write (Timer1 start)
+        self._rx = bytearray()
+        self._proc = subprocess.Popen([str(harness), str(elf), "--stepped"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self.advance(boot_s)  # the UART drops bytes until the firmware has enabled it
+
+    # pyserial-like ---------------------------------------------------------------------------
+    def write(self, data: bytes) -> int:
+        self._command(f"rx {bytes(data).hex()}")
+        return len(data)
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self._rx)
+
+    def read(self, size: int = 1) -> bytes:
+        deadline = self.cycle + int(self.timeout * CPU_HZ)
+        while len(self._rx) < size and self.cycle < deadline:
+            self.run_cycles(min(self.step_cycles, deadline - self.cycle))
+        out = bytes(self._rx[:size])
+        del self._rx[:size]
+        return out
+
+    def reset_input_buffer(self) -> None:
+        self._rx.clear()
+
+    # simulation ------------------------------------------------------------------------------
+    @property
+    def seconds(self) -> float:
+        return self.cycle / CPU_HZ
+
+    def timer_count_at(self, cycle: int) -> int:
+        """Timer1 count (extended, MCU ticks) at a CPU cycle, from the last timer start before it."""
+        start = max(c for c in self.timer_starts if c <= cycle)
+        return (cycle - start) // CYCLES_PER_TICK
+
+    def advance(self, seconds: float) -> None:
+        self.run_cycles(int(round(seconds * CPU_HZ)))
+
+    def run_cycles(self, cycles: int) -> None:
+        self._command(f"run {int(cycles)}")
+        for line in self._proc.stdout:
+            kind, _, rest = line.strip().partition(" ")
+            if kind == "at":
+                self.cycle = int(rest)
+                return
+            if kind == "tx":
+                self._rx += bytes.fromhex(rest)
+            elif kind == "edge":
+                c, level = rest.split()
+                self.edges.append((int(c), int(level)))
+            elif kind == "rxdelim":
+                self.rx_delims.append(int(rest))
+            elif kind == "timer1":
+                self.timer_starts.append(int(rest.split()[0]))
+            elif kind == "crash":
+                raise EmulatorError(f"simulated MCU crashed: {line.strip()}")
+        raise EmulatorError(f"harness exited: {self._proc.stderr.read()}")
+
+    def _command(self, line: str) -> None:
+        try:
+            self._proc.stdin.write(line + "\n")
+            self._proc.stdin.flush()
+        except BrokenPipeError:
+            raise EmulatorError(f"harness exited: {self._proc.stderr.read()}") from None
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            try:
+                self._proc.stdin.write("quit\n")
+                self._proc.stdin.close()
+            except BrokenPipeError:
+                pass
+            try:
+                self._proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        for f in (self._proc.stdout, self._proc.stderr):
+            f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class FreeRunningEmulator:
+    """The harness with its UART on a pty and simulated time paced to `realtime` x wall clock:
+    open ``pty`` with serial.Serial(pty, 250000) like the real link.  A reader thread collects
+    the harness's events (``edges``: (cpu cycle, level) of the laser pin)."""
+
+    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0):
+        self._proc = subprocess.Popen([str(harness), str(elf), "--realtime", str(realtime)],
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self.edges: list[tuple[int, int]] = []
+        self.pty = None
+        for line in self._proc.stdout:
+            kind, _, rest = line.strip().partition(" ")
+            if kind == "pty":
+                self.pty = rest
+                break
+        if self.pty is None:
+            self._proc.kill()
+            raise EmulatorError(f"harness did not report its pty: {self._proc.stderr.read()}")
+        self._reader = threading.Thread(target=self._read_events, daemon=True)
+        self._reader.start()
+
+    def _read_events(self) -> None:
+        for line in self._proc.stdout:
+            kind, _, rest = line.strip().partition(" ")
+            if kind == "edge":
+                c, level = rest.split()
+                self.edges.append((int(c), int(level)))
+
+    def close(self) -> None:
+        self._proc.terminate()
+        self._proc.wait(timeout=5)
+        self._reader.join(timeout=5)
+        self._proc.stdout.close()
+        self._proc.stderr.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

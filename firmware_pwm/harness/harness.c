@@ -1,0 +1,293 @@
+/* laserpi_harness: runs the real firmware ELF on libsimavr (ATmega328P, 16 MHz).
+ *
+ *   laserpi_harness FIRMWARE.elf [--stepped] [--realtime FACTOR]
+ *
+ * Free-running mode (default): the UART is bridged to a pseudo-terminal whose path is printed
+ * first as "pty /dev/pts/N"; open it with pyserial like a real serial port.  Simulated time is
+ * paced to FACTOR x wall-clock time (default 1.0; 0 = as fast as possible).  The path is
+ * printed after 5 ms of simulated boot, once the firmware listens.
+ * Stepped mode (--stepped, used by the tests): simulated time only advances on command, so runs
+ * are deterministic whatever the load of the machine.  stdin takes lines
+ *     rx <hex bytes>     queue bytes for the MCU's UART receiver
+ *     run <cycles>       simulate that many CPU cycles, then answer "at <cycle>"
+ *     quit
+ * and the UART's output comes back on stdout as "tx <hex bytes>" lines.
+ * Both modes report on stdout, one event a line, with the CPU cycle count (62.5 ns):
+ *     edge <cycle> <level>   the laser pin PB1/OC1A changed level
+ *     rxdelim <cycle>        a frame delimiter (0x00) entered the MCU's UART receiver
+ *     timer1 <cycle> <tccr1b> TCCR1B was written: the timer counts from this cycle, so the
+ *                            Timer1 count at cycle c is (c - cycle) / 8 with prescaler 8
+ * simavr's UART is not timed like a physical line (bytes move in batches), so link latency is
+ * not measured here; pin edges and timer counts are cycle-exact.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <inttypes.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "avr_ioport.h"
+#include "avr_uart.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_irq.h"
+
+#define CPU_HZ 16000000UL
+#define QUEUE 65536
+
+static avr_t *avr;
+static int stepped;
+static int pty_fd = -1;
+static uint8_t in_q[QUEUE];
+static size_t in_head, in_tail;
+static int uart_xoff;
+static int pin_level; /* last reported laser pin level */
+static char tx_line[8192];
+static size_t tx_line_len;
+static avr_irq_t *uart_in;
+
+static void logger(avr_t *a, const int level, const char *fmt, va_list ap)
+{
+    (void)a;
+    if (level <= LOG_WARNING)
+        vfprintf(stderr, fmt, ap);
+}
+
+static void flush_tx_line(void)
+{
+    if (tx_line_len) {
+        printf("tx %.*s\n", (int)tx_line_len, tx_line);
+        tx_line_len = 0;
+    }
+}
+
+static void on_uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    uint8_t b = (uint8_t)value;
+    if (stepped) {
+        if (tx_line_len + 2 >= sizeof tx_line)
+            flush_tx_line();
+        tx_line_len += (size_t)sprintf(tx_line + tx_line_len, "%02x", b);
+    } else if (pty_fd >= 0) {
+        if (write(pty_fd, &b, 1) < 0 && errno != EAGAIN)
+            perror("harness: pty write");
+    }
+}
+
+static void on_xon(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value; (void)param;
+    uart_xoff = 0;
+}
+
+static void on_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (value)
+        uart_xoff = 1;
+}
+
+static void on_laser_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    int level = (value & 0xFF) ? 1 : 0;
+    if (level != pin_level) {
+        pin_level = level;
+        printf("edge %" PRIu64 " %d\n", (uint64_t)avr->cycle, level);
+    }
+}
+
+static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    printf("timer1 %" PRIu64 " %u\n", (uint64_t)avr->cycle, value & 0xFF);
+}
+
+static void queue_bytes(const uint8_t *b, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        size_t next = (in_head + 1) % QUEUE;
+        if (next == in_tail) {
+            fprintf(stderr, "harness: input queue full, byte dropped\n");
+            return;
+        }
+        in_q[in_head] = b[i];
+        in_head = next;
+    }
+}
+
+static void feed_uart(void)
+{
+    while (!uart_xoff && in_tail != in_head) {
+        uint8_t b = in_q[in_tail];
+        in_tail = (in_tail + 1) % QUEUE;
+        if (b == 0)
+            printf("rxdelim %" PRIu64 "\n", (uint64_t)avr->cycle);
+        avr_raise_irq(uart_in, b);
+    }
+}
+
+static int run_cycles(uint64_t cycles)
+{
+    uint64_t end = avr->cycle + cycles;
+    while (avr->cycle < end) {
+        feed_uart();
+        int state = avr_run(avr);
+        if (state == cpu_Done || state == cpu_Crashed) {
+            printf("crash %" PRIu64 " %d\n", (uint64_t)avr->cycle, state);
+            fflush(stdout);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static void no_sleep(avr_t *a, avr_cycle_count_t how_long) { (void)a; (void)how_long; }
+
+static int open_pty(void)
+{
+    int fd = posix_openpt(O_RDWR | O_NOCTTY);
+    if (fd < 0 || grantpt(fd) || unlockpt(fd))
+        return -1;
+    struct termios t;
+    if (tcgetattr(fd, &t) == 0) {
+        cfmakeraw(&t);
+        tcsetattr(fd, TCSANOW, &t);
+    }
+    /* keep one slave descriptor open so that reads do not fail while no client is attached */
+    if (open(ptsname(fd), O_RDWR | O_NOCTTY) < 0)
+        return -1;
+    fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
+    return fd;
+}
+
+static double wall_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int hexval(int c)
+{
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+static int stepped_loop(void)
+{
+    static char line[QUEUE * 2 + 64];
+    while (fgets(line, sizeof line, stdin)) {
+        if (strncmp(line, "rx ", 3) == 0) {
+            uint8_t buf[QUEUE / 2];
+            size_t n = 0;
+            for (char *p = line + 3; hexval(p[0]) >= 0 && hexval(p[1]) >= 0 && n < sizeof buf; p += 2)
+                buf[n++] = (uint8_t)(hexval(p[0]) * 16 + hexval(p[1]));
+            queue_bytes(buf, n);
+        } else if (strncmp(line, "run ", 4) == 0) {
+            uint64_t cycles = strtoull(line + 4, NULL, 10);
+            int r = run_cycles(cycles);
+            flush_tx_line();
+            printf("at %" PRIu64 "\n", (uint64_t)avr->cycle);
+            fflush(stdout);
+            if (r)
+                return 1;
+        } else if (strncmp(line, "quit", 4) == 0) {
+            return 0;
+        } else {
+            fprintf(stderr, "harness: unknown command: %s", line);
+            return 2;
+        }
+    }
+    return 0;
+}
+
+static int free_loop(double realtime)
+{
+    pty_fd = open_pty();
+    if (pty_fd < 0) {
+        perror("harness: cannot open a pseudo-terminal");
+        return 1;
+    }
+    /* boot first: the MCU's UART drops bytes until the firmware has enabled its receiver */
+    if (run_cycles(CPU_HZ / 200))
+        return 1;
+    printf("pty %s\n", ptsname(pty_fd));
+    fflush(stdout);
+    double t0 = wall_seconds();
+    uint64_t c0 = avr->cycle;
+    for (;;) {
+        uint8_t buf[256];
+        ssize_t n = read(pty_fd, buf, sizeof buf);
+        if (n > 0)
+            queue_bytes(buf, (size_t)n);
+        if (run_cycles(CPU_HZ / 10000)) /* 100 us of simulated time */
+            return 1;
+        fflush(stdout);
+        if (realtime > 0) {
+            double ahead = (double)(avr->cycle - c0) / CPU_HZ / realtime - (wall_seconds() - t0);
+            if (ahead > 0.001)
+                usleep((useconds_t)(ahead * 1e6));
+        }
+    }
+}
+
+int main(int argc, char **argv)
+{
+    const char *elf = NULL;
+    double realtime = 1.0;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--stepped") == 0)
+            stepped = 1;
+        else if (strcmp(argv[i], "--realtime") == 0 && i + 1 < argc)
+            realtime = atof(argv[++i]);
+        else if (argv[i][0] != '-' && !elf)
+            elf = argv[i];
+        else {
+            fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR]\n", argv[0]);
+            return 2;
+        }
+    }
+    if (!elf) {
+        fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR]\n", argv[0]);
+        return 2;
+    }
+    avr_global_logger_set(logger);
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf, &fw) != 0) {
+        fprintf(stderr, "harness: cannot read %s\n", elf);
+        return 1;
+    }
+    avr = avr_make_mcu_by_name(fw.mmcu[0] ? fw.mmcu : "atmega328p");
+    if (!avr) {
+        fprintf(stderr, "harness: simavr has no model of %s\n", fw.mmcu);
+        return 1;
+    }
+    avr_init(avr);
+    avr->frequency = CPU_HZ;
+    avr->sleep = no_sleep;
+    avr_load_firmware(avr, &fw);
+    avr->frequency = CPU_HZ;
+
+    uint32_t flags = 0; /* no stdio echo of the UART, no host sleeps while the firmware polls */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_out, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_xon, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 1), on_laser_pin, NULL);
+    avr_irq_register_notify(avr_iomem_getirq(avr, 0x81 /* TCCR1B */, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, NULL);
+
+    return stepped ? stepped_loop() : free_loop(realtime);
+}

@@ -1,0 +1,83 @@
+"""device.comcu.CoMcu against a scripted port (no emulator): reply matching, NACK reasons,
+timeouts, interleaved EDGE reports, boot INFO and damaged frames."""
+import pytest
+
+from device.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTimeout
+from protocol import mcu
+from protocol.framing import MAX_PAYLOAD_MCU, decode_frame
+
+
+class ScriptedPort:
+    """pyserial-like: every frame written is answered by respond(frame) -> wire bytes."""
+
+    def __init__(self, respond):
+        self.respond = respond
+        self.rx = bytearray()
+        self.requests = []
+
+    def write(self, data):
+        for chunk in bytes(data).split(b"\x00"):
+            if chunk:
+                frame = decode_frame(chunk, max_payload=MAX_PAYLOAD_MCU)
+                self.requests.append(mcu.decode_message(frame))
+                self.rx += self.respond(frame)
+        return len(data)
+
+    @property
+    def in_waiting(self):
+        return len(self.rx)
+
+    def read(self, size=1):
+        out = bytes(self.rx[:size])
+        del self.rx[:size]
+        return out
+
+
+def test_ping_returns_mcu_time_bracketed_by_host_times():
+    clock = iter([100, 250])
+    port = ScriptedPort(lambda f: mcu.encode_message(mcu.Pong(41, 42), f.seq))
+    result = CoMcu(port, clock_ns=lambda: next(clock)).ping()
+    assert (result.mcu_ticks, result.mcu_rx_ticks, result.host_send_ns, result.host_recv_ns) == (42, 41, 100, 250)
+    assert result.round_trip_ns == 150
+
+
+def test_nack_raises_with_the_reason_and_detail():
+    port = ScriptedPort(lambda f: mcu.encode_message(
+        mcu.Nack(f.msg_type, mcu.NackReason.ENVELOPE_WIDTH, 34_800), f.seq))
+    with pytest.raises(CoMcuNack, match="SCHEDULE refused by the co-MCU: envelope_width") as exc:
+        CoMcu(port).schedule(1_000_000, 100_000, 40_000)
+    assert exc.value.reason == "envelope_width" and exc.value.detail == 34_800
+    assert port.requests == [mcu.Schedule(1_000_000, 100_000, 40_000)]
+
+
+def test_edges_boot_info_and_stale_or_damaged_frames_are_kept_apart():
+    edge = mcu.Edge(4, 1000, 1200, 0)
+    boot = mcu.Info(1, 0x08, 50, 34_800, 200_000, 2_000_000)
+
+    def respond(f):
+        damaged = bytearray(mcu.encode_message(mcu.Ack(0x45, 1), f.seq))
+        damaged[2] ^= 0x10
+        return (mcu.encode_message(edge, 0) + mcu.encode_message(boot, 0) + bytes(damaged)
+                + mcu.encode_message(mcu.Ack(0x45, 7), (f.seq + 5) & 0xFFFF)  # stale reply
+                + mcu.encode_message(mcu.Ack(0x45, 1 | (mcu.Fault.HEARTBEAT << 8)), f.seq))
+
+    comcu = CoMcu(ScriptedPort(respond))
+    assert comcu.heartbeat() == (mcu.McuState.RUNNING, mcu.Fault.HEARTBEAT)
+    assert comcu.edges() == [edge] and comcu.edges() == []
+    assert comcu.boot_infos == [boot] and comcu.bad_frames == 1
+
+
+def test_silence_is_a_timeout_and_a_wrong_reply_type_an_error():
+    with pytest.raises(CoMcuTimeout):
+        CoMcu(ScriptedPort(lambda f: b"")).status()
+    port = ScriptedPort(lambda f: mcu.encode_message(mcu.Ack(f.msg_type, 0), f.seq))
+    with pytest.raises(CoMcuError, match="StatusRequest answered by Ack"):
+        CoMcu(port).status()
+
+
+def test_trim_and_stop_return_the_ack_info():
+    port = ScriptedPort(lambda f: mcu.encode_message(mcu.Ack(f.msg_type, 17), f.seq))
+    comcu = CoMcu(port)
+    assert comcu.trim(phase_ticks=-5, period_ticks=3) == 17
+    assert comcu.stop() == 17
+    assert port.requests == [mcu.Trim(-5, 3), mcu.Stop()]

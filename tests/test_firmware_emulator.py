@@ -1,0 +1,209 @@
+"""The real firmware ELF in simavr (firmware_pwm/harness), driven through device.comcu.CoMcu.
+
+Ground truth is the harness's log of the laser pin (CPU cycle of every level change) and of
+Timer1's start, so a pin edge's timer count is (cycle - start) // 8.  simavr applies an output
+compare one timer clock after TCNT1 == OCR1A (as the datasheet: the match acts on the next timer
+clock), so an edge armed for tick T shows as count T + 1, and simavr delivers it at the first
+instruction boundary after that cycle (0-3 cycles late, less than one tick).
+These tests need simavr (`make bootstrap` installs it); without it they fail, never skip.
+simavr's UART is not a physical line, so no link latency is measured here.
+"""
+import random
+
+import pytest
+import serial
+
+from device.comcu import CoMcu, CoMcuNack
+from device.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
+from protocol import mcu
+from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
+
+MS = 2000  # ticks per millisecond
+
+
+@pytest.fixture(scope="module")
+def emulator():
+    try:
+        return build_emulator()
+    except Exception as exc:  # a missing simavr must fail loudly, not skip
+        pytest.fail(f"simavr harness unavailable: {exc}")
+
+
+@pytest.fixture
+def link(emulator):
+    port = SteppedMcuPort(*emulator)
+    yield port, CoMcu(port)
+    port.close()
+
+
+def run_with_heartbeats(port, comcu, seconds, every=0.02):
+    end = port.seconds + seconds
+    while port.seconds < end:
+        port.advance(min(every, end - port.seconds))
+        comcu.heartbeat()
+
+
+def pin_pulses(port):
+    """(rise_cycle, fall_cycle) of every complete pulse on the pin; checks levels alternate."""
+    levels = [lvl for _, lvl in port.edges]
+    assert all(a != b for a, b in zip(levels, levels[1:])), "pin log must alternate"
+    edges = port.edges if not levels or levels[0] == 1 else port.edges[1:]
+    return [(edges[i][0], edges[i + 1][0]) for i in range(0, len(edges) - 1, 2)]
+
+
+def test_boot_info_and_ping_track_the_timer(link):
+    port, comcu = link
+    info = comcu.info()
+    assert comcu.boot_infos == [info], "the MCU announces its boot with an INFO frame"
+    assert (info.max_pulse_ticks, info.max_duty_ppm, info.ticks_per_second) == (34_800, 200_000, 2_000_000)
+    a = comcu.ping()
+    port.advance(0.01)
+    b = comcu.ping()
+    assert a.mcu_rx_ticks <= a.mcu_ticks < b.mcu_rx_ticks <= b.mcu_ticks
+    # the MCU's 64-bit time is the timer count of the emulated Timer1
+    assert abs(b.mcu_ticks - port.timer_count_at(port.cycle)) < 2 * MS
+    assert 0.01 * 2_000_000 <= b.mcu_ticks - a.mcu_ticks < 0.02 * 2_000_000
+
+
+def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
+    port, comcu = link
+    now = comcu.ping().mcu_ticks
+    period, width = 66_667, 20_000  # 30 fps, 10 ms, every other frame lit
+    first = ((now + 100 * MS) | 0xFFFF) + 1 - 7_000  # pulse 0 straddles a 16-bit timer overflow
+    assert comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True) == 0
+    run_with_heartbeats(port, comcu, 0.25)
+    last_old = comcu.trim(phase_ticks=-1_234, period_ticks=57)
+    run_with_heartbeats(port, comcu, 0.35)
+    comcu.stop()
+    port.advance(0.01)
+    reports = comcu.edges()
+
+    expected, rise, k = [], first, 0
+    while len(expected) < len(reports):
+        expected.append((k, rise, rise + width))
+        step = 2 * period if k < last_old else 2 * (period + 57)
+        rise += step + (-1_234 if k == last_old else 0)
+        k += 2
+    assert len(reports) >= 8 and last_old >= 2
+    assert [(e.index, e.rise_ticks, e.fall_ticks) for e in reports] == expected
+    assert all(e.flags == 0 for e in reports)
+    assert (reports[0].rise_ticks >> 16) != (reports[0].fall_ticks >> 16), "overflow straddled"
+
+    pulses = pin_pulses(port)
+    assert len(pulses) == len(reports)
+    for (rc, fc), e in zip(pulses, reports):
+        # exact timer counts (compare acts one timer clock after the match, see module doc)
+        assert port.timer_count_at(rc) == e.rise_ticks + 1
+        assert port.timer_count_at(fc) == e.fall_ticks + 1
+        assert abs(fc - rc - width * CYCLES_PER_TICK) <= 3  # simavr: instruction boundary
+
+
+def test_out_of_envelope_commands_are_refused_with_a_reason(link):
+    port, comcu = link
+    now = comcu.ping().mcu_ticks
+    with pytest.raises(CoMcuNack, match="envelope_width") as exc:
+        comcu.schedule(now + 100 * MS, 200_000, 34_801)
+    assert exc.value.detail == 34_800
+    with pytest.raises(CoMcuNack, match="envelope_duty"):
+        comcu.schedule(now + 100 * MS, 100_000, 20_001)
+    with pytest.raises(CoMcuNack, match="bad_time"):
+        comcu.schedule(now - 10, 100_000, 10_000)
+    comcu.schedule(now + 100 * MS, 100_000, 20_000)  # exactly 20 %: accepted
+    with pytest.raises(CoMcuNack, match="envelope_duty"):
+        comcu.trim(period_ticks=-1)
+    with pytest.raises(CoMcuNack, match="busy"):
+        comcu.schedule(now + 200 * MS, 100_000, 10_000)
+    assert comcu.status().refused == 5
+
+
+def _random_command(rng, now):
+    kind = rng.choice(["schedule", "schedule", "trim", "trim", "stop", "heartbeat", "heartbeat", "heartbeat",
+                       "garbage", "corrupt"])
+    if kind == "schedule":  # around the envelope: about half are refused
+        n, width = rng.randint(1, 3), rng.randint(0, 40_000)
+        return mcu.encode_message(mcu.Schedule(
+            now + rng.randint(-1_000, 30 * MS), rng.randint(max(width, 1_000), 8 * max(width, 1_000)) // n, width,
+            rng.randint(0, 2**n - 1) or 1, n, rng.random() < 0.5), rng.randint(1, 9999))
+    if kind == "trim":
+        return mcu.encode_message(mcu.Trim(rng.randint(-60 * MS, 60 * MS), rng.randint(-60 * MS, 60 * MS)), 7)
+    if kind == "stop":
+        return mcu.encode_message(mcu.Stop(), 8)
+    if kind == "heartbeat":
+        return mcu.encode_message(mcu.Heartbeat(), 9)
+    if kind == "garbage":
+        return bytes(rng.choice([0, rng.randint(1, 255)]) for _ in range(rng.randint(1, 90)))
+    wire = bytearray(encode_frame(rng.randint(0x40, 0x7F), 3, rng.randbytes(rng.randint(0, MAX_PAYLOAD_MCU)),
+                                  max_payload=MAX_PAYLOAD_MCU))
+    wire[rng.randrange(len(wire) - 1)] ^= 1 << rng.randrange(8)
+    return bytes(wire)
+
+
+def test_interlock_holds_under_random_and_fuzzed_command_streams(link):
+    port, comcu = link
+    info = comcu.info()
+    rng = random.Random(4)
+    now = comcu.ping().mcu_ticks
+    for _ in range(400):
+        port.write(_random_command(rng, now))
+        port.advance(rng.uniform(0, 0.012))
+        now = port.timer_count_at(port.cycle)
+    port.write(mcu.encode_message(mcu.Stop(), 1))
+    port.advance(0.05)
+    port.reset_input_buffer()
+    status = comcu.status()
+    pulses = pin_pulses(port)
+    assert len(pulses) >= 15 and status.refused >= 20 and status.crc_errors + status.malformed >= 20, (
+        f"the stream must exercise the firmware: {len(pulses)} pulses, {status}")
+    d = info.max_duty_ppm
+    for i, (rc, fc) in enumerate(pulses):
+        w = port.timer_count_at(fc) - port.timer_count_at(rc)
+        assert w <= info.max_pulse_ticks, f"pulse {i} lasted {w} ticks"
+        if i + 1 < len(pulses):
+            w2 = port.timer_count_at(pulses[i + 1][1]) - port.timer_count_at(pulses[i + 1][0])
+            gap = port.timer_count_at(pulses[i + 1][0]) - port.timer_count_at(fc)
+            assert gap * d >= max(w, w2) * (1_000_000 - d), f"pulses {i},{i + 1}: gap {gap} for widths {w},{w2}"
+    assert port.edges[-1][1] == 0, "laser off at the end"
+
+
+def test_heartbeat_loss_switches_the_laser_off_within_100_ms(link):
+    port, comcu = link
+    now = comcu.ping().mcu_ticks
+    comcu.schedule(now + 20 * MS, 25 * MS, 5 * MS)  # a pulse every 25 ms
+    run_with_heartbeats(port, comcu, 0.2)
+    last_heartbeat = port.rx_delims[-1]
+    port.advance(0.3)  # heartbeats stop
+    rises_after = [c for c, lvl in port.edges if lvl == 1 and c > last_heartbeat]
+    assert rises_after, "pulses continue for a while after the last heartbeat"
+    off_delay_s = (max(rises_after) - last_heartbeat) / CPU_HZ
+    assert off_delay_s < 0.1, f"laser still pulsing {off_delay_s * 1e3:.1f} ms after the last heartbeat"
+    assert port.edges[-1][1] == 0
+    status = comcu.status()
+    assert status.state == mcu.McuState.FAULT and status.faults & mcu.Fault.HEARTBEAT
+    with pytest.raises(CoMcuNack, match="busy"):
+        comcu.schedule(comcu.ping().mcu_ticks + 20 * MS, 25 * MS, 5 * MS)
+    comcu.stop()
+    assert comcu.heartbeat() == (mcu.McuState.IDLE, mcu.Fault(0))
+
+
+def test_garbage_on_the_line_never_wedges_the_firmware(link):
+    port, comcu = link
+    rng = random.Random(7)
+    for _ in range(40):
+        port.write(bytes(rng.choice([0, rng.randint(1, 255), rng.randint(1, 255)]) for _ in range(100)))
+        port.advance(0.005)
+    port.write(bytes([0x55] * 300) + b"\x00")  # longer than any frame
+    port.advance(0.05)  # the MCU works off what it buffered (it drops what it cannot keep)
+    port.reset_input_buffer()
+    assert comcu.ping().mcu_ticks > 0
+    status = comcu.status()
+    assert status.malformed + status.crc_errors + status.unknown >= 100
+    assert status.state == mcu.McuState.IDLE and not port.edges, "garbage must never light the laser"
+    assert not status.reset_cause & 0x08, "no watchdog reset: the main loop never stalled"
+
+
+def test_free_running_harness_serves_pyserial_on_a_pty(emulator):
+    with FreeRunningEmulator(*emulator, realtime=1.0) as emu, serial.Serial(emu.pty, 250_000, timeout=2.0) as ser:
+        comcu = CoMcu(ser)
+        a, b = comcu.ping(), comcu.ping()
+        assert 0 < a.mcu_ticks < b.mcu_ticks
+        assert a.host_send_ns < a.host_recv_ns <= b.host_send_ns
