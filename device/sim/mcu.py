@@ -1,0 +1,241 @@
+"""Simulated co-MCU: a drifting 2 MHz tick clock, the laser pulse train, its edge reports, the GPIO wire.
+
+Models the ATmega328P's Timer1 at 16 MHz / 8 (tick = 0.5 us), extended to 64 bits, running on a
+crystal or resonator that is ``drift_ppm`` fast against the Pi's CLOCK_MONOTONIC, optionally with a
+slow sinusoidal wander (temperature) of ``wander_ppm``. Pulses start and end on exact ticks
+(hardware output compare), so the truth of every edge is the true time of a tick.
+
+The link and the wire:
+
+- Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
+  ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency).
+- Every pulse is reported with its rising and falling tick; the report arrives after the falling
+  edge plus a link latency.
+- The laser trigger is wired to a Pi GPIO whose edges the kernel timestamps in its interrupt
+  handler: the timestamp is late by a fixed ``gpio_latency_min_s`` plus an exponential excess with
+  mean ``gpio_jitter_s``; a fraction ``gpio_outlier_prob`` of edges is delayed by 0.1-2 ms more
+  (an interrupt held off), and ``gpio_spurious_hz`` adds glitch edges at random times.
+  Interrupt latency cannot be negative, so the jitter is one-sided.
+- PING: the MCU stamps its tick when the request's last byte arrives; each leg takes the frame's
+  serial time plus a USB latency (uniform 0-1 ms plus an exponential tail).
+- The firmware's eye-safety envelope (maximum width and duty) refuses out-of-envelope requests.
+
+This module implements ``device.sync.control.LaserScheduler``; the harness sets ``now_s`` (the
+Pi's clock) before it lets the controller send commands, and ``advance_to`` runs the MCU forward.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+TICK_HZ = 16e6 / 8
+
+
+class ScheduleRefused(ValueError):
+    """The MCU refused a command; the message names the reason."""
+
+
+@dataclass(frozen=True)
+class McuConfig:
+    drift_ppm: float = 100.0
+    wander_ppm: float = 0.0
+    wander_period_s: float = 600.0
+    tick_hz: float = TICK_HZ
+    boot_s: float = 0.0
+    cmd_latency_min_s: float = 0.5e-3
+    cmd_latency_max_s: float = 2.5e-3
+    report_latency_s: float = 2e-3
+    link_leg_min_s: float = 16 * 10 / 115200  # a 16-byte frame at 115200 baud 8N1
+    usb_latency_max_s: float = 1e-3
+    gpio_connected: bool = True
+    gpio_latency_min_s: float = 3e-6
+    gpio_jitter_s: float = 20e-6
+    gpio_outlier_prob: float = 0.005
+    gpio_spurious_hz: float = 0.0
+    max_width_ticks: int = 40_000  # 20 ms
+    max_duty: float = 0.5
+
+
+@dataclass
+class PulseLog:
+    """Truth of every pulse the MCU produced (ticks of its own clock, true Pi seconds)."""
+
+    rise_tick: list[int] = field(default_factory=list)
+    fall_tick: list[int] = field(default_factory=list)
+    rise_s: list[float] = field(default_factory=list)
+    fall_s: list[float] = field(default_factory=list)
+
+
+class SimulatedMcu:
+    """One job: produce the pulse train the commands ask for, on a drifting clock, with its reports."""
+
+    def __init__(self, cfg: McuConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        self.now_s = 0.0
+        self._boot = cfg.boot_s
+        self._train: dict | None = None
+        self._pending: list[tuple[float, str, tuple]] = []
+        self._t = 0.0  # simulated up to here
+        self.pulses = PulseLog()
+        self.resets: list[float] = []
+        self._reports: list[tuple[float, int, int]] = []  # (arrival s, rise tick, fall tick)
+        self._gpio: list[tuple[int, bool]] = []  # (timestamp ns, rising)
+        self._last_spurious = 0.0
+
+    # --- clock -------------------------------------------------------------------------------
+    def tick_at(self, t: float) -> float:
+        """Continuous tick count at true time ``t`` (floor of it is what the counter shows)."""
+        c = self.cfg
+        dt = t - self._boot
+        w = c.wander_ppm * 1e-6 * c.wander_period_s / (2 * math.pi) * math.sin(2 * math.pi * dt / c.wander_period_s)
+        return c.tick_hz * (dt * (1 + c.drift_ppm * 1e-6) + w)
+
+    def time_of_tick(self, tick: float) -> float:
+        """True time at which the counter reaches ``tick`` (Newton on ``tick_at``)."""
+        c = self.cfg
+        t = self._boot + tick / (c.tick_hz * (1 + c.drift_ppm * 1e-6))
+        for _ in range(3):
+            dt = t - self._boot
+            rate = c.tick_hz * (1 + c.drift_ppm * 1e-6 + c.wander_ppm * 1e-6 * math.cos(2 * math.pi * dt / c.wander_period_s))
+            t -= (self.tick_at(t) - tick) / rate
+        return t
+
+    # --- LaserScheduler ------------------------------------------------------------------------
+    def _receipt(self) -> float:
+        return self.now_s + self._rng.uniform(self.cfg.cmd_latency_min_s, self.cfg.cmd_latency_max_s)
+
+    def _check_envelope(self, period: int, width: int, pattern: Sequence[bool]) -> None:
+        if width <= 0 or period <= 0:
+            raise ScheduleRefused(f"width {width} and period {period} ticks must be positive")
+        if width >= period:
+            raise ScheduleRefused(f"width {width} ticks must be shorter than the period {period}")
+        if width > self.cfg.max_width_ticks:
+            raise ScheduleRefused(f"width {width} ticks exceeds the envelope's {self.cfg.max_width_ticks}")
+        duty = width * sum(bool(p) for p in pattern) / (period * len(pattern))
+        if duty > self.cfg.max_duty:
+            raise ScheduleRefused(f"duty {duty:.3f} exceeds the envelope's {self.cfg.max_duty}")
+
+    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> None:
+        if not pattern or not any(pattern):
+            raise ScheduleRefused("pattern must light at least one slot")
+        self._check_envelope(period_ticks, width_ticks, pattern)
+        at = self._receipt()
+        if first_start_tick <= self.tick_at(at):
+            raise ScheduleRefused(f"first start tick {first_start_tick} is in the past")
+        self._pending.append((at, "schedule", (int(first_start_tick), int(period_ticks), int(width_ticks), tuple(bool(p) for p in pattern))))
+
+    def trim(self, phase_ticks: int, period_ticks: int) -> None:
+        if self._train is None and not any(k == "schedule" for _, k, _ in self._pending):
+            raise ScheduleRefused("no pulse train to trim")
+        pattern = self._train["pattern"] if self._train else next(a[3] for _, k, a in reversed(self._pending) if k == "schedule")
+        width = self._train["width"] if self._train else next(a[2] for _, k, a in reversed(self._pending) if k == "schedule")
+        self._check_envelope(period_ticks, width, pattern)
+        self._pending.append((self._receipt(), "trim", (int(phase_ticks), int(period_ticks))))
+
+    def stop(self) -> None:
+        self._pending.append((self._receipt(), "stop", ()))
+
+    def start_now(self, period_ticks: int, width_ticks: int, pattern: Sequence[bool], delay_s: float) -> None:
+        """Start a train ``delay_s`` from now at whatever tick that is (the thesis's START_PWM, Algorithm 1)."""
+        self._check_envelope(period_ticks, width_ticks, pattern)
+        at = self.now_s + delay_s
+        self._pending.append((at, "start", (int(period_ticks), int(width_ticks), tuple(bool(p) for p in pattern))))
+
+    # --- simulation ----------------------------------------------------------------------------
+    def reset_at(self, t: float) -> None:
+        """Schedule an MCU reset: the counter restarts at 0 and the train is gone (laser pin low)."""
+        self._pending.append((t, "reset", ()))
+
+    def _apply(self, at: float, kind: str, args: tuple) -> None:
+        if kind == "schedule":
+            s, p, w, pat = args
+            self._train = {"next": s, "period": p, "width": w, "pattern": pat, "slot": 0, "trim": None}
+        elif kind == "start":
+            p, w, pat = args
+            self._train = {"next": math.ceil(self.tick_at(at)), "period": p, "width": w, "pattern": pat, "slot": 0, "trim": None}
+        elif kind == "trim":
+            if self._train is not None:
+                self._train["trim"] = args
+        elif kind == "stop":
+            self._train = None
+        elif kind == "reset":
+            self._boot = at
+            self._train = None
+            self.resets.append(at)
+
+    def advance_to(self, t: float) -> None:
+        """Run the MCU (commands, slots, edges) up to true time ``t``."""
+        self._pending.sort(key=lambda e: e[0])
+        while True:
+            next_cmd = self._pending[0][0] if self._pending else math.inf
+            tr = self._train
+            next_slot = self.time_of_tick(tr["next"]) if tr is not None else math.inf
+            if min(next_cmd, next_slot) > t:
+                break
+            if next_cmd <= next_slot:
+                self._apply(*self._pending.pop(0))
+                continue
+            if tr["trim"] is not None:  # a trim applies at the first slot boundary after its receipt
+                phase, period = tr["trim"]
+                tr["next"] += phase
+                tr["period"] = period
+                tr["trim"] = None
+                continue
+            start = tr["next"]
+            if tr["pattern"][tr["slot"] % len(tr["pattern"])]:
+                self._emit(start, start + tr["width"])
+            tr["slot"] += 1
+            tr["next"] = start + tr["period"]
+        self._spurious(t)
+        self._t = t
+
+    def _emit(self, rise: int, fall: int) -> None:
+        c = self.cfg
+        rs, fs = self.time_of_tick(rise), self.time_of_tick(fall)
+        p = self.pulses
+        p.rise_tick.append(rise)
+        p.fall_tick.append(fall)
+        p.rise_s.append(rs)
+        p.fall_s.append(fs)
+        self._reports.append((fs + c.report_latency_s, rise, fall))
+        if c.gpio_connected:
+            for ts, rising in ((rs, True), (fs, False)):
+                late = c.gpio_latency_min_s + self._rng.exponential(c.gpio_jitter_s) if c.gpio_jitter_s > 0 else c.gpio_latency_min_s
+                if self._rng.random() < c.gpio_outlier_prob:
+                    late += self._rng.uniform(100e-6, 2e-3)
+                self._gpio.append((int(round((ts + late) * 1e9)), rising))
+
+    def _spurious(self, t: float) -> None:
+        c = self.cfg
+        if not (c.gpio_connected and c.gpio_spurious_hz > 0) or t <= self._t:
+            return
+        n = self._rng.poisson(c.gpio_spurious_hz * (t - self._t))
+        for ts in np.sort(self._rng.uniform(self._t, t, n)):
+            self._gpio.append((int(round(ts * 1e9)), bool(self._rng.random() < 0.5)))
+
+    def take_edge_reports(self, until_s: float) -> list[tuple[int, int]]:
+        """Edge reports (rise tick, fall tick) that have reached the Pi by ``until_s``."""
+        got = [(r, f) for a, r, f in self._reports if a <= until_s]
+        self._reports = [e for e in self._reports if e[0] > until_s]
+        return got
+
+    def take_gpio_events(self, until_s: float) -> list[tuple[int, bool]]:
+        """GPIO edge events (timestamp ns, rising) timestamped by ``until_s``, in time order."""
+        lim = int(until_s * 1e9)
+        self._gpio.sort()
+        got = [e for e in self._gpio if e[0] <= lim]
+        self._gpio = self._gpio[len(got):]
+        return got
+
+    def ping(self, t_send_s: float) -> tuple[int, int, int]:
+        """A PING exchange sent at ``t_send_s``: (Pi send ns, MCU tick, Pi receive ns)."""
+        c = self.cfg
+        up = c.link_leg_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
+        down = c.link_leg_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
+        tick = math.floor(self.tick_at(t_send_s + up))
+        return int(round(t_send_s * 1e9)), tick, int(round((t_send_s + up + 20e-6 + down) * 1e9))

@@ -1,0 +1,381 @@
+"""MCU time -> Pi CLOCK_MONOTONIC: robust linear maps (offset and drift) with their uncertainty.
+
+Thesis 7.2.3 names the two faults of the thesis's synchronisation: the start of the PWM was only
+known to within the ~185 us interval of Algorithm 1, and there was no drift correction ("an open
+loop"). Here the MCU's timer is mapped onto the Pi's clock continuously, from two sources:
+
+(a) **GPIO edges** (primary). The laser trigger is wired to a Pi GPIO; the kernel timestamps each
+    edge on CLOCK_MONOTONIC in its interrupt handler (libgpiod edge events), and the MCU reports
+    the tick of the same edge. An interrupt timestamp is never early: its error is a fixed latency
+    plus a one-sided, heavy-tailed excess. So the map is the *lower envelope* of the pairs, not a
+    least-squares line through them (which the tail would bias and outliers would drag):
+    a Theil-Sen slope on block medians, then per block the pair with the smallest residual, then a
+    least-squares line through those block minima (the minimum of m exponential excesses of mean
+    J has mean and spread J/m, so the estimate tightens like 1/m, not 1/sqrt(m)). The expected
+    excess of the minima is subtracted, with J estimated from the median residual (J ln 2 for an
+    exponential). Late outliers (an interrupt held off) never reach the envelope; pairs that lie
+    far *below* it are physically impossible (a spurious edge paired by mistake) and are removed.
+    The fixed part of the latency cannot be seen from the data: it is a calibration constant
+    (``gpio_latency_min_s``, measured once with a scope or a loop-back), subtracted here.
+    The fit is windowed (last ``window`` pairs) so that it follows drift that changes with
+    temperature.
+
+(b) **PING round trips** over serial (fallback when the wire is absent). NTP-style minimum-delay
+    filter: per block of the window the exchange with the smallest round trip is kept, its MCU
+    tick is placed at the midpoint of the Pi's send and receive times, and a line is fitted
+    through those. Each kept exchange is only known to within half its round trip's excess over
+    the link's minimum (the unknown asymmetry of the two legs); the reported sigma takes the
+    asymmetry as uniform within that bound. Expect tens of microseconds instead of a few:
+    lower accuracy, hence a wider guard and a longer pulse.
+
+Public units: MCU time in ticks (int), Pi time in nanoseconds (int), uncertainties in seconds.
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+LN2 = math.log(2.0)
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """``y = a + b x`` fitted through ``n_points`` block minima; ``x`` and ``y`` relative to a reference."""
+
+    a: float
+    b: float
+    x_mean: float
+    sxx: float
+    n_points: int
+    point_sigma: float  # spread of one block minimum about the line
+
+    def predict(self, x: np.ndarray | float) -> np.ndarray | float:
+        return self.a + self.b * x
+
+    def sigma(self, x: np.ndarray | float) -> np.ndarray | float:
+        """1-sigma uncertainty of ``predict(x)`` (the line's own uncertainty, extrapolation included)."""
+        lever = (np.asarray(x) - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
+        return self.point_sigma * np.sqrt(1.0 / self.n_points + lever)
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(n, 1)
+
+
+def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sigma: float = 0.0) -> LineFit:
+    """Line under points whose error is a one-sided latency (see module docstring, method (a)).
+
+    x, y: 1-D arrays of equal length >= 2, x increasing. ``prior_sigma`` is the spread assumed for a
+    single point when there are too few points to measure it. Returns the lower-envelope line with
+    the expected excess of the block minima removed.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if x.ndim != 1 or x.shape != y.shape:
+        raise ValueError(f"x and y must be 1-D of one length, got {x.shape} and {y.shape}")
+    n = x.size
+    if n < 2:
+        raise ValueError(f"need at least 2 points, got {n}")
+    if n < 2 * 3:  # too few for blocks: every point is its own block
+        nb, m = n, 1
+    else:
+        nb = min(blocks, n // 3)
+        m = n // nb
+    xs = x[n - nb * m:].reshape(nb, m)
+    ys = y[n - nb * m:].reshape(nb, m)
+    xm = xs[:, m // 2]  # x is increasing: the middle element is the block's median
+    ymed = np.partition(ys, m // 2, axis=1)[:, m // 2]
+    i, j = _pairs(nb)
+    dx = xm[j] - xm[i]
+    ok = dx > 0
+    slopes = (ymed[j] - ymed[i])[ok] / dx[ok]
+    slope0 = float(np.partition(slopes, slopes.size // 2)[slopes.size // 2]) if slopes.size else 1.0
+    r = ys - slope0 * xs
+    k = np.argmin(r, axis=1)
+    rows = np.arange(nb)
+    bx, by = xs[rows, k], ys[rows, k]
+    xbar = float(bx.sum()) / nb
+    sxx = float(((bx - xbar) ** 2).sum())
+    if sxx > 0:
+        ybar = float(by.sum()) / nb
+        b = float(((bx - xbar) * (by - ybar)).sum()) / sxx
+        a = ybar - b * xbar
+    else:
+        b, a = slope0, float(np.min(by - slope0 * bx))
+    resid = by - (a + b * bx)
+    excess_all = (ys - (a + b * xs)).ravel()
+    half = excess_all.size // 2
+    jitter = float(np.partition(excess_all, half)[half]) / LN2 if m > 1 else prior_sigma  # mean excess of one point
+    min_spread = jitter / m  # mean (= spread) of the minimum of m exponential excesses
+    # The spread of a block minimum is min_spread by the latency model; the scatter of the minima
+    # about the line is taken instead when larger (the model is wrong, or the drift is changing).
+    emp = float(np.sqrt(np.sum(resid**2) / (nb - 2))) if nb > 2 else 0.0
+    point_sigma = max(emp, min_spread, prior_sigma / m if nb <= 3 else 0.0, 1e-9)
+    if m > 1:
+        a -= min_spread
+    return LineFit(a=float(a), b=float(b), x_mean=xbar, sxx=sxx, n_points=nb, point_sigma=point_sigma)
+
+
+class Window:
+    """The last ``size`` rows of int64 pairs, as contiguous numpy views (cheaper than deques per fit)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._buf = np.zeros((2 * size, 2), np.int64)
+        self._lo = 0
+        self._hi = 0
+
+    def __len__(self) -> int:
+        return self._hi - self._lo
+
+    def clear(self) -> None:
+        self._lo = self._hi = 0
+
+    def append(self, a: int, b: int) -> None:
+        if self._hi == self._buf.shape[0]:
+            n = len(self)
+            self._buf[:n] = self._buf[self._lo:self._hi]
+            self._lo, self._hi = 0, n
+        self._buf[self._hi] = (a, b)
+        self._hi += 1
+        if self._hi - self._lo > self.size:
+            self._lo += 1
+
+    def keep(self, mask: np.ndarray) -> None:
+        rows = self._buf[self._lo:self._hi][mask]
+        self._buf[:rows.shape[0]] = rows
+        self._lo, self._hi = 0, rows.shape[0]
+
+    @property
+    def a(self) -> np.ndarray:
+        return self._buf[self._lo:self._hi, 0]
+
+    @property
+    def b(self) -> np.ndarray:
+        return self._buf[self._lo:self._hi, 1]
+
+    def last(self) -> tuple[int, int] | None:
+        return (int(self._buf[self._hi - 1, 0]), int(self._buf[self._hi - 1, 1])) if self._hi > self._lo else None
+
+
+@dataclass(frozen=True)
+class ClockEstimate:
+    """A fitted MCU->Pi map: ``pi_ns = ref_ns + 1e9 * fit(seconds of MCU ticks since ref_tick)``."""
+
+    source: str  # "gpio" or "ping"
+    ref_tick: int
+    ref_ns: int
+    tick_hz: float
+    fit: LineFit
+    n_samples: int
+
+    @property
+    def drift_ppm(self) -> float:
+        """How fast the MCU clock runs against the Pi's, in ppm (positive: MCU fast)."""
+        return (1.0 / self.fit.b - 1.0) * 1e6
+
+    def mcu_to_pi_ns(self, tick: np.ndarray | float) -> np.ndarray | float:
+        x = (np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz
+        return self.ref_ns + 1e9 * self.fit.predict(x)
+
+    def pi_to_mcu_tick(self, pi_ns: np.ndarray | float) -> np.ndarray | float:
+        y = (np.asarray(pi_ns, dtype=float) - self.ref_ns) * 1e-9
+        return self.ref_tick + (y - self.fit.a) / self.fit.b * self.tick_hz
+
+    def sigma_s(self, tick: np.ndarray | float) -> np.ndarray | float:
+        """1-sigma uncertainty (s) of ``mcu_to_pi_ns(tick)`` (for the ping source: asymmetry taken as uniform)."""
+        return self.fit.sigma((np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz)
+
+
+class GpioClockMap:
+    """Windowed lower-envelope map from (MCU tick, GPIO timestamp ns) pairs of the same laser edges."""
+
+    def __init__(self, tick_hz: float, gpio_latency_min_s: float = 3e-6, window: int = 512,
+                 prior_jitter_s: float = 50e-6, min_pairs: int = 4) -> None:
+        if window < 8 or min_pairs < 2:
+            raise ValueError(f"window must be >= 8 and min_pairs >= 2, got {window}, {min_pairs}")
+        self.tick_hz = tick_hz
+        self.latency_ns = gpio_latency_min_s * 1e9
+        self.prior_jitter_s = prior_jitter_s
+        self.min_pairs = min_pairs
+        self._w = Window(window)
+        self._est: ClockEstimate | None = None
+        self._dirty = False
+        self.rejected = 0
+
+    def __len__(self) -> int:
+        return len(self._w)
+
+    def clear(self) -> None:
+        self._w.clear()
+        self._est = None
+
+    def add(self, tick: int, gpio_ns: int) -> None:
+        last = self._w.last()
+        if last is not None and tick <= last[0]:
+            return  # out of order or repeated: the pairing hands pairs in tick order
+        self._w.append(tick, gpio_ns)
+        self._dirty = True
+
+    def estimate(self) -> ClockEstimate | None:
+        if not self._dirty:
+            return self._est
+        self._dirty = False
+        if len(self._w) < self.min_pairs:
+            self._est = None
+            return None
+        for _ in range(2):
+            t, ns = self._w.a, self._w.b
+            ref_tick, ref_ns = int(t[-1]), int(ns[-1])
+            x = (t - ref_tick) / self.tick_hz
+            y = (ns - ref_ns) * 1e-9
+            fit = lower_envelope_fit(x, y, prior_sigma=self.prior_jitter_s)
+            resid = y - fit.predict(x)
+            floor = -max(6 * fit.point_sigma * math.sqrt(fit.n_points), 20e-6)
+            bad = resid < floor
+            nbad = int(bad.sum())
+            if nbad == 0 or len(self._w) - nbad < self.min_pairs:
+                break
+            self.rejected += nbad
+            log.debug("rejecting %d GPIO pairs below the envelope", nbad)
+            self._w.keep(~bad)
+        fit = LineFit(a=fit.a - self.latency_ns * 1e-9, b=fit.b, x_mean=fit.x_mean, sxx=fit.sxx,
+                      n_points=fit.n_points, point_sigma=fit.point_sigma)
+        self._est = ClockEstimate("gpio", ref_tick, ref_ns, self.tick_hz, fit, len(self._w))
+        return self._est
+
+
+class PingClockMap:
+    """Windowed minimum-delay (NTP-style) map from PING exchanges; lower accuracy than the GPIO map."""
+
+    def __init__(self, tick_hz: float, link_min_rtt_s: float, window: int = 256, min_samples: int = 3) -> None:
+        self.tick_hz = tick_hz
+        self.link_min_rtt_s = link_min_rtt_s
+        self.min_samples = min_samples
+        self._s: deque[tuple[int, int, int]] = deque(maxlen=window)
+        self._est: ClockEstimate | None = None
+        self._dirty = False
+
+    def __len__(self) -> int:
+        return len(self._s)
+
+    def clear(self) -> None:
+        self._s.clear()
+        self._est = None
+
+    @property
+    def last_tick(self) -> int | None:
+        return self._s[-1][1] if self._s else None
+
+    def add(self, send_ns: int, tick: int, recv_ns: int) -> None:
+        if recv_ns < send_ns:
+            raise ValueError(f"ping received ({recv_ns}) before it was sent ({send_ns})")
+        self._s.append((int(send_ns), int(tick), int(recv_ns)))
+        self._dirty = True
+
+    def estimate(self) -> ClockEstimate | None:
+        if not self._dirty:
+            return self._est
+        self._dirty = False
+        if len(self._s) < self.min_samples:
+            self._est = None
+            return None
+        a = np.array(self._s, dtype=np.int64)
+        rtt = (a[:, 2] - a[:, 0]) * 1e-9
+        n = len(a)
+        nb = min(8, max(1, n // 4))
+        m = n // nb
+        sel = (n - nb * m) + np.arange(nb) * m + np.argmin(rtt[n - nb * m:].reshape(nb, m), axis=1)
+        ref_tick = int(a[-1, 1])
+        ref_ns = int((a[-1, 0] + a[-1, 2]) // 2)
+        x = (a[sel, 1] - ref_tick) / self.tick_hz
+        y = ((a[sel, 0] + a[sel, 2]) // 2 - ref_ns) * 1e-9
+        if nb >= 2 and np.ptp(x) > 0:
+            b, c = np.polyfit(x, y, 1)
+        else:
+            b, c = 1.0, float(np.mean(y - x))
+        # Each kept exchange places the tick within +-excess/2 of the midpoint (the legs' unknown
+        # asymmetry); taken as uniform in that bound, its spread is excess / (2 sqrt 3).
+        excess = np.maximum(rtt[sel] - self.link_min_rtt_s, 0.0)
+        point = float(np.sqrt(np.mean(excess**2))) / (2 * math.sqrt(3))
+        spread = float(np.sqrt(np.sum((y - (c + b * x)) ** 2) / (nb - 2))) if nb > 2 else 0.0
+        xbar = float(np.mean(x))
+        fit = LineFit(a=float(c), b=float(b), x_mean=xbar, sxx=float(np.sum((x - xbar) ** 2)), n_points=nb,
+                      point_sigma=max(point, spread, 1e-6))
+        self._est = ClockEstimate("ping", ref_tick, ref_ns, self.tick_hz, fit, n)
+        return self._est
+
+
+class EdgePairing:
+    """Pairs each reported pulse (rise tick, fall tick) with a GPIO rising and falling edge.
+
+    A pulse is paired only if a rising edge lies near the predicted time and a falling edge
+    follows it after the pulse's width (within ``width_tol_s``): a glitch on the line or an edge
+    of another pulse cannot fake that, so spurious edges do not enter the fit. The window around
+    the prediction is 10 sigma of the current map (at least 100 us) and allows ``max_late_s`` of
+    interrupt latency.
+    """
+
+    def __init__(self, max_late_s: float = 3e-3, width_tol_s: float = 300e-6, horizon_s: float = 2.0) -> None:
+        self.max_late_ns = max_late_s * 1e9
+        self.width_tol_ns = width_tol_s * 1e9
+        self.horizon_ns = int(horizon_s * 1e9)
+        self._mcu: list[tuple[int, int]] = []  # (rise tick, fall tick)
+        self._gpio: dict[bool, list[int]] = {True: [], False: []}
+        self.unpaired_pulses = 0
+
+    def clear(self) -> None:
+        self._mcu.clear()
+        self._gpio = {True: [], False: []}
+
+    def add_mcu(self, rise_tick: int, fall_tick: int) -> None:
+        self._mcu.append((int(rise_tick), int(fall_tick)))
+
+    def add_gpio(self, ns: int, rising: bool) -> None:
+        lst = self._gpio[bool(rising)]
+        if lst and ns < lst[-1]:
+            bisect.insort(lst, int(ns))
+        else:
+            lst.append(int(ns))
+
+    def pair(self, est: ClockEstimate, now_ns: int, max_window_s: float) -> list[tuple[int, int]]:
+        """Pairs (tick, gpio ns), two per matched pulse, in tick order."""
+        out = []
+        keep = []
+        ups, downs = self._gpio[True], self._gpio[False]
+        for rise, fall in self._mcu:
+            pred = float(est.mcu_to_pi_ns(rise))
+            width_ns = (fall - rise) / est.tick_hz * 1e9
+            tol = min(max(10 * float(est.sigma_s(rise)), 100e-6), max_window_s) * 1e9
+            lo = bisect.bisect_left(ups, pred - tol)
+            hi = bisect.bisect_right(ups, pred + tol + self.max_late_ns)
+            match = None
+            for r_ns in ups[lo:hi]:
+                f_lo = bisect.bisect_left(downs, r_ns + width_ns - self.width_tol_ns)
+                f_hi = bisect.bisect_right(downs, r_ns + width_ns + self.width_tol_ns)
+                if f_hi > f_lo:
+                    match = (r_ns, downs[f_lo])
+                    break
+            if match is not None:
+                out += [(rise, match[0]), (fall, match[1])]
+                ups.remove(match[0])
+                downs.remove(match[1])
+            elif pred + width_ns + tol + self.max_late_ns > now_ns:
+                keep.append((rise, fall))  # its GPIO events may not be read yet
+            else:
+                self.unpaired_pulses += 1
+        self._mcu = keep
+        for lst in (ups, downs):
+            del lst[:bisect.bisect_left(lst, now_ns - self.horizon_ns)]
+        out.sort()
+        return out
