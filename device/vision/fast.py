@@ -1,0 +1,253 @@
+"""The fast, accurate pipeline (issue 7): region of interest, vectorised peaks, line fit across
+neighbouring columns, ghost rejection, table triangulation (thesis 6.1 and 6.3, improved).
+
+Per frame pair:
+
+1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
+   for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
+   part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
+   frame.
+2. Two candidate peaks per column: the maximum, and the maximum at least ``2 half_width + 1``
+   rows away from it, both found through 16-row block maxima (contiguous reductions, much
+   faster than a strided argmax over the whole band). Each is refined by the selected
+   sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
+3. Detection: peak >= max(min_peak, noise_ratio x the column's largest negative difference),
+   a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
+   (a noise peak is alone; a line is not).
+4. Several peaks in a column (a glossy floor's mirror image, multipath): the candidate that more
+   neighbouring columns agree with wins; on a tie the one nearer the plane's horizon (the farther
+   range), because a mirror image in a floor below the laser plane, or a secondary reflection
+   off it, always appears farther from the horizon than the line that causes it. Never by
+   brightness alone.
+5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
+   columns, only within a run of columns whose rows are continuous (no depth jump: adjacent
+   rows differ by less than the row step of a ``jump_rel`` depth change, at least 1 px), so no
+   point is ever pulled towards another surface. The effective angular resolution is the fit
+   window (:attr:`FastPipeline.resolution_deg`).
+6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import SensorConfig
+from .geometry import column_geometry
+from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
+from .peaks import ESTIMATORS, refine_peaks
+
+BLOCK_ROWS = 16
+
+
+@dataclass(frozen=True)
+class FastParams:
+    estimator: str = "com"
+    half_width: int = 4  # centre-of-mass window (rows each side)
+    pedestal: float = 0.1  # centre-of-mass threshold, fraction of the peak
+    min_peak: float = 6.0  # smallest line amplitude, 8-bit levels of the difference
+    noise_ratio: float = 1.5  # peak must exceed this x the column's largest negative difference
+    ghost_ratio: float = 0.25  # a second peak counts when at least this x the first
+    max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
+    min_run: int = 3  # continuous columns for a detection to count
+    smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
+    jump_rel: float = 0.05  # relative depth step that separates surfaces
+    support_half: int = 4  # neighbour columns consulted to pick among candidates
+
+    def __post_init__(self) -> None:
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"unknown estimator {self.estimator!r}; choose from {', '.join(ESTIMATORS)}")
+        for name in ("half_width", "min_run", "support_half"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.smooth_half < 0:
+            raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
+        if not (0 < self.jump_rel < 1 and 0 < self.ghost_ratio <= 1 and self.min_peak > 0):
+            raise ValueError("need 0 < jump_rel < 1, 0 < ghost_ratio <= 1 and min_peak > 0")
+
+
+class FastPipeline:
+    """``FastPipeline(config, FastParams(...), min_m, max_m).process(lit, unlit, lit_rows=None)``."""
+
+    def __init__(self, config: SensorConfig, params: FastParams = FastParams(),
+                 min_m: float | None = None, max_m: float | None = None):
+        self.config = config
+        self.params = params
+        g = self.geometry = column_geometry(config, min_m, max_m)
+        self.name = f"fast-{params.estimator}" + ("" if params.smooth_half else "-raw")
+        self.top = int(g.roi_lo.min())
+        n = max(int(g.roi_hi.max()) - self.top, 1)
+        self.rows = int(math.ceil(n / BLOCK_ROWS) * BLOCK_ROWS)  # band height, whole blocks
+        self.top = max(min(self.top, config.height - self.rows), 0)
+        self.rows = min(self.rows, config.height - self.top)
+        self.lo = (g.roi_lo - self.top).astype(np.intp)
+        self.hi = np.minimum(g.roi_hi - self.top, self.rows).astype(np.intp)
+        r = np.arange(self.rows)[:, None]
+        self.mask = np.where((r >= self.lo) & (r < self.hi), 255, 0).astype(np.uint8)
+        self.cols = np.arange(config.width)
+        spacing = np.abs(np.diff(g.column_angle))
+        self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
+
+    @property
+    def resolution_deg(self) -> float:
+        """Effective angular resolution: the width of the column window one range depends on."""
+        return math.degrees((2 * self.params.smooth_half + 1) * self.column_spacing_rad)
+
+    # ---------------------------------------------------------------- steps
+    def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements:
+        import cv2
+
+        shape = (self.config.height, self.config.width)
+        a = luminance(lit, "lit", shape)[self.top : self.top + self.rows]
+        b = luminance(unlit, "unlit", shape)[self.top : self.top + self.rows]
+        p = self.params
+        d = cv2.bitwise_and(cv2.subtract(a, b), self.mask)
+        noise = cv2.bitwise_and(cv2.subtract(b, a), self.mask).max(axis=0).astype(np.float64)
+        k1, k2 = self._candidates(d)
+        thr = np.maximum(p.min_peak, p.noise_ratio * noise)
+        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
+        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
+        det1 = c1.valid & (c1.peak >= thr) & (c1.spread <= p.max_spread_px)
+        det2 = (c2.valid & (c2.peak >= thr) & (c2.spread <= p.max_spread_px)
+                & (c2.peak >= p.ghost_ratio * np.where(det1, c1.peak, 0.0)))
+        row, peak, found = self._choose(c1.row, c2.row, c1.peak, c2.peak, det1, det2)
+        row = row + self.top
+        segment = self._segments(row, found)
+        found &= _run_length(segment) >= p.min_run
+        if p.smooth_half:
+            row = _local_line_fit(row, found, segment, p.smooth_half)
+        status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
+        # wide profiles with nothing else found: a line was there but could not be measured
+        wide = ~found & c1.valid & (c1.peak >= thr) & (c1.spread > p.max_spread_px)
+        status[wide] = ColumnStatus.REJECTED
+        # the pulse lit the "unlit" frame in this column (out of sync)
+        status[(noise >= np.maximum(p.min_peak, 2.0 * np.nan_to_num(c1.peak))) & ~found] = ColumnStatus.UNLIT
+        if lit_rows is not None:
+            status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
+        found = status == ColumnStatus.OK
+        tri = self.geometry.triangulate(np.where(found, row, np.nan))
+        return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
+                      status, tri, self.config.post_calibration)
+
+    def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (band coordinates) of the largest and the second, separated, peak per column."""
+        nb = d.shape[0] // BLOCK_ROWS
+        cols = self.cols
+        blocks = d[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
+        bmax = blocks.max(axis=1)
+        b1 = np.argmax(bmax, axis=0)
+        k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
+        sep = 2 * self.params.half_width + 1
+        blk = np.arange(nb)[:, None]
+        near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
+        b2 = np.argmax(np.where(near, 0, bmax), axis=0)
+        inner = blocks[b2, :, cols].copy()  # (W, BLOCK_ROWS)
+        rows2 = b2[:, None] * BLOCK_ROWS + np.arange(BLOCK_ROWS)[None, :]
+        inner[np.abs(rows2 - k1[:, None]) <= sep] = 0
+        k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
+        return k1, k2
+
+    def _choose(self, r1, r2, v1, v2, det1, det2):
+        """Pick one of two candidate rows per column by neighbour support, then geometry."""
+        h = self.params.support_half
+        cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
+        W = cand.shape[1]
+        support = np.zeros((2, W))
+        padded = np.pad(cand, ((0, 0), (h, h)), constant_values=np.nan)
+        for o in range(-h, h + 1):
+            if o == 0:
+                continue
+            nb = padded[:, h + o : h + o + W]  # neighbours' candidates at column offset o
+            tol = 1.0 + 0.5 * abs(o)
+            with np.errstate(invalid="ignore"):
+                agree = (np.abs(cand[:, None, :] - nb[None, :, :]) <= tol).any(axis=1)
+            support += agree
+        # the candidate nearer the horizon is the farther range: compare depths
+        z = np.stack([self.geometry.triangulate(cand[i] + self.top).depth for i in range(2)])
+        z = np.where(np.isfinite(z), z, -np.inf)
+        pick2 = det2 & (~det1 | (support[1] > support[0]) | ((support[1] == support[0]) & (z[1] > z[0])))
+        row = np.where(pick2, r2, r1)
+        peak = np.where(pick2, v2, v1)
+        return row, peak, det1 | det2
+
+    def _segments(self, row: np.ndarray, found: np.ndarray) -> np.ndarray:
+        """Label of the continuous surface run each column belongs to (-1 where not found)."""
+        p = self.params
+        tri = self.geometry.triangulate(np.where(found, row, np.nan))
+        z = tri.depth
+        # rows per unit relative depth: dv = jump_rel * z / |dz/dv|, dz/dv from the table
+        z1 = self.geometry.triangulate(np.where(found, row + 0.5, np.nan)).depth
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = np.abs(p.jump_rel * z / ((z1 - z) * 2.0))
+        step = np.where(np.isfinite(step), np.maximum(step, 1.0), 1.0)
+        with np.errstate(invalid="ignore"):
+            cont = found[1:] & found[:-1] & (np.abs(np.diff(row)) <= np.minimum(step[1:], step[:-1]))
+        start = np.concatenate([[True], ~cont])
+        label = np.cumsum(start) - 1
+        return np.where(found, label, -1)
+
+    def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
+        H = self.config.height
+        if lit_rows.shape != (H,):
+            raise ValueError(f"lit_rows must have shape ({H},), got {lit_rows.shape}")
+        dark = np.concatenate([[0], np.cumsum(~lit_rows)])
+        lo, hi = self.lo + self.top, self.hi + self.top
+        roi_dark = dark[hi] - dark[lo] > 0
+        status = status.copy()
+        status[(status == ColumnStatus.NO_RETURN) & roi_dark] = ColumnStatus.UNLIT
+        ok = status == ColumnStatus.OK
+        r = np.where(ok, np.rint(row), 0).astype(np.intp)
+        w = self.params.half_width
+        near_dark = dark[np.clip(r + w + 1, 0, H)] - dark[np.clip(r - w, 0, H)] > 0
+        status[ok & near_dark] = ColumnStatus.UNLIT
+        return status
+
+
+def _run_length(label: np.ndarray) -> np.ndarray:
+    """Length of the run of equal non-negative labels each element belongs to (0 for -1)."""
+    out = np.zeros(label.shape, dtype=np.intp)
+    ok = label >= 0
+    if ok.any():
+        counts = np.bincount(label[ok])
+        out[ok] = counts[label[ok]]
+    return out
+
+
+def _local_line_fit(row: np.ndarray, found: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
+    """Least-squares line through the rows of the columns within +-half of each column that
+    belong to the same run (same label), evaluated at the column. Windowed sums by cumsum."""
+    W = row.size
+    x = np.arange(W, dtype=np.float64)
+    ok = found & (label >= 0)
+    y = np.where(ok, row, 0.0)
+    w = ok.astype(np.float64)
+    # window limits clipped to the run: runs are contiguous column ranges
+    lab = np.where(ok, label, -1)
+    idx = np.arange(W)
+    run_start = np.full(W, 0)
+    run_end = np.full(W, W - 1)
+    if ok.any():
+        labels = lab[ok]
+        first = np.full(labels.max() + 1, W)
+        last = np.full(labels.max() + 1, -1)
+        np.minimum.at(first, labels, idx[ok])
+        np.maximum.at(last, labels, idx[ok])
+        run_start[ok] = first[labels]
+        run_end[ok] = last[labels]
+    lo = np.maximum(idx - half, run_start)
+    hi = np.minimum(idx + half, run_end) + 1
+    def wsum(v):
+        c = np.concatenate([[0.0], np.cumsum(v)])
+        return c[hi] - c[lo]
+
+    s0 = wsum(w)
+    sx = wsum(w * x) - x * s0  # sums of (x - x_c) with x_c the column itself
+    sxx = wsum(w * x * x) - 2 * x * wsum(w * x) + x * x * s0
+    sy = wsum(w * y)
+    sxy = wsum(w * x * y) - x * sy
+    det = s0 * sxx - sx * sx
+    with np.errstate(invalid="ignore", divide="ignore"):
+        intercept = np.where(det > 1e-9, (sxx * sy - sx * sxy) / det, sy / s0)
+    return np.where(ok, intercept, row)
