@@ -11,12 +11,16 @@ a closed or vanished peer raises PortClosed (an OSError) from either.
 - PacedPort: wraps a port so that writes take as long as on a UART at ``baudrate`` (8N1, 10 bits
   per byte); ptys and pipes are otherwise instantaneous, which would make host time stamps
   (which subtract the transmission time) wrong.
+- NoisyPort: wraps a port so that written bits flip at a given bit error rate (a bad cable),
+  for testing that hosts survive corruption.
 """
 
 from __future__ import annotations
 
 import errno
+import random
 import logging
+import math
 import os
 import select
 import threading
@@ -97,6 +101,37 @@ class PacedPort:
     def write(self, data: bytes) -> int:
         time.sleep(len(data) * UART_BITS_PER_BYTE / self.baudrate)
         return self.port.write(data)
+
+
+class NoisyPort:
+    """``port`` whose writes have each bit flipped with probability ``bit_error_rate``."""
+
+    def __init__(self, port, bit_error_rate: float, seed: int | None = None):
+        if not 0 <= bit_error_rate < 1:
+            raise ValueError(f"bit_error_rate must be in [0, 1), got {bit_error_rate}")
+        self.port = port
+        self.bit_error_rate = bit_error_rate
+        self._rng = random.Random(seed)
+        self.bits_flipped = 0
+
+    def read(self, size: int = 4096) -> bytes:
+        return self.port.read(size)
+
+    def write(self, data: bytes) -> int:
+        out = bytearray(data)
+        n_bits = 8 * len(out)
+        # geometric gaps between errors: exact Bernoulli per bit without a loop over bits
+        pos = self._gap()
+        while pos < n_bits:
+            out[pos // 8] ^= 1 << (pos % 8)
+            self.bits_flipped += 1
+            pos += 1 + self._gap()
+        return self.port.write(bytes(out))
+
+    def _gap(self) -> int:
+        if self.bit_error_rate == 0:
+            return 1 << 62
+        return int(math.log(1.0 - self._rng.random()) / math.log(1.0 - self.bit_error_rate))
 
 
 class _PipeEnd:

@@ -14,6 +14,7 @@ URL options (all optional):
     noise=1          0 turns the noise model off (and dropouts)   seed=0   noise seed
     limit_mw=5.0     the device's Class 1 laser power limit, mW
     unplug_after=S   the device vanishes S seconds after opening (tests of DisconnectedError)
+    ber=1e-5         bit error rate on the device-to-host line (tests of corruption handling)
 """
 
 from __future__ import annotations
@@ -27,10 +28,10 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from device.analytic_source import AnalyticWallSource, default_settings
 from device.link import DeviceConfig, LinkServer
-from device.ports import PacedPort, PortClosed, pipe_pair
+from device.ports import NoisyPort, PacedPort, PortClosed, pipe_pair
 
 _OPTIONS = {"distance": float, "points": int, "fov_deg": float, "rate": float, "noise": int, "seed": int,
-            "limit_mw": float, "unplug_after": float}
+            "limit_mw": float, "unplug_after": float, "ber": float}
 
 
 def parse_sim_url(url: str) -> tuple[str, dict]:
@@ -80,7 +81,11 @@ class Serial(SerialBase):
         except ValueError as exc:
             raise SerialException(f"sim://: {exc}") from None
         self._host, device_end = pipe_pair()
-        self._server = LinkServer(PacedPort(device_end, self._baudrate), source, config).start()
+        try:
+            line = NoisyPort(device_end, opts.get("ber", 0.0), seed=opts.get("seed", 0))
+        except ValueError as exc:
+            raise SerialException(f"sim://: {exc}") from None
+        self._server = LinkServer(PacedPort(line, self._baudrate), source, config).start()
         self._unplug_timer = None
         if "unplug_after" in opts:
             self._unplug_timer = threading.Timer(opts["unplug_after"], self._unplug)

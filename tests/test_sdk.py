@@ -153,3 +153,22 @@ def test_to_laserscan_resamples_unequal_angles_to_the_nearest_ray():
     ls = scan.to_laserscan()
     assert ls.angle_increment == pytest.approx(0.1)
     np.testing.assert_array_equal(ls.ranges, [1, 3, 4, 4])  # grid 0, .1, .2, .3 -> nearest rays
+
+
+def test_host_side_needs_no_opencv_or_matplotlib():
+    """`pip install laserpi` on a robot has no OpenCV: the SDK, the link server and the mock
+    device must work with cv2 unimportable."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys; sys.modules['cv2'] = None\n"
+        "import host_sdk, device.link, device.analytic_source\n"
+        "with host_sdk.LaserPi('sim://wall?points=20&noise=0') as s:\n"
+        "    next(iter(s.scans()))\n"
+        "assert 'matplotlib' not in sys.modules and 'cv2' not in [m for m in sys.modules if sys.modules[m]]\n"
+        "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[1],
+                         capture_output=True, text=True, timeout=30)
+    assert out.stdout.strip() == "ok", out.stderr

@@ -342,7 +342,8 @@ def undistort_robust(
     """Backward projection to a stated tolerance, with per-point convergence and residual.
 
     Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
-    fisheye), started at p_d, with step halving whenever a step does not reduce the residual.
+    fisheye), warm-started by three Heikkila steps (or at p_d, pulled inside the fold, where
+    those land outside it), with step halving whenever a step does not reduce the residual.
     A point stops iterating once its full Newton step, times the focal length, is below
     ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
     near a fold it is much larger than the reprojection residual. A solution is valid only if it
@@ -359,13 +360,22 @@ def undistort_robust(
         return _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations)
     shape = xy_d.shape[:-1]
     xd, yd = xy_d[..., 0].ravel(), xy_d[..., 1].ravel()
-    x, y = xd.copy(), yd.copy()
     fold = d.radial_fold()
-    if np.isfinite(fold):
-        # start inside the one-to-one region so Newton cannot wander onto the folded branch
+    with np.errstate(all="ignore"):
+        # warm start: three Heikkila steps (eq. 3.11) get most points within a Newton step or two
+        x, y = xd.copy(), yd.copy()
+        for _ in range(3):
+            r2 = x * x + y * y
+            dr = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+            x, y = (xd - 2 * d.p1 * x * y - d.p2 * (r2 + 2 * x * x)) / dr, (yd - d.p1 * (r2 + 2 * y * y) - 2 * d.p2 * x * y) / dr
         r0 = np.hypot(x, y)
-        shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
-        x, y = x * shrink, y * shrink
+        cold = ~np.isfinite(r0) | (r0 >= 0.9 * fold)
+        x, y = np.where(cold, xd, x), np.where(cold, yd, y)
+        if np.isfinite(fold):
+            # start inside the one-to-one region so Newton cannot wander onto the folded branch
+            r0 = np.hypot(x, y)
+            shrink = np.where(r0 > 0.9 * fold, 0.9 * fold / np.maximum(r0, 1e-300), 1.0)
+            x, y = x * shrink, y * shrink
     with np.errstate(all="ignore"):
         ex, ey = _residual_xy(x, y, xd, yd, d)
         err = np.hypot(ex, ey)
