@@ -37,6 +37,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from device.analytic_source import median_filter
+from device.camera.base import CaptureTimeout
 from device.camera.frame import Frame
 from device.link import DeviceConfig, LinkServer, ScanGeometry, SourceScan, SourceStatus
 from protocol import messages as m
@@ -53,7 +54,8 @@ class Camera(Protocol):
         """Stop streaming; must not raise on a camera that has failed."""
 
     def capture(self, timeout_s: float) -> Frame | None:
-        """The next frame, or None if none arrived within ``timeout_s``; raises on a camera error."""
+        """The next frame, or None (or CaptureTimeout) if none arrived within ``timeout_s``;
+        raises on a camera error."""
 
 
 class LaserError(RuntimeError):
@@ -110,6 +112,10 @@ class SourceCounters:
     laser_starts: int = 0  # successful (re)schedules
     pipeline_errors: int = 0
     scans_made: int = 0
+    # CPU seconds (thread time) spent in each part, for the cost per scan
+    cpu_camera_s: float = 0.0  # capture (in simulation: rendering the frame)
+    cpu_laser_s: float = 0.0  # co-MCU requests and the synchronisation step
+    cpu_pipeline_s: float = 0.0  # frame pair -> scan
 
 
 @dataclass(frozen=True)
@@ -223,12 +229,17 @@ class SensorSource:
             if now - self._last_frame_at >= self.stall_timeout_s:
                 self._restart_camera()
             return None
+        cpu = time.thread_time()
         try:
             frame = self.camera.capture(timeout_s)
+        except CaptureTimeout:
+            frame = None
         except Exception as exc:
             self.counters.camera_errors += 1
             self._camera_failed(f"capture failed: {type(exc).__name__}: {exc}")
             return None
+        finally:
+            self.counters.cpu_camera_s += time.thread_time() - cpu
         now = self.clock()
         if frame is None:
             if now - self._last_frame_at >= self.stall_timeout_s:
@@ -244,7 +255,9 @@ class SensorSource:
                 self.counters.frames_dropped += gap
             self._pending = None
         self._last_seq = frame.seq
+        cpu = time.thread_time()
         lit = self._service_laser(frame, now)
+        self.counters.cpu_laser_s += time.thread_time() - cpu
         if lit is None:
             self._pending = None
             return None
@@ -286,6 +299,7 @@ class SensorSource:
 
     def _scan(self, lit: Frame, dark: Frame) -> SourceScan | None:
         n = self._geometry.angles.size
+        cpu = time.thread_time()
         try:
             ranges, quality = self.pipeline(lit, dark)
             ranges = np.asarray(ranges, dtype=np.float32)
@@ -297,6 +311,8 @@ class SensorSource:
             self._errors.add(ProcessError.PIPELINE_FAULT)
             log.exception("pipeline failed on frames %d/%d: %s", lit.seq, dark.seq, exc)
             return None
+        finally:
+            self.counters.cpu_pipeline_s += time.thread_time() - cpu
         self._errors.discard(ProcessError.PIPELINE_FAULT)
         s = self._settings
         sl = slice(s.roi_first, s.roi_first + s.roi_count)

@@ -6,7 +6,7 @@
 
 ``--simulate`` runs the whole sensor (device/process.py) on simulated parts: the scene renderer
 as the camera, the real co-MCU firmware in the simavr harness behind a pty, the image pipeline
-(device/simulated_sensor.py). ``--mock`` serves the analytic wall of device/analytic_source.py
+(device/sensor.py). ``--mock`` serves the analytic wall of device/analytic_source.py
 instead (the protocol's mock device: scans computed in closed form, no camera or co-MCU).
 Either way the link is served by device.process.LinkSupervisor: the port is opened again when it
 fails, and the process stops cleanly on SIGTERM or SIGINT with the laser off and the --link
@@ -44,8 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="serial device of the co-MCU (ignored with --simulate)")
     parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
-    parser.add_argument("--laser-limit-mw", type=float, default=5.0,
-                        help="Class 1 limit on laser power the device enforces")
+    parser.add_argument("--laser-limit-mw", type=float, default=None,
+                        help="Class 1 limit on laser power the device enforces (default: from the safety model "
+                             "for the sensor's laser and pulse; 5 mW for --mock)")
 
 
 def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600) -> int:
@@ -92,12 +93,15 @@ def run(args: argparse.Namespace) -> int:
 
             n = args.points or 1640
             source = AnalyticWallSource(args.distance_m, n_points=n, fov_rad=math.radians(args.fov_deg), seed=args.seed)
-            settings = default_settings(n, min(4.0, args.laser_limit_mw))
+            limit_mw = 5.0 if args.laser_limit_mw is None else args.laser_limit_mw
+            settings = default_settings(n, min(4.0, limit_mw))
         else:
-            from device.simulated_sensor import build_sensor
+            from device.sensor import build_sensor
 
-            source, settings, closers = build_sensor(args)
-        config = DeviceConfig(laser_limit_mw=args.laser_limit_mw, settings=settings)
+            source, settings, limit_mw, closers = build_sensor(args)
+            if args.laser_limit_mw is not None:
+                limit_mw = args.laser_limit_mw
+        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
     except (ValueError, OSError, RuntimeError) as exc:
         for close in reversed(closers):
             close()
