@@ -20,12 +20,9 @@ from __future__ import annotations
 import collections
 import logging
 import math
-import os
-import subprocess
 import threading
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
@@ -40,7 +37,7 @@ log = logging.getLogger(__name__)
 
 SCAN_RATE_HZ = 10.0
 FRAME_DURATION_S = 0.5 / SCAN_RATE_HZ  # a lit and an unlit frame per scan
-EXPOSURE_US = 8500.0
+EXPOSURE_US = 9500.0
 RANGE_M = (0.4, 3.2)
 PIPELINE = "fast-com"
 COMCU_BAUDRATE = 250_000
@@ -77,97 +74,117 @@ class ScanPipeline:
         return ranges.astype(np.float32), quality
 
 
-# --- the simulated co-MCU: real firmware in the emulator ---------------------------------------
-#: Heartbeat timeout of the simulation's firmware build, in MCU ticks (0.5 us): 90 ms instead of
-#: the default 50 ms. The emulator's pty round trips on this shared 2-core machine reach 20 ms and
-#: the Python heartbeat thread is sometimes descheduled for tens of ms, so 50 ms faults every few
-#: seconds here; 90 ms still meets the firmware requirement (laser off within 100 ms). Everything
-#: else (envelope, code) is the shipped firmware.
-SIM_HEARTBEAT_TIMEOUT_TICKS = 180_000
+# --- the simulated hardware: the Pi's clock and the co-MCU (real firmware in the emulator) ------
+class SimulatedHardware:
+    """The simulated Pi's CLOCK_MONOTONIC and its co-MCU: the shipped firmware ELF running in the
+    simavr harness (device/comcu_emulator.SteppedMcuPort), cycle-exact.
 
+    Time: simulated CLOCK_MONOTONIC = ``t_base + emulator cycles / CPU_HZ``; a clock thread keeps
+    it at the wall clock (it advances the emulator, never ahead of the wall clock), so when this
+    machine is too busy the simulated device runs slower than real time but stays consistent: no
+    heartbeat or frame is missed because the host machine was descheduled. The device process's
+    own processing takes no simulated time (its CPU cost is measured separately).
+    Every ``tick_s`` of simulated time the ``tickers`` run (SyncedLaser.heartbeat).
 
-def build_sim_firmware() -> tuple[Path, Path]:
-    """(harness, ELF) of the simulation's firmware build in firmware_pwm/build/sim, made if missing."""
-    from device.comcu_emulator import FIRMWARE_DIR, EmulatorError
-
-    build = FIRMWARE_DIR / "build" / "sim"
-    harness, elf = build / "laserpi_harness", build / "laserpi_pwm.elf"
-    if not (harness.exists() and elf.exists()):
-        proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE_DIR), "BUILD=build/sim",
-                               f"HEARTBEAT_TIMEOUT_TICKS={SIM_HEARTBEAT_TIMEOUT_TICKS}", "all", "harness"],
-                              capture_output=True, text=True, timeout=300)
-        if proc.returncode != 0:
-            raise EmulatorError("cannot build the co-MCU firmware and its emulator (needs gcc-avr, avr-libc, "
-                                "simavr, libsimavr-dev: run `make bootstrap`):\n" + proc.stdout + proc.stderr)
-    return harness, elf
-
-
-class EmulatedCoMcu:
-    """The firmware in the free-running simavr harness (device/comcu_emulator.py).
-
-    Time base: the harness paces simulated time to CLOCK_MONOTONIC from the moment it publishes
-    its pty, after ``BOOT_CYCLES`` of boot, so CPU cycle c happened at
-    ``t_pty + (c - BOOT_CYCLES) / CPU_HZ`` (within the harness's 1 ms pacing slack). Those times
-    are the laser's physical on-windows (``windows``, a device.sim.pulses.PulseSource) and, plus a
-    simulated kernel latency (3 us + exponential, mean ``gpio_latency_s``), the GPIO edge events
-    of the trigger line (``gpio_edges``).
+    The co-MCU's UART is the harness's byte stream (``port()``: pyserial-like, what CoMcu talks
+    to); the laser pin's edges (CPU cycles, exact) become the laser's on-windows that light the
+    rendered rows (``windows``, a device.sim.pulses.PulseSource) and, plus a simulated kernel
+    latency (3 us + exponential, mean ``gpio_latency_s``), the GPIO edge events of the trigger
+    line that the clock map uses (``gpio_edges``).
     """
 
-    def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, history_s: float = 2.0):
-        from device.comcu_emulator import CPU_HZ
+    def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = 0.01,
+                 history_s: float = 2.0):
+        from device.comcu_emulator import CPU_HZ, ELF, HARNESS, build_emulator
 
-        self.harness, self.elf = build_sim_firmware()
-        self.cpu_hz = CPU_HZ
-        self.boot_cycles = CPU_HZ // 200  # firmware_pwm/harness/harness.c: boots 5 ms before the pty
+        if not (HARNESS.exists() and ELF.exists()):
+            build_emulator()
+        self.harness, self.elf, self.cpu_hz = HARNESS, ELF, CPU_HZ
         self.gpio_latency_s = gpio_latency_s
+        self.tick_ns = int(tick_s * 1e9)
+        self.tickers: list = []
         self._rng = np.random.default_rng([seed, 0x6910])
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # the emulator: one command at a time
+        self._advanced = threading.Condition(self._lock)
         self._windows: collections.deque[tuple[int, int]] = collections.deque(maxlen=int(64 * history_s))
         self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
         self._rise: int | None = None
-        self.emulator = None
-        self.restarts = -1
-        self.restart()
+        self.mcu = None
+        self.resets = -1
+        self._t_base_ns = time.monotonic_ns()
+        self.reset_mcu()
+        self._next_tick_ns = self.now_ns() + self.tick_ns
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run_clock, name="sim-clock", daemon=True)
+        self._thread.start()
 
-    def restart(self) -> None:
-        """Power-cycle the co-MCU: a new harness process (new pty), the firmware boots again."""
-        from device.comcu_emulator import FreeRunningEmulator
+    # the clock
+    def now_ns(self) -> int:
+        return self._t_base_ns + self.mcu.cycle * 1_000_000_000 // self.cpu_hz
 
-        old = self.emulator
+    def _run_clock(self) -> None:
+        while not self._stop.is_set():
+            target = time.monotonic_ns()
+            now = self.now_ns()
+            if now >= target:
+                time.sleep(min(0.002, (now - target) * 1e-9 + 0.0005))
+                continue
+            step_end = min(target, self._next_tick_ns, now + 2_000_000)
+            with self._lock:
+                self.mcu.run_cycles(max(1, (step_end - self.now_ns()) * self.cpu_hz // 1_000_000_000))
+                self._collect()
+                self._advanced.notify_all()
+            if self.now_ns() >= self._next_tick_ns:
+                self._next_tick_ns += self.tick_ns
+                for tick in list(self.tickers):
+                    tick()
+
+    def wait_until(self, t_ns: int, timeout_s: float) -> bool:
+        """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
+        deadline = time.monotonic() + timeout_s
+        with self._advanced:
+            while self.now_ns() < t_ns:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._advanced.wait(min(left, 0.01))
+        return True
+
+    # the co-MCU
+    def reset_mcu(self) -> None:
+        """Power-cycle the co-MCU: a new emulator boots the firmware again (reset cause: power-on);
+        simulated time goes on."""
+        from device.comcu_emulator import SteppedMcuPort
+
+        with self._lock:
+            now = self.now_ns() if self.mcu is not None else time.monotonic_ns()
+            old = self.mcu
+            self.mcu = SteppedMcuPort(self.harness, self.elf, timeout=0.05)
+            self._t_base_ns = now - self.mcu.cycle * 1_000_000_000 // self.cpu_hz
+            self._rise = None
+            self.resets += 1
         if old is not None:
             old.close()
-        emulator = FreeRunningEmulator(self.harness, self.elf)
-        try:  # it stands in for hardware: keep it at wall-clock pace when the machine is busy
-            os.setpriority(os.PRIO_PROCESS, emulator._proc.pid, -10)
-        except (PermissionError, AttributeError):
-            log.info("cannot raise the emulator's priority; its clock may lag when the machine is busy")
-        with self._lock:
-            self.emulator = emulator
-            self.t0_ns = time.monotonic_ns()
-            self._rise = None
-            self.restarts += 1
+
+    def port(self) -> "_McuPort":
+        return _McuPort(self)
 
     def open_comcu(self):
-        """A CoMcu on the emulator's pty at the UART's baud rate (what SyncedLaser opens)."""
-        import serial
-
+        """A CoMcu on the co-MCU's UART with the simulated clock (what SyncedLaser opens)."""
         from device.comcu import CoMcu
 
-        try:
-            port = serial.Serial(self.emulator.pty, COMCU_BAUDRATE, timeout=0.05)
-        except serial.SerialException as exc:
-            raise OSError(f"co-MCU port {self.emulator.pty}: {exc}") from exc
-        return CoMcu(port)
+        return CoMcu(self.port(), clock_ns=self.now_ns)
 
+    # the laser pin
     def _collect(self) -> None:
-        em = self.emulator
-        n = len(em.edges)
+        edges = self.mcu.edges
+        n = len(edges)
         if not n:
             return
-        new = em.edges[:n]
-        del em.edges[:n]  # the emulator's reader thread only appends
+        new = edges[:n]
+        del edges[:n]
         for cycle, level in new:
-            t = self.t0_ns + (cycle - self.boot_cycles) * 1_000_000_000 // self.cpu_hz
+            t = self._t_base_ns + cycle * 1_000_000_000 // self.cpu_hz
             latency = 3e-6 + self._rng.exponential(self.gpio_latency_s)
             self._gpio.append((t + int(latency * 1e9), bool(level)))
             if level:
@@ -192,24 +209,57 @@ class EmulatedCoMcu:
             return out
 
     def close(self) -> None:
-        if self.emulator is not None:
-            self.emulator.close()
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        with self._lock:
+            self.mcu.close()
+
+
+class _McuPort:
+    """pyserial-like port onto the current emulator (survives reset_mcu, like a UART does).
+
+    ``read`` waits for bytes by running the emulator (simulated time passes while the MCU
+    answers), at most ``timeout`` of simulated time."""
+
+    timeout = 0.05
+
+    def __init__(self, hw: SimulatedHardware):
+        self.hw = hw
+
+    def write(self, data: bytes) -> int:
+        with self.hw._lock:
+            return self.hw.mcu.write(data)
+
+    @property
+    def in_waiting(self) -> int:
+        with self.hw._lock:
+            return self.hw.mcu.in_waiting
+
+    def read(self, size: int = 1) -> bytes:
+        with self.hw._lock:
+            data = self.hw.mcu.read(size)
+            self.hw._collect()
+            self.hw._advanced.notify_all()
+            return data
+
+    def close(self) -> None:
+        pass
 
 
 # --- the simulated camera, in real time -------------------------------------------------------
-class RealtimeSimCamera:
-    """device.process.Camera: rendered frames delivered when their readout ends on the wall clock.
+class SimCamera:
+    """device.process.Camera on simulated hardware: rendered frames delivered when their readout
+    ends on the simulated clock (``hw.wait_until``).
 
-    Frame timing from device.sim.timing.CameraClock (its true times are CLOCK_MONOTONIC seconds);
-    a frame is rendered ``ready_margin_s`` after its last row is read out, with the laser's
-    on-windows from ``pulses`` (device.sim.pulses.PulseSource), through the rolling shutter. A
-    frame the process comes too late for (more than one frame period after its readout) is lost,
-    as in a camera's full buffer queue: its sequence number is skipped.
+    Frame timing from device.sim.timing.CameraClock (its true times are simulated CLOCK_MONOTONIC
+    seconds: line-quantised frame length, timestamp latency, dropped frames); a frame is rendered
+    ``ready_margin_s`` after its last row is read out, with the laser's on-windows from the
+    co-MCU's pin, through the rolling shutter (device/sim/render.py).
     """
 
-    def __init__(self, renderer, pulses, timing, *, seed: int = 0, ready_margin_s: float = 0.003):
+    def __init__(self, renderer, hw: SimulatedHardware, timing, *, seed: int = 0, ready_margin_s: float = 0.001):
         self.renderer = renderer
-        self.pulses = pulses
+        self.hw = hw
         self.timing = timing
         self.width, self.height = renderer.width, renderer.height
         self.line_time_ns = timing.line_time_s * 1e9
@@ -217,12 +267,12 @@ class RealtimeSimCamera:
         self._rng = np.random.default_rng([seed, 0xCA3E])
         self._clock = None
         self._next = None
-        self.render_cpu_s = 0.0  # CPU time spent rendering (the simulator, not the device)
+        self.stall_until_ns = 0  # fault injection: no frame is delivered before this simulated time
 
     def start(self) -> None:
         from device.sim.timing import CameraClock
 
-        cfg = replace(self.timing, start_time_s=time.monotonic() + 0.05)
+        cfg = replace(self.timing, start_time_s=self.hw.now_ns() * 1e-9 + 0.05)
         self._clock = CameraClock(cfg, self._rng)
         self._next = None
 
@@ -236,33 +286,26 @@ class RealtimeSimCamera:
             if not ft.dropped:
                 return ft
 
-    def _ready_s(self, ft) -> float:
-        return ft.true_start_s + (self.height - 1) * ft.line_time_s + self.ready_margin_s
-
     def capture(self, timeout_s: float) -> Frame | None:
         from device.sim.render import FrameTiming
 
         if self._clock is None:
             raise RuntimeError("simulated camera not started")
         ft = self._next or self._advance()
-        while time.monotonic() - self._ready_s(ft) > ft.frame_duration_s:
-            ft = self._advance()  # overwritten in the camera's queue
-        wait = self._ready_s(ft) - time.monotonic()
-        if wait > timeout_s:
+        ready_ns = int((ft.true_start_s + (self.height - 1) * ft.line_time_s + self.ready_margin_s) * 1e9)
+        while ready_ns < self.stall_until_ns:  # frames of a stalled camera never arrive
+            ft = self._advance()
+            ready_ns = int((ft.true_start_s + (self.height - 1) * ft.line_time_s + self.ready_margin_s) * 1e9)
+        if not self.hw.wait_until(max(ready_ns, self.stall_until_ns), timeout_s):
             self._next = ft
-            time.sleep(max(timeout_s, 0.0))
             return None
         self._next = None
-        if wait > 0:
-            time.sleep(wait)
         t_ns = int(round(ft.true_start_s * 1e9))
         exposure_us = ft.exposure_s * 1e6
         start = t_ns - int(exposure_us * 1e3)
         end = t_ns + int((self.height - 1) * ft.line_time_s * 1e9)
-        cpu = time.thread_time()
         image, _ = self.renderer.render(FrameTiming(t_ns, exposure_us, ft.line_time_s * 1e9,
-                                                    tuple(self.pulses.windows(start, end))), self._rng)
-        self.render_cpu_s += time.thread_time() - cpu
+                                                    tuple(self.hw.windows(start, end))), self._rng)
         return Frame(image, ft.sequence, ft.sensor_timestamp_ns, exposure_us, ft.frame_duration_s * 1e6,
                      ft.line_time_s * 1e9)
 
@@ -306,11 +349,13 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
 
         spec = f"wall:distance={args.distance_m:g}" if args.scene == "wall" else args.scene
         renderer = SceneRenderer(cfg, get_scene(spec), seed=args.seed)
-        comcu = EmulatedCoMcu(seed=args.seed)
-        closers.append(comcu.close)
+        hw = SimulatedHardware(seed=args.seed)
+        closers.append(hw.close)
         timing = CameraTimingConfig(frame_duration_s=FRAME_DURATION_S, exposure_s=EXPOSURE_US * 1e-6)
-        camera = RealtimeSimCamera(renderer, comcu, timing, seed=args.seed)
-        laser = SyncedLaser(comcu.open_comcu, sync, gpio_edges=comcu.gpio_edges)
+        camera = SimCamera(renderer, hw, timing, seed=args.seed)
+        laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
+        hw.tickers.append(laser.heartbeat)
+        clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
     else:
         import serial
 
@@ -326,8 +371,9 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
                 raise OSError(str(exc)) from exc
 
         laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
+        clock = time.monotonic
     geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
-    source = SensorSource(camera, laser, scan, geometry)
+    source = SensorSource(camera, laser, scan, geometry, clock=clock)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
     settings = m.ScanSettings(scan_rate_hz=SCAN_RATE_HZ, exposure_us=int(EXPOSURE_US), roi_first=0, roi_count=count,
                               median_window=1, min_quality=0, laser_power_mw=power_mw)

@@ -94,8 +94,12 @@ class SyncedLaser:
 
     def __init__(self, open_comcu: Callable[[], CoMcu], sync: SyncConfig, *,
                  gpio_edges: Callable[[], list[tuple[int, bool]]] | None = None,
-                 ping_interval_s: float = 0.05, heartbeat_s: float = 0.005, watchdog_s: float = 0.3,
-                 pings_at_start: int = 4):
+                 ping_interval_s: float = 0.05, heartbeat_s: float | None = 0.005, watchdog_s: float = 0.3,
+                 pings_at_start: int = 4, clock_ns: Callable[[], int] = time.monotonic_ns):
+        """heartbeat_s: interval of the heartbeat thread; None = no thread, whoever owns the
+        clock calls ``heartbeat()`` (the simulated hardware does, every 10 ms of its time).
+        clock_ns: CLOCK_MONOTONIC of the Pi (simulated time in simulation)."""
+        self.clock_ns = clock_ns
         self.open_comcu = open_comcu
         self.sync = sync
         self.gpio_edges = gpio_edges
@@ -136,12 +140,13 @@ class SyncedLaser:
             self._boots = len(self.comcu.boot_infos)
             self.controller = controller
             self._failure = None
-            self._serviced = time.monotonic()
+            self._serviced = self._now()
         if self.gpio_edges is not None:
             self.gpio_edges()  # edges from before this schedule pair with nothing
-        self._hb_stop.clear()
-        self._hb = threading.Thread(target=self._heartbeat_loop, name="comcu-heartbeat", daemon=True)
-        self._hb.start()
+        if self.heartbeat_s is not None:
+            self._hb_stop.clear()
+            self._hb = threading.Thread(target=self._heartbeat_loop, name="comcu-heartbeat", daemon=True)
+            self._hb.start()
 
     def stop(self) -> None:
         self._stop_heartbeat()
@@ -154,7 +159,7 @@ class SyncedLaser:
                     log.warning("co-MCU did not acknowledge STOP (%s); its heartbeat timeout stops the laser", exc)
 
     def frame_lit(self, frame: Frame) -> bool | None:
-        self._serviced = time.monotonic()
+        self._serviced = self._now()
         if self._failure is not None:
             raise self._failure
         gpio = self.gpio_edges() if self.gpio_edges is not None else []
@@ -163,7 +168,7 @@ class SyncedLaser:
             if controller is None or self.comcu is None:
                 raise LaserError("lost", "laser not started")
             try:
-                if time.monotonic() - self._last_ping >= self.ping_interval_s:
+                if self._now() - self._last_ping >= self.ping_interval_s:
                     self._ping(controller)
                 edges = self.comcu.edges()
                 if len(self.comcu.boot_infos) != self._boots:
@@ -173,7 +178,7 @@ class SyncedLaser:
                 controller.on_gpio_edges(gpio)
                 info = FrameInfo(frame.seq, frame.sensor_timestamp_ns, frame.exposure_us * 1e-6,
                                  frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6)
-                label = controller.on_frame(info, time.monotonic_ns())
+                label = controller.on_frame(info, self.clock_ns())
             except (CoMcuError, OSError, ValueError) as exc:
                 if isinstance(exc, OSError):
                     self._drop_link()
@@ -184,7 +189,7 @@ class SyncedLaser:
     def _ping(self, controller: SyncController) -> None:
         p = self.comcu.ping()
         controller.on_ping(p.host_send_ns, p.mcu_ticks, p.host_recv_ns)
-        self._last_ping = time.monotonic()
+        self._last_ping = self._now()
 
     def _drop_link(self) -> None:
         closer = getattr(getattr(self.comcu, "port", None), "close", None)
@@ -195,24 +200,31 @@ class SyncedLaser:
                 pass
         self.comcu = None
 
+    def _now(self) -> float:
+        return self.clock_ns() * 1e-9
+
+    def heartbeat(self) -> None:
+        """One heartbeat, if the laser runs and frames are being serviced (the watchdog: if the
+        frame loop stops, heartbeats stop and the firmware switches the laser off by itself).
+        A failure is kept and raised by the next ``frame_lit``."""
+        comcu, controller = self.comcu, self.controller
+        if comcu is None or controller is None or self._failure is not None:
+            return
+        if self._now() - self._serviced > self.watchdog_s:
+            return
+        try:
+            state, fault = comcu.heartbeat()
+        except (CoMcuError, OSError) as exc:
+            self._failure = _laser_error(exc)
+            return
+        if fault:
+            self._failure = LaserError("fault", f"co-MCU latched {fault!r} (state {state.name})")
+        elif len(comcu.boot_infos) != self._boots:
+            self._failure = LaserError("reset", "the co-MCU rebooted")
+
     def _heartbeat_loop(self) -> None:
-        while not self._hb_stop.wait(self.heartbeat_s):
-            if time.monotonic() - self._serviced > self.watchdog_s:
-                continue  # the frame loop is not running: let the firmware time out
-            comcu, controller = self.comcu, self.controller
-            if comcu is None or controller is None:
-                continue
-            try:
-                state, fault = comcu.heartbeat()
-            except (CoMcuError, OSError) as exc:
-                self._failure = _laser_error(exc)
-                return
-            if fault:
-                self._failure = LaserError("fault", f"co-MCU latched {fault!r} (state {state.name})")
-                return
-            if len(comcu.boot_infos) != self._boots:
-                self._failure = LaserError("reset", "the co-MCU rebooted")
-                return
+        while not self._hb_stop.wait(self.heartbeat_s) and self._failure is None:
+            self.heartbeat()
 
     def _stop_heartbeat(self) -> None:
         self._hb_stop.set()
