@@ -26,7 +26,7 @@ import collections
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -90,7 +90,11 @@ class SourceStatus:
 
 
 class ScanSource(Protocol):
-    """What the link server needs from whatever produces scans (the pipeline, a simulator)."""
+    """What the link server needs from whatever produces scans (the pipeline, a simulator).
+
+    next_scan is called from the server's scanner thread, the other methods from its reader
+    thread (one request at a time), so a source must tolerate that (a lock around its settings).
+    """
 
     def geometry(self) -> ScanGeometry:
         """Bearings and range limits; constant while the server runs."""
@@ -170,10 +174,10 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
 @dataclass
 class LinkCounters:
     scans_sent: int = 0
-    scans_dropped: int = 0
+    scans_dropped: int = 0  # whole scans dropped because the outgoing queue was full
     requests: int = 0
-    refused: int = 0
-    faults: list[str] = field(default_factory=list)
+    refused: int = 0  # requests answered with NACK
+    source_failures: int = 0
 
 
 class LinkServer:
@@ -193,7 +197,7 @@ class LinkServer:
         self.counters = LinkCounters()
         self.decoder = StreamDecoder()
         self._lock = threading.Condition()
-        self._control: collections.deque[bytes] = collections.deque()
+        self._control: collections.deque = collections.deque()  # replies and LOG messages
         self._scans: collections.deque[m.ScanMessage] = collections.deque(maxlen=config.queue_scans)
         self._scanning = False
         self._fault: str | None = None
@@ -313,7 +317,6 @@ class LinkServer:
             except ValueError as exc:
                 refusal = (m.NackCode.SOURCE_ERROR, f"source refused the settings: {exc}")
         if refusal:
-            self.counters.refused += 1
             self._nack(frame, *refusal)
             return
         self.settings = new
@@ -321,6 +324,7 @@ class LinkServer:
 
     def _nack(self, frame, code: m.NackCode, reason: str) -> None:
         log.info("refusing request 0x%02x: %s", frame.msg_type, reason)
+        self.counters.refused += 1
         self._reply(m.Nack(frame.msg_type, frame.seq, code, reason))
 
     def _reply(self, msg) -> None:
@@ -358,7 +362,7 @@ class LinkServer:
         log.error("scan source failed: %s", exc)
         with self._lock:
             self._fault = f"{type(exc).__name__}: {exc}"
-            self.counters.faults.append(self._fault)
+            self.counters.source_failures += 1
             if self._scanning:
                 self._scanning = False
                 try:

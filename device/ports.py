@@ -25,7 +25,6 @@ import os
 import select
 import threading
 import time
-import tty
 from pathlib import Path
 
 from protocol.messages import UART_BITS_PER_BYTE
@@ -220,6 +219,8 @@ class PtyLink:
     """
 
     def __init__(self, link_path: str | os.PathLike):
+        import tty  # POSIX only: imported here so that sim:// (pipe_pair) also works on Windows
+
         self.link_path = Path(link_path)
         if self.link_path.exists() and not self.link_path.is_symlink():
             raise FileExistsError(f"{self.link_path} exists and is not a symlink; refusing to replace it")

@@ -29,7 +29,8 @@ from typing import Iterator
 
 import serial
 
-from host_sdk.errors import CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, PortError
+from host_sdk.errors import (CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, LaserPiError,
+                             PortError)
 from host_sdk.receiver import Receiver, Stats
 from host_sdk.scan import Scan
 from protocol import messages as m
@@ -53,7 +54,8 @@ def _open_port(port: str, baudrate: int) -> serial.SerialBase:
         code = getattr(exc, "errno", None)
         hint = {errno.EACCES: " - add your user to the 'dialout' group and log in again",
                 errno.ENOENT: " - is the sensor plugged in? (ls /dev/serial/by-id/)",
-                errno.EBUSY: " - another program has the port open"}.get(code, "")
+                errno.EBUSY: " - another program has the port open",
+                errno.EAGAIN: " - another program has the port open"}.get(code, "")
         raise PortError(f"cannot open {port}: {exc}{hint}") from exc
     except ValueError as exc:
         raise PortError(f"cannot open {port}: {exc}") from exc
@@ -181,6 +183,8 @@ class LaserPi:
             self._serial.close()
         except Exception as exc:
             log.debug("closing port failed: %s", exc)
+        if self._error is None:  # wake any thread still waiting in scans() or a request
+            self._fail(PortError(f"{self.port_name} was closed"))
 
     def __enter__(self) -> LaserPi:
         return self
@@ -212,6 +216,8 @@ class LaserPi:
         if info.protocol_major != PROTOCOL_VERSION:
             raise IncompatibleDevice(f"device protocol {info.protocol_major}.{info.protocol_minor}, "
                                      f"SDK {PROTOCOL_VERSION}.{m.PROTOCOL_MINOR}")
+        with self._cond:  # scans of an earlier session arrived before the STOP took effect
+            self._scans.clear()
 
     def _send(self, msg) -> int:
         with self._write_lock:
@@ -224,6 +230,10 @@ class LaserPi:
     def _request(self, msg, reply_type: type):
         with self._request_lock:
             with self._cond:
+                # while the reader reconnects, wait for it rather than fail the write
+                give_up = time.monotonic() + self.reconnect_timeout_s
+                while self._reconnecting and self._error is None and time.monotonic() < give_up:
+                    self._cond.wait(0.1)
                 self._raise_if_failed()
                 self._replies.clear()
             try:
@@ -263,11 +273,17 @@ class LaserPi:
                 if not self._recover(exc):
                     return
                 continue
-            if data:
-                t_ns = time.monotonic_ns()
+            if not data:
+                continue
+            t_ns = time.monotonic_ns()
+            try:
                 if self._tap is not None:
                     self._tap(t_ns, data)
                 self._dispatch(self._receiver.feed(data, t_ns * 1e-9))
+            except Exception as exc:  # a bug or a failing tap: say so instead of going silent
+                log.exception("%s: reader failed", self.port_name)
+                self._fail(LaserPiError(f"{self.port_name}: reader failed: {exc!r}"))
+                return
 
     def _dispatch(self, items: list) -> None:
         with self._cond:
@@ -307,7 +323,9 @@ class LaserPi:
                 log.info("%s: reconnect failed: %s", self.port_name, retry_exc)
                 continue
             self.stats.reconnects += 1
-            self._reconnecting = False
+            with self._cond:
+                self._reconnecting = False
+                self._cond.notify_all()
             log.warning("%s: reconnected", self.port_name)
             return True
         self._reconnecting = False

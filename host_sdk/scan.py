@@ -12,6 +12,9 @@ started sending (SCAN.age_us). Reads only ever arrive late, so the per-scan esti
 turned into a clock offset (host − device) by taking the minimum over the last
 StampClock.window scans; stamp = device_time + offset. This removes host scheduling jitter and
 leaves a constant error of the order of the serial driver's latency (about a millisecond).
+A frame that had to wait in the device's UART buffer behind the previous one gives a late
+estimate, which the minimum also ignores as long as the link is not saturated (54 % at
+921600 baud and full rate, protocol/SPEC.md).
 Clock drift between device and host over the window (5 s at 10 Hz) is < 0.3 ms for 50 ppm
 crystals. For a USB CDC link the baud rate is nominal: pass the real throughput as
 ``link_rate_bps`` to LaserPi.
@@ -83,7 +86,9 @@ class Scan:
         calibration) are within a quarter step of equal spacing the rays are copied in
         increasing-angle order; otherwise each equally spaced angle takes the range of the
         nearest ray (never an interpolation across an edge), a bearing error of at most half the
-        local ray spacing. ``stamp`` defaults to Scan.stamp (host monotonic time).
+        local ray spacing. ``stamp`` (default Scan.stamp, host monotonic time) is the time of the
+        device's first ray; when the order is reversed, the LaserScan's stamp is moved to its own
+        first ray and time_increment changes sign, as LaserScan defines them.
         """
         order = np.argsort(self.angles, kind="stable")
         a = self.angles[order].astype(np.float64)
@@ -95,10 +100,14 @@ class Scan:
             right = np.clip(np.searchsorted(a, grid), 1, n - 1)
             nearest = np.where(grid - a[right - 1] <= a[right] - grid, right - 1, right)
             ranges, inten = ranges[nearest], inten[nearest]
-        time_inc = self.time_increment if order[0] == 0 else -self.time_increment
-        return LaserScan(self.stamp if stamp is None else stamp, frame_id, float(grid[0]), float(grid[-1]),
-                         float(inc), float(time_inc), self.scan_time, self.range_min, self.range_max,
-                         ranges.astype(np.float32), inten.astype(np.float32))
+        stamp = self.stamp if stamp is None else stamp
+        time_inc = self.time_increment
+        if n > 1 and order[0] != 0:  # the device's first ray is now last: stamp the new first one
+            stamp += (n - 1) * time_inc
+            time_inc = -time_inc
+        return LaserScan(stamp, frame_id, float(grid[0]), float(grid[-1]), float(inc), float(time_inc),
+                         self.scan_time, self.range_min, self.range_max, ranges.astype(np.float32),
+                         inten.astype(np.float32))
 
 
 class StampClock:

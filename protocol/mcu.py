@@ -35,7 +35,7 @@ class NackReason(enum.IntEnum):
     BUSY = 6             # SCHEDULE while running or in a fault (STOP first); detail = state
     BAD_TIME = 7         # start too close (< 100 us), in the past, or > 10 s ahead; detail = now (low 32 bits)
     BAD_PATTERN = 8      # n outside 1..32, no lit frame, or mask bits at or above n
-    BAD_VALUE = 9        # width or period below what the firmware can place
+    BAD_VALUE = 9        # width below 100 us (detail = minimum ticks) or a trimmed period too short
     NOT_RUNNING = 10     # TRIM without a running schedule
 
 
@@ -53,7 +53,7 @@ class Fault(enum.IntFlag):
 
 
 class EdgeFlag(enum.IntFlag):
-    FALL_FORCED = 0x01   # the fall was forced early because it could not be armed in time
+    FALL_FORCED = 0x01   # the fall could not be armed in time: software ended the pulse, late
     CUT = 0x02           # the pulse was cut by STOP or a fault
 
 

@@ -126,10 +126,13 @@ def _need(payload: bytes, size: int, what: str) -> None:
         raise MessageError("short", f"{what} needs {size} bytes, got {len(payload)}")
 
 
-def _pack_str(text: str, what: str) -> bytes:
+def _pack_str(text: str, what: str, *, clip: bool = False) -> bytes:
+    """u8 length + UTF-8. Longer than 255 bytes: ValueError, or cut at a character boundary if clip."""
     data = text.encode("utf-8")
     if len(data) > 255:
-        raise ValueError(f"{what} is {len(data)} bytes in UTF-8, at most 255")
+        if not clip:
+            raise ValueError(f"{what} is {len(data)} bytes in UTF-8, at most 255")
+        data = data[:255].decode("utf-8", errors="ignore").encode("utf-8")
     return bytes([len(data)]) + data
 
 
@@ -382,7 +385,7 @@ class Nack:
     reason: str
 
     def encode(self) -> bytes:
-        return self._S.pack(self.request_type, self.request_seq, int(self.code)) + _pack_str(self.reason[:255], "reason")
+        return self._S.pack(self.request_type, self.request_seq, int(self.code)) + _pack_str(self.reason, "reason", clip=True)
 
     @classmethod
     def decode(cls, payload: bytes) -> Nack:
@@ -407,7 +410,7 @@ class Log:
     text: str
 
     def encode(self) -> bytes:
-        return self._S.pack(self.level, self.device_time_us) + _pack_str(self.text.encode()[:255].decode(errors="ignore"), "text")
+        return self._S.pack(self.level, self.device_time_us) + _pack_str(self.text, "text", clip=True)
 
     @classmethod
     def decode(cls, payload: bytes) -> Log:

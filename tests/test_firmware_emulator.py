@@ -207,3 +207,24 @@ def test_free_running_harness_serves_pyserial_on_a_pty(emulator):
         a, b = comcu.ping(), comcu.ping()
         assert 0 < a.mcu_ticks < b.mcu_ticks
         assert a.host_send_ns < a.host_recv_ns <= b.host_send_ns
+
+
+def test_shortest_pulses_at_a_high_rate_stay_exact_and_commands_responsive(link):
+    """100 us pulses every 500 us (2 kHz, 20 % duty) with EDGE streaming on: the reports
+    outrun the 250 kbaud link, yet every edge is on its tick, none is forced, and heartbeats
+    are still served (the schedule keeps running)."""
+    port, comcu = link
+    now = comcu.ping().mcu_ticks
+    first, period, width = now + 20 * MS, 1_000, 200
+    comcu.schedule(first, period, width, stream_edges=True)
+    run_with_heartbeats(port, comcu, 0.2, every=0.01)
+    state, faults = comcu.heartbeat()
+    assert (state, faults) == (mcu.McuState.RUNNING, mcu.Fault(0))
+    pulses = pin_pulses(port)
+    assert len(pulses) >= 350
+    for i, (rc, fc) in enumerate(pulses):
+        assert port.timer_count_at(rc) - 1 == first + i * period
+        assert port.timer_count_at(fc) - port.timer_count_at(rc) == width
+    reports = comcu.edges()
+    assert reports and all(e.flags == 0 and e.fall_ticks - e.rise_ticks == width for e in reports)
+    assert comcu.status().late == 0

@@ -123,3 +123,44 @@ def test_frame_of_full_scan_fits_max_payload():
     n = 1664
     msg = m.ScanMessage(1, 0, 0, 0, 0, np.full(n, 2.0), np.zeros(n, np.uint8))
     assert len(encode_frame(msg.TYPE, 0, msg.encode())) < 8192 + 64
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_range = st.one_of(st.floats(0, m.RANGE_MAX_ENCODABLE_M), st.sampled_from([math.nan, math.inf, -math.inf]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(seq=st.integers(0, 2**32 - 1), t=st.integers(0, 2**64 - 1), dt=st.integers(0, 2**32 - 1),
+       age=st.integers(0, 2**32 - 1), first=st.integers(0, 2**16 - 1),
+       points=st.lists(st.tuples(_range, st.integers(0, 255)), min_size=0, max_size=300))
+def test_scan_roundtrip_property(seq, t, dt, age, first, points):
+    r = np.array([p[0] for p in points], dtype=np.float64)
+    q = np.array([p[1] for p in points], dtype=np.uint8)
+    back = m.ScanMessage.decode(m.ScanMessage(seq, t, dt, age, first, r, q).encode())
+    assert (back.scan_seq, back.device_time_us, back.ray_interval_ns, back.age_us, back.first_index) == (
+        seq, t, dt, age, first)
+    assert np.array_equal(np.isnan(back.ranges_m), np.isnan(r))
+    inf = np.isinf(r)
+    assert np.array_equal(back.ranges_m[inf], r[inf])
+    fin = np.isfinite(r)
+    assert np.all(np.abs(back.ranges_m[fin] - r[fin]) <= m.RANGE_UNIT_M / 2 + 4e-7 * np.maximum(r[fin], 1))
+    assert np.array_equal(back.quality, q)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.fixed_dictionaries({}, optional={
+    "scan_rate_hz": st.floats(0.5, 60, width=32), "exposure_us": st.integers(0, 2**32 - 1),
+    "roi_first": st.integers(0, 65535), "roi_count": st.integers(0, 65535), "median_window": st.integers(0, 255),
+    "min_quality": st.integers(0, 255), "laser_power_mw": st.floats(0, 100, width=32)}))
+def test_settings_roundtrip_property(fields):
+    s = m.ScanSettings(**fields)
+    assert m.ScanSettings.decode(s.encode()) == s
+
+
+def test_long_reasons_are_clipped_at_a_character_boundary():
+    nack = m.Nack(m.MsgType.SET_CONFIG, 1, m.NackCode.OUT_OF_RANGE, "é" * 200)  # 400 bytes of UTF-8
+    back = m.Nack.decode(nack.encode())
+    assert back.reason == "é" * 127
+    with pytest.raises(ValueError, match="at most 255"):
+        m.Info(1, 0, "v" * 300, "s", 10.0, 0.1, 3.0, np.zeros(2, np.float32), VECTORS["info"][1].settings, 1.0).encode()

@@ -141,3 +141,11 @@ def test_scans_and_view_commands(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["scans", "--port", "/dev/nonexistent-laserpi"]) == 1
     assert "plugged in" in capsys.readouterr().out
+
+
+def test_replay_without_link_prints_the_scans(capsys):
+    assert main(["replay", str(DATA / "wall_corrupt.lpr")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    clean, _ = scans_of(DATA / "wall_corrupt.lpr")
+    assert [line.split()[1] for line in out if line.startswith("seq")] == [str(s) for s in clean]
+    assert out[-1].startswith("# {") and "'crc_errors'" in out[-1]

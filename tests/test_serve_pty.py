@@ -102,3 +102,18 @@ def test_reconnect_with_back_off_after_the_device_comes_back(tmp_path):
     finally:
         proc.kill()
         proc.wait()
+
+
+def test_a_second_program_on_the_same_port_is_told_so(served):
+    link, _ = served
+    with host_sdk.LaserPi(str(link)):
+        with pytest.raises(host_sdk.PortError, match="another program has the port open"):
+            host_sdk.LaserPi(str(link))
+
+
+def test_serve_without_simulate_says_what_is_missing(tmp_path, capsys):
+    from device.cli import main
+
+    assert main(["serve", "--link", str(tmp_path / "x")]) == 2
+    assert "--simulate" in capsys.readouterr().out
+    assert not (tmp_path / "x").exists()

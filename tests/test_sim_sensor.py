@@ -47,3 +47,16 @@ def test_bad_params_name_the_field():
         SensorParams(analog_gain=20.0)
     with pytest.raises(ValueError, match="qe"):
         SensorParams(qe=0.0)
+
+
+def test_erf_matches_math_erf():
+    import math
+
+    import numpy as np
+
+    from device.sim.special import erf
+
+    x = np.linspace(-6, 6, 2001)
+    ref = np.array([math.erf(v) for v in x])
+    assert np.max(np.abs(erf(x) - ref)) < 1.6e-7
+    assert np.array_equal(erf(-x), -erf(x)) and np.all(np.diff(erf(x)) >= 0)

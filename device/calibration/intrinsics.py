@@ -124,6 +124,10 @@ def detect_corners(image: np.ndarray, pattern_size: tuple[int, int], name: str =
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
     corners = cv2.cornerSubPix(image, corners.reshape(-1, 1, 2), (half, half), (-1, -1), crit).reshape(-1, 2)
     width = float(cv2.estimateChessboardSharpness(image, pattern_size, corners.reshape(-1, 1, 2))[0][0])
+    if not width < 1000:  # OpenCV reports 9999 when its edge profiles fail (small squares): measure the board's box
+        x0, y0 = np.floor(corners.min(0)).astype(int)
+        x1, y1 = np.ceil(corners.max(0)).astype(int) + 1
+        width = _edge_width_estimate(image[max(y0, 0):y1, max(x0, 0):x1])
     if width > max_edge_width_px:
         return Detection(name, None, f"blurred: checker edges {width:.1f} px wide (> {max_edge_width_px} px); hold the board still and check focus", width)
     return Detection(name, corners.astype(np.float64), None, width)

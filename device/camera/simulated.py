@@ -15,7 +15,7 @@ from ..config import SensorConfig
 from ..sim.pulses import PulseSource
 from ..sim.render import FrameTiming, RenderOptions, SceneRenderer
 from ..sim.scene import Scene
-from ..sim.sensor import IMX219_MODE5, SensorParams
+from ..sim.sensor import SIMULATOR_DEFAULT, SensorParams
 from ..sim.truth import FrameTruth
 from .base import IMX219_LINE_TIME_NS, CameraError
 from .frame import Frame
@@ -26,7 +26,7 @@ class SimulatedCamera:
 
     def __init__(self, cfg: SensorConfig, scene: Scene, pulses: PulseSource, *, exposure_us: float = 40000.0,
                  frame_duration_us: float = 50000.0, start_ns: int = 1_000_000_000, seed: int = 0,
-                 options: RenderOptions = RenderOptions(), sensor: SensorParams = IMX219_MODE5,
+                 options: RenderOptions = RenderOptions(), sensor: SensorParams = SIMULATOR_DEFAULT,
                  line_time_ns: float = IMX219_LINE_TIME_NS):
         if not 0 < exposure_us <= frame_duration_us:
             raise ValueError(f"exposure_us {exposure_us} must be in (0, frame_duration_us = {frame_duration_us}]")

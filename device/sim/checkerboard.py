@@ -10,7 +10,8 @@ corner - corner detection sees an honest image. The lit frame adds the laser: bo
 is a Gaussian in the distance of the board point to the laser plane (sheet thickness
 ``line_sigma_m``), integrated over the pixel footprint with erf, falling off as 1/range (a fan
 laser) and scaled by the board's reflectance. A Gaussian optical blur (PSF) is applied to both,
-then the sensor model turns expected electrons into a noisy uint8 frame.
+then the sensor model (:func:`device.sim.sensor.sensor_frame`, IMX219 mode 5: shot and read
+noise, full well, 10-bit ADC, 8-bit Y) turns expected electrons into a noisy uint8 frame.
 
 Ground truth per pose: the board pose (board -> camera) and the true laser points (the segment
 of the laser plane crossing the checker area), in camera-frame metres.
@@ -26,6 +27,8 @@ import numpy as np
 
 from ..model.camera import CameraModel, pixel_grid, project_points, undistort_robust
 from ..model.triangulation import LaserPlane
+from .sensor import IMX219_MODE5, SensorParams, sensor_frame
+from .special import erf
 
 
 @dataclass(frozen=True)
@@ -86,8 +89,8 @@ class BoardPose:
 class Scene:
     """Photometry of a calibration shot, in expected electrons per pixel per frame."""
 
-    ambient_e: float = 2500.0  # a white (reflectance 1) surface in the unlit frame
-    laser_e_at_1m: float = 2000.0  # line-centre peak on a white surface 1 m from the camera
+    ambient_e: float = 6000.0  # a white (reflectance 1) surface in the unlit frame (~85 Y codes)
+    laser_e_at_1m: float = 4500.0  # line-centre peak on a white surface 1 m from the camera
     line_sigma_m: float = 0.001  # laser sheet thickness (Gaussian sigma), thesis Table 4.4: 4 mm line
     white: float = 0.8
     black: float = 0.12  # printer toner still reflects some 808 nm light
@@ -174,26 +177,14 @@ def laser_irradiance(pts: np.ndarray, hit: np.ndarray, plane: LaserPlane, scene:
 
     Gaussian in the point-to-plane distance (sheet thickness), averaged over the pixel's footprint
     in that distance with erf, peak falling off as 1/range from the camera (fan laser)."""
-    from scipy.special import erf
-
     n = np.asarray(plane.normal)
     dist = np.where(hit, pts @ n - plane.distance, np.inf)
     finite = np.where(np.isfinite(dist), dist, 1e3)
     w = np.maximum(_footprint(finite), 1e-9)
     s = scene.line_sigma_m * math.sqrt(2.0)
-    mean_profile = (erf((finite + w / 2) / s) - erf((finite - w / 2) / s)) / (2 * w) * s * math.sqrt(math.pi)
+    mean_profile = np.maximum((erf((finite + w / 2) / s) - erf((finite - w / 2) / s)) / (2 * w) * s * math.sqrt(math.pi), 0.0)
     rng_m = np.linalg.norm(np.where(hit[..., None], pts, 1.0), axis=-1)
     return np.where(hit, scene.laser_e_at_1m * mean_profile / np.maximum(rng_m, 1e-3), 0.0)
-
-
-def _to_frame(electrons: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Expected electrons -> noisy uint8 frame.
-
-    TEMPORARY stand-in until device/sim/sensor.py (simulator issue) lands; then this body becomes
-    one call to it. Shot noise (Poisson), 3 e- read noise, 31 e-/DN (8000 e- full well), 8-bit ADC.
-    """
-    e = rng.poisson(np.maximum(electrons, 0.0)).astype(np.float64) + rng.normal(0.0, 3.0, electrons.shape)
-    return np.clip(np.round(e / 31.0), 0, 255).astype(np.uint8)
 
 
 def _blur(img: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -232,6 +223,7 @@ def render_shot(
     spec: BoardSpec = BoardSpec(),
     scene: Scene = Scene(),
     motion_blur_px: float = 0.0,
+    sensor: SensorParams = IMX219_MODE5,
 ) -> Shot:
     """Unlit and lit frames of one board pose. ``motion_blur_px`` adds an extra Gaussian blur
     (a shaken board or a lens out of focus) for the failure tests."""
@@ -242,7 +234,7 @@ def render_shot(
     # the wall behind is far and the line there is not part of the calibration: light on the board only
     laser_e = laser_irradiance(pts, hit, plane, scene) * (refl - (1.0 - on_board) * scene.background) if scene.laser_on else np.zeros_like(refl)
     lit_e = unlit_e + _blur(laser_e, blur)
-    return Shot(_to_frame(unlit_e, rng), _to_frame(lit_e, rng), pose, true_laser_points(pose, plane, spec))
+    return Shot(sensor_frame(unlit_e, rng, sensor), sensor_frame(lit_e, rng, sensor), pose, true_laser_points(pose, plane, spec))
 
 
 # ---------------------------------------------------------------- poses

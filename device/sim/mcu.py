@@ -92,6 +92,8 @@ class SimulatedMcu:
         """Continuous tick count at true time ``t`` (floor of it is what the counter shows)."""
         c = self.cfg
         dt = t - self._boot
+        if c.wander_ppm == 0:
+            return c.tick_hz * dt * (1 + c.drift_ppm * 1e-6)
         w = c.wander_ppm * 1e-6 * c.wander_period_s / (2 * math.pi) * math.sin(2 * math.pi * dt / c.wander_period_s)
         return c.tick_hz * (dt * (1 + c.drift_ppm * 1e-6) + w)
 
@@ -99,6 +101,8 @@ class SimulatedMcu:
         """True time at which the counter reaches ``tick`` (Newton on ``tick_at``)."""
         c = self.cfg
         t = self._boot + tick / (c.tick_hz * (1 + c.drift_ppm * 1e-6))
+        if c.wander_ppm == 0:
+            return t
         for _ in range(3):
             dt = t - self._boot
             rate = c.tick_hz * (1 + c.drift_ppm * 1e-6 + c.wander_ppm * 1e-6 * math.cos(2 * math.pi * dt / c.wander_period_s))

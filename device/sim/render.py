@@ -21,8 +21,9 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
 4. *Speckle* (Dorsch, Haeusler & Herrmann, Appl. Opt. 33, 1994): a static, spatially correlated,
    multiplicative pattern over the line: complex Gaussian noise low-passed by the lens's
-   coherent cutoff (pupil radius pitch / (2 lambda N) cycles per pixel, i.e. grains about
-   lambda x N at the image), intensity |.|^2, rescaled to the configured contrast. Seeded by the
+   coherent cutoff (pupil radius pitch / (2 g lambda N) cycles per pixel, i.e. grains of about
+   g lambda N at the image; g = 2.44 by default, the Airy diameter), intensity |.|^2, rescaled to
+   the configured contrast (default 1: fully developed speckle of a rough wall). Seeded by the
    renderer's seed: static while the scene is static, not redrawn per frame.
 5. *Gloss.* A glossy flat surface (floor or wall, ``gloss`` > 0) mirrors the lit points: the
    camera sees their mirror images (virtual points) where the reflection point lies on the
@@ -37,6 +38,14 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
 
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse) costs nothing.
+
+Anchoring. The free numbers (speckle contrast 1.0 and grain 2.44 lambda N, defocus blur sigma
+1.2 px, analogue gain 8 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
+were chosen so that the thesis's reference pipeline (device.vision.reference) on this simulator,
+at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure), reproduces the
+thesis's measurements (section 6.4): range error std ~1.9 % at 2 m and ~2.3 % at 2.5 m on the
+90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking beyond
+~2-2.5 m, and no output in sunlight. See BENCHMARKS.md "Simulator" for the budget.
 """
 
 from __future__ import annotations
@@ -46,7 +55,7 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
-from scipy.special import erf
+from .special import erf
 
 from ..config import SensorConfig
 from ..model.camera import project_points, undistort_robust, pixel_grid
@@ -54,7 +63,7 @@ from ..model.scan_frame import scan_frame, to_scan_plane
 from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from ..model.irradiance import band_irradiance_w_m2
 from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
-from .sensor import IMX219_MODE5, SensorParams, sensor_frame
+from .sensor import SIMULATOR_DEFAULT, SensorParams, sensor_frame
 from .truth import FrameTruth
 
 PLANCK_J_S = 6.62607015e-34
@@ -72,9 +81,9 @@ class RenderOptions:
     gloss: bool = True  # ghost reflections of glossy surfaces
     texture: bool = True  # procedural reflectivity texture
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
-    speckle_contrast: float = 0.55  # std/mean of the speckle on the line
-    speckle_grain_factor: float = 1.0  # grain = factor x lambda x N at the image
-    blur_sigma_px: float = 0.8  # lens defocus blur (Gaussian sigma) of the line, pixels
+    speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
+    speckle_grain_factor: float = 2.44  # grain = factor x lambda x N at the image (2.44: Airy diameter)
+    blur_sigma_px: float = 1.2  # lens defocus blur (Gaussian sigma) of the line, pixels
     optics_transmission: float = 0.8  # lens x bandpass filter at the laser wavelength (ASSUMPTION)
     ray_samples: int = 16384  # laser rays across the fan
     background_step: int = 2  # background rays every N pixels (texture detail, paid once)
@@ -187,7 +196,7 @@ class SceneRenderer:
     noise-free expected electrons per pixel (float32) that the sensor model turns into a frame.
     """
 
-    def __init__(self, cfg: SensorConfig, scene: Scene, sensor: SensorParams = IMX219_MODE5,
+    def __init__(self, cfg: SensorConfig, scene: Scene, sensor: SensorParams = SIMULATOR_DEFAULT,
                  options: RenderOptions = RenderOptions(), seed: int = 0):
         self.cfg, self.scene, self.sensor, self.options, self.seed = cfg, scene, sensor, options, seed
         self.height, self.width = cfg.height, cfg.width
@@ -317,7 +326,8 @@ class SceneRenderer:
         off = np.arange(-half, half + 1)
         r = np.floor(rows)[:, None] + off[None, :]
         s2 = math.sqrt(2) * sigma[:, None]
-        frac = 0.5 * (erf((r + 0.5 - rows[:, None]) / s2) - erf((r - 0.5 - rows[:, None]) / s2))
+        edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2).astype(np.float64)
+        frac = 0.5 * np.diff(edges, axis=1)
         val = rate[:, None] * frac
         r = r.astype(np.int64)
         c = np.broadcast_to(cols[:, None], r.shape)

@@ -14,7 +14,8 @@ loop"). Here the MCU's timer is mapped onto the Pi's clock continuously, from tw
     J has mean and spread J/m, so the estimate tightens like 1/m, not 1/sqrt(m)). The expected
     excess of the minima is subtracted, with J estimated from the median residual (J ln 2 for an
     exponential). Late outliers (an interrupt held off) never reach the envelope; pairs that lie
-    far *below* it are physically impossible (a spurious edge paired by mistake) and are removed.
+    far *below* the bulk are physically impossible (a spurious edge paired by mistake) and are
+    removed first (``impossibly_early``: median-based line and MAD).
     The fixed part of the latency cannot be seen from the data: it is a calibration constant
     (``gpio_latency_min_s``, measured once with a scope or a loop-back), subtracted here.
     The fit is windowed (last ``window`` pairs) so that it follows drift that changes with
@@ -63,13 +64,47 @@ class LineFit:
 
     def sigma(self, x: np.ndarray | float) -> np.ndarray | float:
         """1-sigma uncertainty of ``predict(x)`` (the line's own uncertainty, extrapolation included)."""
-        lever = (np.asarray(x) - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
+        lever = (x - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
         return self.point_sigma * np.sqrt(1.0 / self.n_points + lever)
 
 
 @functools.lru_cache(maxsize=64)
 def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(n, 1)
+
+
+def _median(a: np.ndarray) -> float:
+    return float(np.partition(a, a.size // 2)[a.size // 2])
+
+
+def _median_slope(xs: np.ndarray, ys: np.ndarray) -> float:
+    """Theil-Sen slope through the medians of the rows of (blocks, m) arrays (x increasing)."""
+    nb, m = xs.shape
+    xm = xs[:, m // 2]
+    ymed = np.partition(ys, m // 2, axis=1)[:, m // 2]
+    i, j = _pairs(nb)
+    dx = xm[j] - xm[i]
+    ok = dx > 0
+    return _median((ymed[j] - ymed[i])[ok] / dx[ok]) if ok.any() else 1.0
+
+
+def impossibly_early(x: np.ndarray, y: np.ndarray, floor_s: float = 20e-6, k: float = 8.0) -> np.ndarray:
+    """Mask of points far below the bulk: a latency cannot be negative, so they were mispaired.
+
+    Reference: Theil-Sen line through block medians, offset by the median residual; a point is
+    rejected if it lies more than ``max(k * MAD, floor_s)`` below it. (The lowest genuine points
+    sit about 1.4 MAD below the median of an exponential latency.)
+    """
+    n = x.size
+    nb = min(16, n // 4)
+    if nb < 3:
+        return np.zeros(n, bool)
+    m = n // nb
+    slope = _median_slope(x[n - nb * m:].reshape(nb, m), y[n - nb * m:].reshape(nb, m))
+    r = y - slope * x
+    r -= _median(r)
+    mad = _median(np.abs(r))
+    return r < -max(k * mad, floor_s)
 
 
 def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sigma: float = 0.0) -> LineFit:
@@ -93,13 +128,7 @@ def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sig
         m = n // nb
     xs = x[n - nb * m:].reshape(nb, m)
     ys = y[n - nb * m:].reshape(nb, m)
-    xm = xs[:, m // 2]  # x is increasing: the middle element is the block's median
-    ymed = np.partition(ys, m // 2, axis=1)[:, m // 2]
-    i, j = _pairs(nb)
-    dx = xm[j] - xm[i]
-    ok = dx > 0
-    slopes = (ymed[j] - ymed[i])[ok] / dx[ok]
-    slope0 = float(np.partition(slopes, slopes.size // 2)[slopes.size // 2]) if slopes.size else 1.0
+    slope0 = _median_slope(xs, ys)
     r = ys - slope0 * xs
     k = np.argmin(r, axis=1)
     rows = np.arange(nb)
@@ -185,16 +214,16 @@ class ClockEstimate:
         return (1.0 / self.fit.b - 1.0) * 1e6
 
     def mcu_to_pi_ns(self, tick: np.ndarray | float) -> np.ndarray | float:
-        x = (np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz
+        x = (tick - self.ref_tick) / self.tick_hz
         return self.ref_ns + 1e9 * self.fit.predict(x)
 
     def pi_to_mcu_tick(self, pi_ns: np.ndarray | float) -> np.ndarray | float:
-        y = (np.asarray(pi_ns, dtype=float) - self.ref_ns) * 1e-9
+        y = (pi_ns - self.ref_ns) * 1e-9
         return self.ref_tick + (y - self.fit.a) / self.fit.b * self.tick_hz
 
     def sigma_s(self, tick: np.ndarray | float) -> np.ndarray | float:
         """1-sigma uncertainty (s) of ``mcu_to_pi_ns(tick)`` (for the ping source: asymmetry taken as uniform)."""
-        return self.fit.sigma((np.asarray(tick, dtype=float) - self.ref_tick) / self.tick_hz)
+        return self.fit.sigma((tick - self.ref_tick) / self.tick_hz)
 
 
 class GpioClockMap:
@@ -234,21 +263,19 @@ class GpioClockMap:
         if len(self._w) < self.min_pairs:
             self._est = None
             return None
-        for _ in range(2):
-            t, ns = self._w.a, self._w.b
-            ref_tick, ref_ns = int(t[-1]), int(ns[-1])
-            x = (t - ref_tick) / self.tick_hz
-            y = (ns - ref_ns) * 1e-9
-            fit = lower_envelope_fit(x, y, prior_sigma=self.prior_jitter_s)
-            resid = y - fit.predict(x)
-            floor = -max(6 * fit.point_sigma * math.sqrt(fit.n_points), 20e-6)
-            bad = resid < floor
-            nbad = int(bad.sum())
-            if nbad == 0 or len(self._w) - nbad < self.min_pairs:
-                break
+        t, ns = self._w.a, self._w.b
+        ref_tick, ref_ns = int(t[-1]), int(ns[-1])
+        x = (t - ref_tick) / self.tick_hz
+        y = (ns - ref_ns) * 1e-9
+        bad = impossibly_early(x, y)
+        nbad = int(bad.sum())
+        if nbad and len(self._w) - nbad >= self.min_pairs:
             self.rejected += nbad
             log.debug("rejecting %d GPIO pairs below the envelope", nbad)
             self._w.keep(~bad)
+            t, ns = self._w.a, self._w.b
+            x, y = (t - ref_tick) / self.tick_hz, (ns - ref_ns) * 1e-9
+        fit = lower_envelope_fit(x, y, prior_sigma=self.prior_jitter_s)
         fit = LineFit(a=fit.a - self.latency_ns * 1e-9, b=fit.b, x_mean=fit.x_mean, sxx=fit.sxx,
                       n_points=fit.n_points, point_sigma=fit.point_sigma)
         self._est = ClockEstimate("gpio", ref_tick, ref_ns, self.tick_hz, fit, len(self._w))
@@ -320,8 +347,9 @@ class EdgePairing:
     """Pairs each reported pulse (rise tick, fall tick) with a GPIO rising and falling edge.
 
     A pulse is paired only if a rising edge lies near the predicted time and a falling edge
-    follows it after the pulse's width (within ``width_tol_s``): a glitch on the line or an edge
-    of another pulse cannot fake that, so spurious edges do not enter the fit. The window around
+    follows it after the pulse's width (within ``width_tol_s``; of several candidates the pair
+    whose spacing is closest to the width): a glitch on the line or an edge of another pulse
+    cannot fake that, so spurious edges do not enter the fit. The window around
     the prediction is 10 sigma of the current map (at least 100 us) and allows ``max_late_s`` of
     interrupt latency.
     """
@@ -359,13 +387,14 @@ class EdgePairing:
             tol = min(max(10 * float(est.sigma_s(rise)), 100e-6), max_window_s) * 1e9
             lo = bisect.bisect_left(ups, pred - tol)
             hi = bisect.bisect_right(ups, pred + tol + self.max_late_ns)
-            match = None
-            for r_ns in ups[lo:hi]:
+            match, best = None, self.width_tol_ns
+            for r_ns in ups[lo:hi]:  # the (rise, fall) whose spacing is closest to the pulse's width
                 f_lo = bisect.bisect_left(downs, r_ns + width_ns - self.width_tol_ns)
                 f_hi = bisect.bisect_right(downs, r_ns + width_ns + self.width_tol_ns)
-                if f_hi > f_lo:
-                    match = (r_ns, downs[f_lo])
-                    break
+                for f_ns in downs[f_lo:f_hi]:
+                    miss = abs(f_ns - r_ns - width_ns)
+                    if miss <= best:
+                        match, best = (r_ns, f_ns), miss
             if match is not None:
                 out += [(rise, match[0]), (fall, match[1])]
                 ups.remove(match[0])

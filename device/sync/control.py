@@ -42,7 +42,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
-import numpy as np
 
 from device.sync.clock_map import ClockEstimate, EdgePairing, GpioClockMap, LineFit, PingClockMap, Window, lower_envelope_fit
 from device.sync.placement import check_separation, roi_exposure_window
@@ -146,12 +145,15 @@ class SyncConfig:
 class CameraTimeline:
     """SensorTimestamp (ns) as a line in the sequence number, with restart detection (one job)."""
 
+    REFIT_EVERY = 4
+
     def __init__(self, window: int, prior_jitter_s: float, jump_s: float) -> None:
         self._w = Window(window)
         self.prior = prior_jitter_s
         self.jump_s = jump_s
         self._fit: LineFit | None = None
         self._off = 0
+        self._since_fit = 0
         self.restarts = 0
 
     def clear(self) -> None:
@@ -181,10 +183,15 @@ class CameraTimeline:
             if last is not None:
                 self._w.append(*last)
         self._w.append(seq, ts_ns)
-        self._refit()
+        self._since_fit += 1
+        # A full window moves little per frame: refit every few frames (the line's sigma grows
+        # with the extrapolation meanwhile, so nothing is claimed that was not fitted).
+        if self._fit is None or restarted or len(self._w) < self._w.size or self._since_fit >= self.REFIT_EVERY:
+            self._refit()
         return restarted
 
     def _refit(self) -> None:
+        self._since_fit = 0
         if len(self._w) < 3:
             self._fit = None
             return

@@ -18,11 +18,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from device.sync.clock_map import ClockEstimate
+
+if TYPE_CHECKING:
+    from device.config import LaserSpec
 
 THESIS_PULSE_S = 17.4e-3  # thesis Table 4.2 / B.3: pulse = readout of all 922 rows of mode 5
 
@@ -34,13 +37,20 @@ def roi_exposure_window(t_readout: np.ndarray | float, exposure_s: np.ndarray | 
     All arguments broadcast (per-frame ROI rows allowed); ``t_readout`` and the returned times are in
     seconds if ``t_readout`` is. Raises ValueError for an empty or negative row range.
     """
+    if isinstance(exposure_s, float) and isinstance(line_time_s, float) and isinstance(row_min, int) \
+            and isinstance(row_max, int):  # the per-frame scalar case, kept cheap
+        if not 0 <= row_min <= row_max:
+            raise ValueError(f"ROI rows must satisfy 0 <= row_min <= row_max, got {row_min}..{row_max}")
+        if exposure_s <= 0 or line_time_s <= 0:
+            raise ValueError(f"exposure_s and line_time_s must be positive, got {exposure_s}, {line_time_s}")
+        return t_readout - exposure_s + row_min * line_time_s, t_readout + row_max * line_time_s
     if isinstance(row_min, (int, np.integer)) and isinstance(row_max, (int, np.integer)):
         bad_rows = not 0 <= row_min <= row_max
     else:
         bad_rows = bool(np.any(np.asarray(row_min) < 0) or np.any(np.asarray(row_max) < np.asarray(row_min)))
     if bad_rows:
         raise ValueError(f"ROI rows must satisfy 0 <= row_min <= row_max, got {row_min}..{row_max}")
-    if np.min(exposure_s) <= 0 or np.min(line_time_s) <= 0:
+    if np.any(np.asarray(exposure_s) <= 0) or np.any(np.asarray(line_time_s) <= 0):
         raise ValueError("exposure_s and line_time_s must be positive")
     return t_readout - exposure_s + row_min * line_time_s, t_readout + row_max * line_time_s
 
@@ -98,3 +108,20 @@ def pulse_budget(exposure_s: float, line_time_s: float, row_min: int, row_max: i
     rate = lit / frame_duration_s
     return PulseBudget(pulse_s=width, duty=width * rate, pulse_rate_hz=rate, thesis_pulse_s=THESIS_PULSE_S,
                        thesis_duty=THESIS_PULSE_S * rate)
+
+
+def class1_power_w(pulse_s: float, rate_hz: float, laser: LaserSpec | None = None, closest_eye_m: float = 0.01) -> float:
+    """Largest Class 1 peak power (W) of the configured line laser at this pulse width and rate.
+
+    Calls the project's eye-safety model (``device.model.safety``, thesis 3.3 with ERRATA 1-2);
+    ``laser`` defaults to the thesis's 808 nm, 120 deg, 4 mm line, 1 mm source (Table 4.2) and
+    ``closest_eye_m`` to the thesis's 10 mm (section B.3).
+    """
+    from device.config import LaserSpec
+    from device.model import safety
+
+    las = LaserSpec() if laser is None else laser
+    model = safety.PulsedLineLaser(wavelength_nm=las.wavelength_m * 1e9, pulse_s=pulse_s, rate_hz=rate_hz,
+                                   fan_rad=las.fan_angle_rad, line_height_m=las.line_height_m,
+                                   source_diameter_m=las.source_diameter_m)
+    return safety.max_power_w(model, closest_eye_m)

@@ -11,7 +11,8 @@ Per frame pair:
    rows away from it, both found through 16-row block maxima (contiguous reductions, much
    faster than a strided argmax over the whole band). Each is refined by the selected
    sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
-3. Detection: peak >= max(min_peak, noise_ratio x the column's largest negative difference),
+3. Detection, on the difference smoothed over 5 columns x 3 rows (speckle and noise averaged):
+   peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
    (a noise peak is alone; a line is not).
 4. Several peaks in a column (a glossy floor's mirror image, multipath): the candidate that more
@@ -25,6 +26,9 @@ Per frame pair:
    point is ever pulled towards another surface. The effective angular resolution is the fit
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
+7. Nearer than the region of interest: the rows on the near side of it are not searched for a
+   line, but their per-column maximum difference (one cheap reduction) is: a column with no
+   line in range and a strong return there reports "too close" (-inf), never "no return".
 """
 
 from __future__ import annotations
@@ -40,6 +44,10 @@ from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
 from .peaks import ESTIMATORS, refine_peaks
 
 BLOCK_ROWS = 16
+#: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
+SATURATED_LINE_MIN = 24
+#: Box (columns, rows) that smooths the difference image for detection only.
+DETECT_KERNEL = (5, 3)
 
 
 @dataclass(frozen=True)
@@ -47,9 +55,8 @@ class FastParams:
     estimator: str = "com"
     half_width: int = 4  # centre-of-mass window (rows each side)
     pedestal: float = 0.1  # centre-of-mass threshold, fraction of the peak
-    min_peak: float = 6.0  # smallest line amplitude, 8-bit levels of the difference
-    noise_ratio: float = 1.5  # peak must exceed this x the column's largest negative difference
-    ghost_ratio: float = 0.25  # a second peak counts when at least this x the first
+    min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
+    noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
     min_run: int = 3  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
@@ -64,8 +71,8 @@ class FastParams:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
-        if not (0 < self.jump_rel < 1 and 0 < self.ghost_ratio <= 1 and self.min_peak > 0):
-            raise ValueError("need 0 < jump_rel < 1, 0 < ghost_ratio <= 1 and min_peak > 0")
+        if not (0 < self.jump_rel < 1 and self.min_peak > 0):
+            raise ValueError(f"need 0 < jump_rel < 1 and min_peak > 0, got {self.jump_rel}, {self.min_peak}")
 
 
 class FastPipeline:
@@ -86,6 +93,17 @@ class FastPipeline:
         self.hi = np.minimum(g.roi_hi - self.top, self.rows).astype(np.intp)
         r = np.arange(self.rows)[:, None]
         self.mask = np.where((r >= self.lo) & (r < self.hi), 255, 0).astype(np.uint8)
+        # rows nearer than the region of interest, per column (for the too-close check)
+        H = config.height
+        if g.near_below:
+            self.near_top, self.near_bottom = int(min(g.roi_hi.min(), H)), H
+            rn = np.arange(self.near_top, H)[:, None]
+            near = rn >= g.roi_hi[None, :]
+        else:
+            self.near_top, self.near_bottom = 0, int(g.roi_lo.max())
+            rn = np.arange(0, self.near_bottom)[:, None]
+            near = rn < g.roi_lo[None, :]
+        self.near_mask = np.where(near, 255, 0).astype(np.uint8)
         self.cols = np.arange(config.width)
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
@@ -103,33 +121,62 @@ class FastPipeline:
         a = luminance(lit, "lit", shape)[self.top : self.top + self.rows]
         b = luminance(unlit, "unlit", shape)[self.top : self.top + self.rows]
         p = self.params
-        d = cv2.bitwise_and(cv2.subtract(a, b), self.mask)
-        noise = cv2.bitwise_and(cv2.subtract(b, a), self.mask).max(axis=0).astype(np.float64)
-        k1, k2 = self._candidates(d)
+        # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
+        # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
+        # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
+        # be brightened by the laser and one of its vertical neighbours too)
+        d = cv2.subtract(a, b)
+        sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
+        pair = cv2.bitwise_and(sat[1:], sat[:-1])
+        sat = np.zeros_like(sat)
+        sat[1:] = pair
+        sat[:-1] |= pair
+        d = cv2.bitwise_and(cv2.max(d, sat), self.mask)
+        # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
+        # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
+        sm = cv2.blur(d, DETECT_KERNEL)
+        noise = cv2.blur(cv2.bitwise_and(cv2.subtract(b, a), self.mask), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        k1, k2 = (self._local_max(d, k) for k in self._candidates(sm))
+        s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
-        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, p.min_peak, 0.0, p.half_width, p.pedestal)
-        det1 = c1.valid & (c1.peak >= thr) & (c1.spread <= p.max_spread_px)
-        det2 = (c2.valid & (c2.peak >= thr) & (c2.spread <= p.max_spread_px)
-                & (c2.peak >= p.ghost_ratio * np.where(det1, c1.peak, 0.0)))
+        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
+        det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        det2 = c2.valid & (s2 >= thr) & (c2.peak >= 0.5 * s2) & (c2.spread <= p.max_spread_px)
         row, peak, found = self._choose(c1.row, c2.row, c1.peak, c2.peak, det1, det2)
         row = row + self.top
-        segment = self._segments(row, found)
-        found &= _run_length(segment) >= p.min_run
+        segment, outlier = self._segments(row, found)
+        found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
+        segment = np.where(found, segment, -1)
         if p.smooth_half:
-            row = _local_line_fit(row, found, segment, p.smooth_half)
+            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
+        status[found & outlier] = ColumnStatus.REJECTED
         # wide profiles with nothing else found: a line was there but could not be measured
-        wide = ~found & c1.valid & (c1.peak >= thr) & (c1.spread > p.max_spread_px)
+        wide = ~found & c1.valid & (s1 >= thr) & (c1.spread > p.max_spread_px)
         status[wide] = ColumnStatus.REJECTED
         # the pulse lit the "unlit" frame in this column (out of sync)
-        status[(noise >= np.maximum(p.min_peak, 2.0 * np.nan_to_num(c1.peak))) & ~found] = ColumnStatus.UNLIT
+        status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
+        if self.near_bottom > self.near_top:
+            la = luminance(lit, "lit")[self.near_top : self.near_bottom]
+            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom]
+            near = cv2.bitwise_and(cv2.subtract(la, ua), self.near_mask).max(axis=0)
+            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), self.near_mask).max(axis=0)
+            close = (near >= np.maximum(p.min_peak, p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
+            status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == ColumnStatus.OK
         tri = self.geometry.triangulate(np.where(found, row, np.nan))
         return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
                       status, tri, self.config.post_calibration)
+
+    def _local_max(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Move each row k to the largest of d[k-1], d[k], d[k+1] (the smoothed peak can sit a
+        row off the unsmoothed one)."""
+        r = np.clip(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
+        return r[np.argmax(d[r, self.cols], axis=0), self.cols]
 
     def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column."""
@@ -172,21 +219,30 @@ class FastPipeline:
         peak = np.where(pick2, v2, v1)
         return row, peak, det1 | det2
 
-    def _segments(self, row: np.ndarray, found: np.ndarray) -> np.ndarray:
-        """Label of the continuous surface run each column belongs to (-1 where not found)."""
+    def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Label of the continuous surface run of each column (-1 where not found), and the
+        columns that disagree with their run (speckle outliers).
+
+        Continuity is judged on a 5-column running median, which keeps depth jumps sharp but
+        ignores single-column outliers: adjacent medians must differ by less than the row step of
+        a ``jump_rel`` relative depth change (at least 1 px); a column more than that step from
+        its median is an outlier.
+        """
         p = self.params
-        tri = self.geometry.triangulate(np.where(found, row, np.nan))
-        z = tri.depth
-        # rows per unit relative depth: dv = jump_rel * z / |dz/dv|, dz/dv from the table
-        z1 = self.geometry.triangulate(np.where(found, row + 0.5, np.nan)).depth
+        med = _running_median(np.where(found, row, np.nan), 2)
+        z = self.geometry.triangulate(med).depth
+        z1 = self.geometry.triangulate(med + 0.5).depth
         with np.errstate(invalid="ignore", divide="ignore"):
-            step = np.abs(p.jump_rel * z / ((z1 - z) * 2.0))
+            step = np.abs(p.jump_rel * z / ((z1 - z) * 2.0))  # rows for jump_rel of depth
         step = np.where(np.isfinite(step), np.maximum(step, 1.0), 1.0)
+        lim = np.minimum(step[1:], step[:-1])
         with np.errstate(invalid="ignore"):
-            cont = found[1:] & found[:-1] & (np.abs(np.diff(row)) <= np.minimum(step[1:], step[:-1]))
+            outlier = found & ~(np.abs(row - med) <= step)
+            near = (np.abs(np.diff(row)) <= lim) | outlier[1:] | outlier[:-1]
+            cont = found[1:] & found[:-1] & (np.abs(np.diff(med)) <= lim) & near
         start = np.concatenate([[True], ~cont])
         label = np.cumsum(start) - 1
-        return np.where(found, label, -1)
+        return np.where(found, label, -1), outlier
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height
@@ -205,37 +261,58 @@ class FastPipeline:
         return status
 
 
-def _run_length(label: np.ndarray) -> np.ndarray:
-    """Length of the run of equal non-negative labels each element belongs to (0 for -1)."""
+def _running_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Median of the finite values within +-half of each element (NaN where x is NaN)."""
+    pad = np.pad(x, half, constant_values=np.nan)
+    win = np.sort(np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1), axis=1)  # NaN last
+    n = np.isfinite(win).sum(axis=1)
+    lower = win[np.arange(x.size), np.maximum(n - 1, 0) // 2]
+    upper = win[np.arange(x.size), np.maximum(n, 1) // 2]
+    return np.where(np.isfinite(x), 0.5 * (lower + upper), np.nan)
+
+
+def _runs(mask: np.ndarray) -> np.ndarray:
+    """Label of each run of consecutive True elements (-1 for False)."""
+    start = np.concatenate([[True], ~(mask[1:] & mask[:-1])])
+    return np.where(mask, np.cumsum(start) - 1, -1)
+
+
+def _run_length(label: np.ndarray, member_of: np.ndarray | None = None) -> np.ndarray:
+    """Number of elements with each non-negative label, given to every element of ``member_of``
+    (default ``label``) with that label; 0 for -1."""
+    member_of = label if member_of is None else member_of
     out = np.zeros(label.shape, dtype=np.intp)
-    ok = label >= 0
+    ok = member_of >= 0
     if ok.any():
-        counts = np.bincount(label[ok])
-        out[ok] = counts[label[ok]]
+        counts = np.bincount(label[label >= 0], minlength=member_of.max() + 1)
+        out[ok] = counts[member_of[ok]]
     return out
 
 
-def _local_line_fit(row: np.ndarray, found: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
-    """Least-squares line through the rows of the columns within +-half of each column that
-    belong to the same run (same label), evaluated at the column. Windowed sums by cumsum."""
+def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
+    """Weighted least-squares line through the rows of the columns within +-half of each column
+    that belong to the same run (same label >= 0), evaluated at the column. Windowed sums by
+    cumsum; every column of a run gets a value, weighted or not. (Weighting by the line's
+    amplitude was tried and is worse on the simulator: bright speckle grains are no more
+    accurate than dim ones.)"""
     W = row.size
     x = np.arange(W, dtype=np.float64)
-    ok = found & (label >= 0)
+    inrun = label >= 0
+    ok = (weight > 0) & inrun
     y = np.where(ok, row, 0.0)
-    w = ok.astype(np.float64)
+    w = np.where(ok, weight, 0.0)
     # window limits clipped to the run: runs are contiguous column ranges
-    lab = np.where(ok, label, -1)
     idx = np.arange(W)
     run_start = np.full(W, 0)
     run_end = np.full(W, W - 1)
-    if ok.any():
-        labels = lab[ok]
+    if inrun.any():
+        labels = label[inrun]
         first = np.full(labels.max() + 1, W)
         last = np.full(labels.max() + 1, -1)
-        np.minimum.at(first, labels, idx[ok])
-        np.maximum.at(last, labels, idx[ok])
-        run_start[ok] = first[labels]
-        run_end[ok] = last[labels]
+        np.minimum.at(first, labels, idx[inrun])
+        np.maximum.at(last, labels, idx[inrun])
+        run_start[inrun] = first[labels]
+        run_end[inrun] = last[labels]
     lo = np.maximum(idx - half, run_start)
     hi = np.minimum(idx + half, run_end) + 1
     def wsum(v):
@@ -250,4 +327,4 @@ def _local_line_fit(row: np.ndarray, found: np.ndarray, label: np.ndarray, half:
     det = s0 * sxx - sx * sx
     with np.errstate(invalid="ignore", divide="ignore"):
         intercept = np.where(det > 1e-9, (sxx * sy - sx * sxy) / det, sy / s0)
-    return np.where(ok, intercept, row)
+    return np.where(inrun & (s0 > 0), intercept, row)

@@ -36,6 +36,7 @@ class ColumnGeometry:
     ``roi_lo``/``roi_hi``: (W,) rows [lo, hi) where the laser line can appear for depths in
     [min_m, max_m], widened by ``margin`` rows. ``column_angle``: (W,) scan angle of each column's
     laser point at 2 m (or the nearest depth in range), for columns without a return.
+    ``near_below``: nearer depths lie at larger rows (the camera looks down onto the plane).
     """
 
     width: int
@@ -51,6 +52,7 @@ class ColumnGeometry:
     roi_lo: np.ndarray
     roi_hi: np.ndarray
     column_angle: np.ndarray
+    near_below: bool
 
     def triangulate(self, rows: np.ndarray, columns: np.ndarray | None = None) -> Triangulation:
         """Sub-pixel rows (one per column, NaN: none) -> points on the laser plane, by the table.
@@ -125,9 +127,12 @@ def _build(config: SensorConfig, min_m: float, max_m: float, margin: int) -> Col
     best = np.argmin(dz, axis=0)
     pts = unlimited.points[best, np.arange(W)]
     angle, _ = to_scan_plane(pts, sf)
+    zc = unlimited.depth[:, int(np.argmax(any_ok))] if not any_ok[W // 2] else unlimited.depth[:, W // 2]
+    fin = np.nonzero(np.isfinite(zc))[0]
+    near_below = bool(zc[fin[-1]] < zc[fin[0]]) if fin.size > 1 else True
     for a in (xy, roi_lo, roi_hi, angle):
         a.setflags(write=False)
     return ColumnGeometry(
         W, H, config.plane, sf, min_m, max_m, top, bottom,
-        np.ascontiguousarray(xy[..., 0]), np.ascontiguousarray(xy[..., 1]), roi_lo, roi_hi, angle,
+        np.ascontiguousarray(xy[..., 0]), np.ascontiguousarray(xy[..., 1]), roi_lo, roi_hi, angle, near_below,
     )

@@ -1,6 +1,6 @@
 /* laserpi_harness: runs the real firmware ELF on libsimavr (ATmega328P, 16 MHz).
  *
- *   laserpi_harness FIRMWARE.elf [--stepped] [--realtime FACTOR]
+ *   laserpi_harness FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]
  *
  * Free-running mode (default): the UART is bridged to a pseudo-terminal whose path is printed
  * first as "pty /dev/pts/N"; open it with pyserial like a real serial port.  Simulated time is
@@ -15,6 +15,8 @@
  * Both modes report on stdout, one event a line, with the CPU cycle count (62.5 ns):
  *     edge <cycle> <level>   the laser pin PB1/OC1A changed level
  *     rxdelim <cycle>        a frame delimiter (0x00) entered the MCU's UART receiver
+ *     int <cycle> <vector>   (--trace-interrupts) the CPU entered interrupt vector n, or
+ *                            returned to vector 0 = main code
  *     timer1 <cycle> <tccr1b> TCCR1B was written: the timer counts from this cycle, so the
  *                            Timer1 count at cycle c is (c - cycle) / 8 with prescaler 8
  * simavr's UART is not timed like a physical line (bytes move in batches), so link latency is
@@ -36,6 +38,7 @@
 #include "avr_uart.h"
 #include "sim_avr.h"
 #include "sim_elf.h"
+#include "sim_interrupts.h"
 #include "sim_irq.h"
 
 #define CPU_HZ 16000000UL
@@ -103,6 +106,12 @@ static void on_laser_pin(struct avr_irq_t *irq, uint32_t value, void *param)
         pin_level = level;
         printf("edge %" PRIu64 " %d\n", (uint64_t)avr->cycle, level);
     }
+}
+
+static void on_interrupt(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    printf("int %" PRIu64 " %u\n", (uint64_t)avr->cycle, value);
 }
 
 static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -246,20 +255,23 @@ int main(int argc, char **argv)
 {
     const char *elf = NULL;
     double realtime = 1.0;
+    int trace_interrupts = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--stepped") == 0)
             stepped = 1;
+        else if (strcmp(argv[i], "--trace-interrupts") == 0)
+            trace_interrupts = 1;
         else if (strcmp(argv[i], "--realtime") == 0 && i + 1 < argc)
             realtime = atof(argv[++i]);
         else if (argv[i][0] != '-' && !elf)
             elf = argv[i];
         else {
-            fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR]\n", argv[0]);
+            fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
             return 2;
         }
     }
     if (!elf) {
-        fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR]\n", argv[0]);
+        fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
         return 2;
     }
     avr_global_logger_set(logger);
@@ -288,6 +300,9 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 1), on_laser_pin, NULL);
     avr_irq_register_notify(avr_iomem_getirq(avr, 0x81 /* TCCR1B */, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, NULL);
+
+    if (trace_interrupts)
+        avr_irq_register_notify(avr->interrupts.irq + AVR_INT_IRQ_RUNNING, on_interrupt, NULL);
 
     return stepped ? stepped_loop() : free_loop(realtime);
 }

@@ -31,7 +31,7 @@
 #endif
 
 /* Shortest pulse and shortest gap the interrupt code can place without racing itself. */
-#define MIN_PULSE_TICKS 64UL   /* 32 us */
+#define MIN_PULSE_TICKS 200UL  /* 100 us: the fall is armed by the rise interrupt */
 #define MIN_GAP_TICKS 400UL    /* 200 us */
 /* An edge closer than this to "now" cannot be armed safely (interrupt latency allowance). */
 #define ARM_MARGIN_TICKS 48UL  /* 24 us */
@@ -42,8 +42,11 @@
 
 #define FIRMWARE_VERSION 1
 
-#if MAX_PULSE_TICKS + 4 * ARM_MARGIN_TICKS >= 65536UL
-#error "MAX_PULSE_TICKS must leave the fall edge inside one 16-bit compare window"
+/* A rise is armed on OC1A only when it is less than ARM_WINDOW_TICKS ahead, so that a stale
+ * compare flag can never be mistaken for the rise (see hw_avr.c); farther rises are deferred. */
+#define ARM_WINDOW_TICKS (65536UL - MAX_PULSE_TICKS - 2 * ARM_MARGIN_TICKS)
+#if MAX_PULSE_TICKS + 2 * ARM_MARGIN_TICKS + 4096UL > 65536UL
+#error "MAX_PULSE_TICKS must leave room in one 16-bit compare window (at most 30.7 ms)"
 #endif
 #if MAX_DUTY_PPM == 0 || MAX_DUTY_PPM > 1000000UL
 #error "MAX_DUTY_PPM must be in 1..1000000"

@@ -23,8 +23,6 @@ uint32_t interlock_min_gap(uint32_t width)
     return gap > 0xFFFFFFFFULL ? 0xFFFFFFFFUL : (uint32_t)gap;
 }
 
-static uint8_t lit(const core_t *c, uint32_t index) { return (c->mask >> (index % c->n)) & 1u; }
-
 uint8_t pattern_min_spacing(uint32_t mask, uint8_t n)
 {
     uint8_t best = 0;
@@ -156,6 +154,7 @@ uint64_t core_rise_done(core_t *c, uint64_t t)
     c->pin_high = 1;
     c->cur_rise = t;
     c->cur_index = c->next_index;
+    c->cur_pos = c->next_pos;
     c->last_rise = t;
     return t + c->width;
 }
@@ -175,12 +174,14 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
         c->trim_phase = 0;
         c->trim_period = 0;
     }
-    uint32_t index = c->cur_index + 1;
-    uint64_t rise = (uint64_t)((int64_t)(c->cur_rise + c->period) + phase);
-    while (!lit(c, index)) {
+    uint32_t index = c->cur_index;
+    uint8_t pos = c->cur_pos;
+    uint64_t rise = (uint64_t)((int64_t)c->cur_rise + phase);
+    do { /* the next lit slot; terminates because the accepted mask has a lit bit below n */
         index++;
+        pos = (uint8_t)(pos + 1 == c->n ? 0 : pos + 1);
         rise += c->period;
-    }
+    } while (!((c->mask >> pos) & 1u));
     uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
     if (rise <= t || rise - t < need) { /* run-time duty interlock on the actual edges */
         core_fault(c, FAULT_DUTY, t);
@@ -188,6 +189,7 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
     }
     c->next_rise = rise;
     c->next_index = index;
+    c->next_pos = pos;
     *next = rise;
     return 1;
 }
@@ -238,9 +240,9 @@ static void do_schedule(core_t *c, const frame_t *f)
         return;
     }
     uint64_t now = hw_now();
-    uint32_t index = 0;
+    uint8_t index = 0; /* first lit slot: below n <= 32 */
     uint64_t rise = first;
-    while (!((mask >> (index % n)) & 1u)) {
+    while (!((mask >> index) & 1u)) {
         index++;
         rise += period;
     }
@@ -264,6 +266,7 @@ static void do_schedule(core_t *c, const frame_t *f)
         c->min_gap = min_gap;
         c->next_rise = rise;
         c->next_index = index;
+        c->next_pos = index;
         c->trim_pending = 0;
         c->trim_phase = 0;
         c->trim_period = 0;
@@ -286,29 +289,46 @@ static void do_trim(core_t *c, const frame_t *f)
     int32_t dperiod = (int32_t)get_u32(f->payload + 4);
     uint8_t reason = 0;
     uint32_t info = 0;
-    uint8_t s = hw_irq_save();
-    if (c->state != STATE_RUNNING) {
-        reason = NACK_NOT_RUNNING;
-        info = c->state;
-    } else {
-        int64_t phase = (int64_t)c->trim_phase + dphase;
-        int64_t dper = (int64_t)c->trim_period + dperiod;
-        int64_t period = (int64_t)c->period + dper;
-        int64_t worst = (int64_t)pattern_min_spacing(c->mask, c->n) * period + (phase < 0 ? phase : 0);
+    /* The checks (64-bit products) run with interrupts enabled on a snapshot, so that they never
+     * delay an edge interrupt; the result is committed only if the snapshot is still current
+     * (a pending trim applied by the fall interrupt meanwhile changes period and trims). */
+    for (;;) {
+        uint8_t s = hw_irq_save();
+        uint8_t state = c->state;
+        uint32_t period0 = c->period, width = c->width, min_gap = c->min_gap, mask = c->mask;
+        uint8_t n = c->n;
+        int32_t phase0 = c->trim_phase, dper0 = c->trim_period;
+        hw_irq_restore(s);
+        if (state != STATE_RUNNING) {
+            reason = NACK_NOT_RUNNING;
+            info = state;
+            break;
+        }
+        int64_t phase = (int64_t)phase0 + dphase;
+        int64_t dper = (int64_t)dper0 + dperiod;
+        int64_t period = (int64_t)period0 + dper;
         if (phase > INT32_MAX || phase < INT32_MIN || period < (int64_t)(MIN_PULSE_TICKS + MIN_GAP_TICKS) ||
             period > 0x7FFFFFFFL) {
             reason = NACK_BAD_VALUE;
-        } else if (worst < (int64_t)c->width + c->min_gap) {
+            break;
+        }
+        int64_t worst = (int64_t)pattern_min_spacing(mask, n) * period + (phase < 0 ? phase : 0);
+        if (worst < (int64_t)width + min_gap) {
             reason = NACK_ENVELOPE_DUTY;
-            info = c->min_gap;
-        } else {
+            info = min_gap;
+            break;
+        }
+        s = hw_irq_save();
+        if (c->state == state && c->period == period0 && c->trim_phase == phase0 && c->trim_period == dper0) {
             c->trim_phase = (int32_t)phase;
             c->trim_period = (int32_t)dper;
             c->trim_pending = 1;
             info = c->pin_high ? c->cur_index : c->next_index; /* last pulse on the old timing */
+            hw_irq_restore(s);
+            break;
         }
+        hw_irq_restore(s); /* changed underneath: check again */
     }
-    hw_irq_restore(s);
     if (reason)
         refuse(c, f->msg_type, f->seq, reason, info);
     else
@@ -416,22 +436,20 @@ void core_poll(core_t *c)
 {
     uint8_t s = hw_irq_save();
     core_guard(c, hw_now());
-    hw_irq_restore(s);
-    for (;;) {
-        uint8_t p[LEN_EDGE];
-        s = hw_irq_save();
-        if (c->edge_count == 0) {
-            hw_irq_restore(s);
-            return;
-        }
-        edge_t e = c->edges[c->edge_head];
-        c->edge_head = (uint8_t)((c->edge_head + 1) % EDGE_QUEUE);
-        c->edge_count--;
+    if (c->edge_count == 0) {
         hw_irq_restore(s);
-        put_u32(p, e.index);
-        put_u64(p + 4, e.rise);
-        put_u64(p + 12, e.fall);
-        p[20] = e.flags;
-        reply(MSG_EDGE, 0, p, sizeof p);
+        return;
     }
+    /* one report per call: commands stay responsive even when reports outrun the link
+     * (then the queue drops the oldest reports; STATUS still counts every pulse) */
+    edge_t e = c->edges[c->edge_head];
+    c->edge_head = (uint8_t)((c->edge_head + 1) % EDGE_QUEUE);
+    c->edge_count--;
+    hw_irq_restore(s);
+    uint8_t p[LEN_EDGE];
+    put_u32(p, e.index);
+    put_u64(p + 4, e.rise);
+    put_u64(p + 12, e.fall);
+    p[20] = e.flags;
+    reply(MSG_EDGE, 0, p, sizeof p);
 }

@@ -30,6 +30,7 @@ typedef struct {
     uint32_t min_gap;        /* smallest off time the duty envelope allows before/after `width` */
     uint64_t next_rise;      /* next lit pulse (armed or about to be) */
     uint32_t next_index;
+    uint8_t next_pos, cur_pos; /* index mod n, kept incrementally (no division in interrupts) */
     uint8_t pin_high;        /* a pulse is in flight (rise done, fall pending) */
     uint64_t cur_rise;
     uint32_t cur_index;
@@ -49,12 +50,12 @@ void core_init(core_t *c, uint8_t reset_cause);
 void core_rx_byte(core_t *c, uint8_t b, uint64_t rx_tick);
 /* Main context: the receiver dropped bytes; the frame being assembled is refused (malformed). */
 void core_rx_damaged(core_t *c);
-/* Main context: sends queued EDGE reports; runs the guards. */
+/* Main context: runs the guards and sends at most one queued EDGE report. */
 void core_poll(core_t *c);
 /* Interrupt context (interrupts disabled): the armed rise happened at tick t.
  * Returns the tick at which the pulse must fall. */
 uint64_t core_rise_done(core_t *c, uint64_t t);
-/* Interrupt context: the pulse fell at tick t (flags: EDGE_FALL_FORCED if it was forced early).
+/* Interrupt context: the pulse fell at tick t (flags: EDGE_FALL_FORCED if software had to end it).
  * Returns 1 and sets *next to the next rise to arm, or 0 if nothing is to be armed. */
 uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next);
 /* Interrupt or main context with interrupts disabled: heartbeat timeout and pulse-width guard.

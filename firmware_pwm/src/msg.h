@@ -58,7 +58,7 @@
 #define FAULT_LATE 0x08        /* a rise could not be armed in time */
 
 /* edge flags */
-#define EDGE_FALL_FORCED 0x01  /* the fall was forced early (armed too late) */
+#define EDGE_FALL_FORCED 0x01  /* the fall could not be armed in time: software ended the pulse, late */
 #define EDGE_CUT 0x02          /* the pulse was cut by STOP or a fault */
 
 #endif

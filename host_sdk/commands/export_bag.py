@@ -1,7 +1,8 @@
 """`laserpi export-bag FILE OUT`: a recording as a ROS 2 bag of sensor_msgs/msg/LaserScan.
 
 Needs the `ros` extra (`pip install laserpi[ros]`, the `rosbags` package; no ROS install).
-The bag uses MCAP storage (rosbags >= 0.10 writes it; this is checked, not assumed).
+The bag uses MCAP storage when the installed rosbags can write it (0.10 and later; checked at
+run time), else sqlite3 with a warning.
 Header stamps are wall-clock (UTC) times: the recording's host monotonic stamps shifted by the
 offset between the two clocks noted when recording began (header wall_start_ns/mono_start_ns).
 The bag's receive time of each message is the same stamp.
@@ -10,6 +11,9 @@ The bag's receive time of each message is the same stamp.
 from __future__ import annotations
 
 import argparse
+import logging
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,10 +23,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame-id", default="laser")
 
 
+def storage_plugin():
+    """MCAP if this rosbags can write it (>= 0.10), else sqlite3 with a warning saying so."""
+    from rosbags.rosbag2 import StoragePlugin
+
+    if hasattr(StoragePlugin, "MCAP"):
+        return StoragePlugin.MCAP
+    log.warning("the installed rosbags cannot write MCAP; writing sqlite3 storage instead")
+    return StoragePlugin.SQLITE3
+
+
 def export_bag(recording: str, out: str, topic: str = "/scan", frame_id: str = "laser") -> tuple[int, dict]:
     """Write the bag; returns (messages written, replay stats)."""
     import numpy as np
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     from host_sdk.recording import Replay
@@ -33,7 +47,7 @@ def export_bag(recording: str, out: str, topic: str = "/scan", frame_id: str = "
     rep = Replay(recording)
     wall_minus_mono_ns = rep.header.wall_start_ns - rep.header.mono_start_ns
     n = 0
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    with Writer(out, version=9, storage_plugin=storage_plugin()) as writer:
         conn = writer.add_connection(topic, LaserScanMsg.__msgtype__, typestore=ts)
         for scan in rep:
             ls = scan.to_laserscan(frame_id)
@@ -60,6 +74,6 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileExistsError) as exc:
         print(f"laserpi export-bag: {exc}")
         return 2
-    print(f"wrote {n} LaserScan messages on {args.topic} to {args.out} (MCAP); dropped: "
+    print(f"wrote {n} LaserScan messages on {args.topic} to {args.out} ({storage_plugin().name}); dropped: "
           f"crc {stats['crc_errors']}, decode {stats['decode_errors']}")
     return 0

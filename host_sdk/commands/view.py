@@ -38,6 +38,12 @@ def run(args: argparse.Namespace) -> int:
     from host_sdk import LaserPi, LaserPiError
 
     try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        print("laserpi view needs matplotlib: pip install 'laserpi[plots]'")
+        return 2
+
+    try:
         with LaserPi(args.port, args.baud) as sensor:
             scan = next(iter(sensor.scans()))
     except LaserPiError as exc:

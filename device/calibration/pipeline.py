@@ -1,0 +1,115 @@
+"""Camera and laser plane from one capture set, end to end (thesis section 4.2).
+
+Capture-set folder layout (what ``laserpi calibrate run DIR`` and ``calibrate capture`` use)::
+
+    DIR/pose_000_unlit.png   8-bit grayscale, laser off  (corners are found here, section 7.2.2)
+    DIR/pose_000_lit.png     8-bit grayscale, laser on, same board pose
+    DIR/pose_001_unlit.png
+    ...
+
+Any ``<name>_unlit.png`` with a matching ``<name>_lit.png`` is a pose; names sort the poses.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..config import SensorConfig
+from ..model.triangulation import params_from_plane
+from ..sim.checkerboard import BoardSpec
+from .intrinsics import CalibrationError, Detection, IntrinsicsResult, calibrate_intrinsics, detect_corners
+from .plane import BoardLine, PlaneFit, board_mask, extract_line, fit_laser_plane, line_points
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Pose:
+    name: str
+    lit: np.ndarray  # (H, W) uint8
+    unlit: np.ndarray  # (H, W) uint8
+
+
+@dataclass
+class CalibrationResult:
+    config: SensorConfig
+    intrinsics: IntrinsicsResult
+    plane_fit: PlaneFit
+    detections: list[Detection]
+    lines: list[BoardLine]
+
+
+def load_capture_dir(path: str | Path) -> list[Pose]:
+    """Read a capture-set folder (layout in the module docstring)."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_dir():
+        raise CalibrationError(f"{path}: not a folder of pose_NNN_lit.png / pose_NNN_unlit.png pairs")
+    poses = []
+    for unlit_path in sorted(path.glob("*_unlit.png")):
+        name = unlit_path.name[: -len("_unlit.png")]
+        lit_path = path / f"{name}_lit.png"
+        if not lit_path.exists():
+            raise CalibrationError(f"{unlit_path} has no matching {lit_path.name}; every pose needs a lit and an unlit frame")
+        lit, unlit = (cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in (lit_path, unlit_path))
+        if lit is None or unlit is None:
+            raise CalibrationError(f"{name}: cannot read the PNG pair in {path}")
+        if lit.shape != unlit.shape:
+            raise CalibrationError(f"{name}: lit {lit.shape} and unlit {unlit.shape} frames differ in size")
+        poses.append(Pose(name, lit, unlit))
+    if not poses:
+        raise CalibrationError(f"{path}: no pose_NNN_unlit.png / pose_NNN_lit.png pairs found")
+    return poses
+
+
+def save_capture_dir(poses: list[Pose], path: str | Path) -> None:
+    import cv2
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    for p in poses:
+        cv2.imwrite(str(path / f"{p.name}_unlit.png"), p.unlit)
+        cv2.imwrite(str(path / f"{p.name}_lit.png"), p.lit)
+
+
+def calibrate(poses: list[Pose], base: SensorConfig, spec: BoardSpec = BoardSpec(), model: str = "auto", name: str | None = None) -> CalibrationResult:
+    """Intrinsics from the unlit frames, then the laser plane from the lines on the boards.
+
+    ``base`` supplies what calibration does not measure (laser, optics, range limits, beta).
+    """
+    if not poses:
+        raise CalibrationError("empty capture set: capture 15-25 checkerboard poses, each lit and unlit")
+    h, w = poses[0].unlit.shape
+    if any(p.unlit.shape != (h, w) for p in poses):
+        raise CalibrationError("the capture set mixes frame sizes; capture all poses in one sensor mode")
+    detections = [detect_corners(p.unlit, spec.pattern_size, p.name) for p in poses]
+    intr = calibrate_intrinsics(detections, spec.object_points(), (w, h), model=model)
+    outline = spec.outline(0.8 * spec.margin_squares)  # the checker area and most of the white mount
+    lines = []
+    for p in poses:
+        if p.name not in intr.poses:
+            continue
+        rot, t = intr.poses[p.name]
+        px = extract_line(p.lit, p.unlit, board_mask(intr.camera, rot, t, outline, (h, w)))
+        ln = line_points(p.name, px, intr.camera, rot, t)
+        log.info("%s: %d laser points", p.name, len(ln.points))
+        lines.append(ln)
+    fit = fit_laser_plane(lines)
+    cam = replace(intr.camera, intrinsics=replace(intr.camera.intrinsics, width=w, height=h))
+    config = replace(base, name=name or f"{base.name}-calibrated", width=w, height=h, camera=cam, plane=fit.plane,
+                     active_width=min(base.active_width or w, w), active_height=min(base.active_height or h, h), post_calibration=None)
+    return CalibrationResult(config, intr, fit, detections, lines)
+
+
+def triangulation_table(result: CalibrationResult) -> dict[str, float]:
+    """Thesis Table 4.8 for the calibrated plane: theta, psi, alpha (degrees) and s (metres)."""
+    a, b, c = result.config.plane.to_abc()
+    p = params_from_plane(a, b, c, result.config.beta_rad)
+    return {"a_c": a, "b_c": b, "c_c_m": c, "theta_deg": math.degrees(p.theta), "psi_deg": math.degrees(p.psi),
+            "alpha_deg": math.degrees(p.alpha), "beta_deg": math.degrees(p.beta), "s_m": p.s}

@@ -1,0 +1,135 @@
+"""Scoring pipeline output against the simulator's ground truth, and simulated frame pairs.
+
+Used by ``laserpi evaluate``, ``laserpi bench pipeline`` and the accuracy tests, so that all
+three measure the same thing the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import SensorConfig
+from ..sim.truth import FrameTruth
+from .measurements import ColumnMeasurements
+
+#: Distance bins (scan range, metres) of the range-error report.
+DISTANCE_BINS = (0.0, 0.5, 1.0, 1.5, 2.5, 3.5, 5.0, 10.0)
+#: A valid range further than this from the truth (relative) counts as a gross error.
+GROSS_ERROR_REL = 0.05
+
+
+@dataclass(frozen=True)
+class FramePair:
+    lit: np.ndarray
+    unlit: np.ndarray
+    truth: FrameTruth  # of the lit frame
+    lit_rows: np.ndarray  # (H,) rows the pulse lit in the lit frame
+
+
+#: Operating point of the simulated camera for evaluation: 40 ms exposure (the pulse of 17.4 ms
+#: fits in the 22.5 ms during which all rows expose), analog gain 8 (the weak far returns need it;
+#: the IMX219 allows 1..10.67).
+EXPOSURE_US = 40000.0
+ANALOG_GAIN = 8.0
+
+
+def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int = 0, options=None,
+                    exposure_us: float = EXPOSURE_US, analog_gain: float = ANALOG_GAIN,
+                    pulse_us: float | None = None) -> list[FramePair]:
+    """``count`` (lit, unlit) pairs of a simulated scene: the camera free-runs, the laser fires
+    on every other frame (ERRATA 10), centred on the frame's common exposure window
+    (:func:`device.sim.pulses.frame_aligned_train`). Speckle is static (same scene), sensor
+    noise differs per frame."""
+    from ..camera.simulated import SimulatedCamera
+    from ..sim.pulses import frame_aligned_train
+    from ..sim.render import RenderOptions
+    from ..sim.scene import get_scene
+    from ..sim.sensor import SensorParams
+
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    frame_us = 50000.0
+    start_ns = 1_000_000_000
+    cam_line_ns = 18904.0
+    pulse = config.laser.pulse_s * 1e6 if pulse_us is None else pulse_us
+    train = frame_aligned_train(start_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
+    cam = SimulatedCamera(config, get_scene(scene_spec), train, exposure_us=exposure_us, frame_duration_us=frame_us,
+                          start_ns=start_ns, seed=seed, options=options or RenderOptions(), line_time_ns=cam_line_ns,
+                          sensor=SensorParams(analog_gain=analog_gain))
+    cam.start()
+    pairs = []
+    for _ in range(count):
+        lit, truth = cam.capture_with_truth()
+        unlit, _ = cam.capture_with_truth()
+        pairs.append(FramePair(lit.image, unlit.image, truth, truth.lit_rows))
+    return pairs
+
+
+@dataclass
+class Score:
+    """Accumulated comparison of measurements with truth over frames."""
+
+    row_err: list = field(default_factory=list)
+    range_rel_err: list = field(default_factory=list)
+    true_range: list = field(default_factory=list)
+    columns_with_return: int = 0
+    valid_with_return: int = 0
+    columns_without_return: int = 0
+    false_returns: int = 0
+
+    def add(self, meas: ColumnMeasurements, truth: FrameTruth) -> None:
+        c = meas.column
+        t_row = truth.row[c]
+        t_rng = truth.range_m[c]
+        has = np.isfinite(t_row) & np.isfinite(t_rng)
+        ok = meas.valid & np.isfinite(meas.range)
+        self.columns_with_return += int(has.sum())
+        self.valid_with_return += int((has & ok).sum())
+        self.columns_without_return += int((~has).sum())
+        self.false_returns += int((~has & ok).sum())
+        both = has & ok
+        self.row_err.append(meas.row[both] - t_row[both])
+        self.range_rel_err.append((meas.range[both] - t_rng[both]) / t_rng[both])
+        self.true_range.append(t_rng[both])
+
+    def summary(self) -> dict:
+        row = np.concatenate(self.row_err) if self.row_err else np.zeros(0)
+        rel = np.concatenate(self.range_rel_err) if self.range_rel_err else np.zeros(0)
+        rng = np.concatenate(self.true_range) if self.true_range else np.zeros(0)
+        out = {
+            "subpixel_rms_px": _rms(row),
+            "subpixel_bias_px": float(np.mean(row)) if row.size else float("nan"),
+            "valid_fraction": self.valid_with_return / self.columns_with_return if self.columns_with_return else float("nan"),
+            "false_return_fraction": self.false_returns / self.columns_without_return if self.columns_without_return else 0.0,
+            "columns_with_return": self.columns_with_return,
+            "columns_without_return": self.columns_without_return,
+            "gross_error_fraction": float(np.mean(np.abs(rel) > GROSS_ERROR_REL)) if rel.size else float("nan"),
+            "range_error_by_distance": [],
+        }
+        for lo, hi in zip(DISTANCE_BINS[:-1], DISTANCE_BINS[1:]):
+            m = (rng >= lo) & (rng < hi)
+            if m.sum() < 2:
+                continue
+            e = rel[m] * 100
+            out["range_error_by_distance"].append({
+                "bin_m": [lo, hi], "n": int(m.sum()), "mean_pct": float(np.mean(e)), "std_pct": float(np.std(e)),
+                "p95_abs_pct": float(np.percentile(np.abs(e), 95)),
+            })
+        return out
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def run_pipeline(pipeline, pairs: list[FramePair], use_lit_rows: bool = True) -> Score:
+    """Process every pair in order (the reference's blend carries over, as on the device)."""
+    score = Score()
+    if hasattr(pipeline, "reset"):
+        pipeline.reset()
+    for p in pairs:
+        meas = pipeline.process(p.lit, p.unlit, lit_rows=p.lit_rows if use_lit_rows else None)
+        score.add(meas, p.truth)
+    return score

@@ -1,0 +1,114 @@
+"""Clock mapping: lower-envelope GPIO map, ping fallback, pulse-wise pairing; accuracy vs truth."""
+
+import numpy as np
+import pytest
+
+from device.sync.clock_map import EdgePairing, GpioClockMap, PingClockMap, lower_envelope_fit
+
+TICK_HZ = 2e6
+
+
+def _pairs(rng, n, drift_ppm=100.0, jitter=20e-6, latency=3e-6, outliers=0.0, offset_s=5.0):
+    """(ticks, gpio ns, truth function tick -> true Pi ns) for pulses every 50 ms."""
+    ticks = np.arange(n) * 100_000 + 1_000_000
+    true_s = offset_s + ticks / (TICK_HZ * (1 + drift_ppm * 1e-6))
+    late = latency + rng.exponential(jitter, n)
+    out = rng.random(n) < outliers
+    late[out] += rng.uniform(1e-4, 2e-3, out.sum())
+    ns = np.round((true_s + late) * 1e9).astype(np.int64)
+    return ticks, ns, lambda t: (offset_s + t / (TICK_HZ * (1 + drift_ppm * 1e-6))) * 1e9
+
+
+def test_envelope_fit_is_unbiased_and_its_sigma_is_honest():
+    rng = np.random.default_rng(3)
+    errs, sig = [], []
+    for _ in range(300):
+        x = np.arange(256) * 0.05 - 12.8
+        y = 1e-3 + x * (1 - 50e-6) + rng.exponential(20e-6, x.size)
+        f = lower_envelope_fit(x, y)
+        errs.append(f.predict(0.1) - (1e-3 + 0.1 * (1 - 50e-6)))
+        sig.append(f.sigma(0.1))
+    errs, sig = np.array(errs), np.array(sig)
+    assert abs(errs.mean()) < 0.5e-6
+    assert 0.6 < errs.std() / sig.mean() < 1.4
+    assert np.mean(np.abs(errs) < 4 * sig) > 0.99
+
+
+def test_envelope_fit_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="at least 2"):
+        lower_envelope_fit(np.array([1.0]), np.array([1.0]))
+    with pytest.raises(ValueError, match="1-D"):
+        lower_envelope_fit(np.zeros((2, 2)), np.zeros((2, 2)))
+
+
+def test_gpio_map_recovers_offset_and_drift_despite_late_outliers():
+    rng = np.random.default_rng(1)
+    ticks, ns, truth = _pairs(rng, 400, drift_ppm=-250.0, outliers=0.02)
+    m = GpioClockMap(TICK_HZ, gpio_latency_min_s=3e-6, window=256)
+    for t, n in zip(ticks, ns):
+        m.add(int(t), int(n))
+    est = m.estimate()
+    assert est.source == "gpio"
+    assert est.drift_ppm == pytest.approx(-250.0, abs=2.0)
+    nxt = ticks[-1] + 200_000
+    err = float(est.mcu_to_pi_ns(nxt)) - truth(nxt)
+    assert abs(err) < 3e3  # ns
+    assert abs(err) < 5 * float(est.sigma_s(nxt)) * 1e9
+    back = float(est.pi_to_mcu_tick(est.mcu_to_pi_ns(nxt)))
+    assert back == pytest.approx(nxt, abs=1e-3)
+
+
+def test_gpio_map_removes_impossible_early_pairs():
+    rng = np.random.default_rng(2)
+    ticks, ns, truth = _pairs(rng, 200)
+    ns = ns.copy()
+    ns[[50, 120, 180]] -= 400_000  # 400 us early: not an interrupt latency, a wrong pairing
+    m = GpioClockMap(TICK_HZ, window=256)
+    for t, n in zip(ticks, ns):
+        m.add(int(t), int(n))
+    est = m.estimate()
+    assert m.rejected == 3
+    assert abs(float(est.mcu_to_pi_ns(ticks[-1])) - truth(ticks[-1])) < 3e3
+
+
+def test_ping_map_is_a_lower_accuracy_fallback():
+    rng = np.random.default_rng(4)
+    leg_min = 16 * 10 / 115200
+    m = PingClockMap(TICK_HZ, link_min_rtt_s=2 * leg_min)
+    drift = 80e-6
+    for k in range(256):
+        t1 = 1.0 + 0.05 * k
+        up = leg_min + rng.uniform(0, 1e-3)
+        down = leg_min + rng.uniform(0, 1e-3)
+        tick = int((t1 + up) * TICK_HZ * (1 + drift))
+        m.add(int(t1 * 1e9), tick, int((t1 + up + down) * 1e9))
+    est = m.estimate()
+    probe = int(15.0 * TICK_HZ * (1 + drift))
+    err = float(est.mcu_to_pi_ns(probe)) * 1e-9 - 15.0
+    sigma = float(est.sigma_s(probe))
+    assert abs(err) < 4 * sigma
+    assert 1e-6 < sigma < 200e-6  # microseconds to a hundred, not the few of the GPIO map
+    with pytest.raises(ValueError, match="before it was sent"):
+        m.add(10, 0, 5)
+
+
+def test_pairing_ignores_glitches_that_do_not_look_like_the_pulse():
+    rng = np.random.default_rng(5)
+    ticks, ns, truth = _pairs(rng, 300, jitter=5e-6)
+    m = GpioClockMap(TICK_HZ)
+    for t, n in zip(ticks[:200], ns[:200]):
+        m.add(int(t), int(n))
+    est = m.estimate()
+    pairing = EdgePairing()
+    width = 20_000  # ticks: a 10 ms pulse
+    for rise in ticks[200:210]:
+        pairing.add_mcu(int(rise), int(rise + width))
+        r_ns = int(truth(rise) + 4e3)
+        f_ns = int(truth(rise + width) + 4e3)
+        pairing.add_gpio(r_ns - 50_000, True)  # a glitch 50 us before the true edge
+        pairing.add_gpio(r_ns, True)
+        pairing.add_gpio(f_ns, False)
+    pairs = pairing.pair(est, now_ns=int(truth(ticks[215])), max_window_s=0.0125)
+    assert len(pairs) == 20
+    for tick, n in pairs:
+        assert 0 < n - truth(tick) < 10e3  # the true edges, never the glitch

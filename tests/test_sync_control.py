@@ -1,0 +1,165 @@
+"""Closed-loop synchronisation against the simulator's ground truth: targets and hard cases.
+
+The targets (issue 4, simulated, 100 ppm drift, 20 us GPIO jitter): lock within 10 frames,
+p99 error <= 20 us and no frame whose ROI is partly unlit after lock. The 1-hour figure is in
+BENCHMARKS.md; here a 3-minute run checks the same targets, with the p99 taken over the
+settled frames (10 s after lock: the guard is still shrinking while the clock map fills).
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from device.sim.mcu import McuConfig
+from device.sync.control import (FrameInfo, SyncConfig, SyncController, SyncState, ThesisController,
+                                 algorithm1_start_estimate, thesis_error_s)
+from device.sync.simulate import SimParams, run
+
+BASE = SimParams(seconds=60.0, seed=11)
+
+
+def _assert_clean(m):
+    assert m["frames_partly_unlit_after_lock"] == 0
+    assert m["frames_leaked_after_lock"] == 0
+
+
+def test_targets_over_three_minutes():
+    m = run(replace(BASE, seconds=180.0)).metrics
+    assert m["lock_frames"] <= 10
+    _assert_clean(m)
+    assert m["frames_lit_after_lock"] > 850
+    assert m["p99_error_us_settled"] <= 20.0
+    assert m["median_error_us"] <= 12.0
+    assert m["drift_ppm_estimated"] == pytest.approx(100.0, abs=1.0)
+    # the pulse is the ROI window (5 ms + 400 rows x 18.904 us) plus a guard of microseconds
+    assert 12561.6 < m["pulse_us"] < 12561.6 + 40
+
+
+def test_thesis_scheme_is_open_loop_in_drift():
+    m = run(replace(BASE, controller="thesis")).metrics
+    assert m["lock_frames"] <= 30  # the P controller converges on its own estimate ...
+    assert m["p99_error_us"] > 3000  # ... but 100 ppm over a minute moves the pulse by ~6 ms
+    assert m["frames_partly_unlit_after_lock"] > 0.5 * m["frames_lit_after_lock"]
+
+
+def test_outlier_and_spurious_gpio_edges():
+    p = replace(BASE, mcu=McuConfig(gpio_spurious_hz=20.0, gpio_outlier_prob=0.05))
+    r = run(p)
+    m = r.metrics
+    assert m["lock_frames"] <= 10 and m["final_state"] == "locked" and m["clock_source"] == "gpio"
+    _assert_clean(m)
+    assert m["p99_error_us_settled"] <= 25.0
+
+
+def test_dropped_frames_burst_keeps_the_schedule():
+    m = run(replace(BASE, drop_bursts=((20.0, 30),))).metrics
+    _assert_clean(m)
+    assert m["final_state"] == "locked"
+    assert m["p99_error_us_settled"] <= 20.0
+
+
+def _relock_frames(r, t_event):
+    f = r.frames
+    after = np.flatnonzero((f["T"] > t_event) & f["delivered"])
+    first_locked = after[np.argmax(f["locked"][after])]
+    return int(np.sum(f["delivered"][after[0]:first_locked + 1]))
+
+
+def test_camera_restart_relocks():
+    r = run(replace(BASE, camera_restart_s=(20.0,)))
+    assert [e for _, e in r.events].count("camera-restart") == 1
+    _assert_clean(r.metrics)
+    assert _relock_frames(r, 20.05) <= 10
+
+
+def test_mcu_reset_relocks():
+    r = run(replace(BASE, mcu_reset_s=(20.0,)))
+    assert [e for _, e in r.events].count("mcu-reset") == 1
+    _assert_clean(r.metrics)
+    assert _relock_frames(r, 20.0) <= 12
+    assert r.metrics["final_state"] == "locked"
+
+
+def test_no_gpio_wire_falls_back_to_ping_with_a_wider_guard():
+    m = run(replace(BASE, mcu=McuConfig(gpio_connected=False))).metrics
+    assert m["clock_source"] == "ping" and m["final_state"] == "locked"
+    _assert_clean(m)
+    assert m["median_error_us"] > 20.0  # lower accuracy, said so ...
+    assert m["pulse_us"] < 12561.6 + 4000  # ... but still far from the thesis's 17.4 ms
+
+
+def test_huge_drift_is_an_error_not_a_wrong_schedule():
+    r = run(replace(BASE, seconds=20.0, mcu=McuConfig(drift_ppm=10_000.0)))
+    m = r.metrics
+    assert m["final_state"] == "error" and "drift" in m["final_reason"]
+    assert m["lock_frames"] is None
+    assert m["frames_in_error_state"] > 0.9 * m["frames_delivered"]
+    assert m["frames_lit_after_lock"] == 0
+
+
+def test_roi_that_does_not_fit_between_frames_is_refused():
+    p = replace(BASE, seconds=2.0, camera=replace(BASE.camera, exposure_s=0.045), row_min=0, row_max=900)
+    with pytest.raises(ValueError, match="does not fit in the frame duration"):
+        run(p)
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="ROI rows"):
+        SyncConfig(row_min=10, row_max=5, frame_duration_s=0.05)
+    with pytest.raises(ValueError, match="pattern"):
+        SyncConfig(row_min=1, row_max=5, frame_duration_s=0.05, pattern=(False, False))
+
+
+def test_thesis_error_equations_5_1_to_5_3():
+    p = 0.05
+    # frame 3 periods + 10 ms after the PWM start; delta -5 ms; interval 200 us
+    e = thesis_error_s(1.0 + 3 * p + 0.010, 1.0, p, -0.005, 200e-6)
+    assert e == pytest.approx(0.010 - 0.005 - 100e-6)
+    e = thesis_error_s(1.0 + 3 * p + 0.040, 1.0, p, 0.0, 0.0)  # closer to the next pulse: early
+    assert e == pytest.approx(-0.010)
+
+
+def test_algorithm1_retries_until_the_interval_is_small():
+    times = iter([0, 500, 900, 1000, 1100, 1150])  # tries: (0..900) too long, (1000..1150) ok
+    starts = []
+    t_pwm, interval = algorithm1_start_estimate(lambda: starts.append(1), lambda: next(times),
+                                                lambda: next(times), interval_max_ns=300)
+    assert len(starts) == 2 and interval == 150 and t_pwm == 1100 - 150
+    with pytest.raises(RuntimeError, match="interval"):
+        algorithm1_start_estimate(lambda: None, iter(range(0, 10**6, 400)).__next__, lambda: 0, 300, max_tries=3)
+
+
+class _Recorder:
+    def __init__(self):
+        self.calls = []
+
+    def schedule(self, *a):
+        self.calls.append(("schedule", a))
+
+    def trim(self, *a):
+        self.calls.append(("trim", a))
+
+    def stop(self):
+        self.calls.append(("stop",))
+
+    def request(self, frame_duration_s=None, exposure_s=None):
+        self.calls.append(("request", frame_duration_s))
+
+
+def test_controller_waits_for_a_clock_map_and_labels_unknown_until_locked():
+    rec = _Recorder()
+    ctrl = SyncController(SyncConfig(row_min=300, row_max=700, frame_duration_s=0.05), rec)
+    lab = ctrl.on_frame(FrameInfo(0, 1_000_000_000, 0.005, 18904e-9, 0.05), now_ns=1_020_000_000)
+    assert lab.lit is None and lab.state is SyncState.ACQUIRING and "clock" in lab.reason
+    assert rec.calls == []
+
+
+def test_thesis_p_controller_gain_is_0_233_f():
+    rec = _Recorder()
+    cfg = SyncConfig(row_min=300, row_max=700, frame_duration_s=1 / 30)
+    ctrl = ThesisController(cfg, rec, t_pwm_ns=0, interval_ns=0, delta_s=0.0, pattern=(True,))
+    p = 1 / 30
+    ctrl.on_frame(FrameInfo(0, int((10 * p + 0.1 * p) * 1e9), 0.005, 18904e-9, p), 0)
+    f = 1 / rec.calls[-1][1]
+    assert f == pytest.approx(30 + 7 * 0.1, rel=1e-6)  # P = 7 at 30 Hz on e/p = 0.1

@@ -1,0 +1,123 @@
+"""The simulated IMX219 clock and the simulated co-MCU against their own definitions."""
+
+
+import numpy as np
+import pytest
+
+from device.sim.mcu import McuConfig, ScheduleRefused, SimulatedMcu
+from device.sim.timing import (ACTIVE_ROWS_MODE5, LINE_TIME_MODE5_S, CameraClock, CameraTimingConfig,
+                               quantise_frame_duration)
+
+
+def test_mode5_line_time_matches_table_b3():
+    # Table B.3: 18904 ns per line; 922 rows -> the 17.4 ms capture time
+    assert LINE_TIME_MODE5_S == 18904e-9
+    assert ACTIVE_ROWS_MODE5 * LINE_TIME_MODE5_S == pytest.approx(17.4e-3, abs=0.05e-3)
+
+
+def test_free_running_period_is_line_quantised_and_timestamps_late_only():
+    cfg = CameraTimingConfig(frame_duration_s=0.05, timestamp_jitter_s=10e-6, drop_probability=0.0)
+    cam = CameraClock(cfg, np.random.default_rng(1))
+    frames = [cam.next_frame() for _ in range(2000)]
+    t = np.array([f.true_start_s for f in frames])
+    lines = quantise_frame_duration(0.05, cfg.exposure_s, cfg)
+    assert np.allclose(np.diff(t), lines * LINE_TIME_MODE5_S, atol=1e-12)
+    lat = np.array([f.sensor_timestamp_ns for f in frames]) * 1e-9 - t
+    assert lat.min() > -1e-9  # an interrupt timestamp is never early
+    assert lat.mean() == pytest.approx(10e-6, rel=0.1)
+
+
+def test_row_exposure_window_rolling_shutter():
+    cam = CameraClock(CameraTimingConfig(exposure_s=0.005, drop_probability=0.0), np.random.default_rng(0))
+    f = cam.next_frame()
+    start, end = f.row_exposure(np.array([0, 921]))
+    assert end[0] == pytest.approx(f.true_start_s)
+    assert end[1] - end[0] == pytest.approx(921 * f.line_time_s)
+    assert np.allclose(end - start, f.exposure_s)
+
+
+def test_frame_duration_request_takes_effect_two_frames_later():
+    cfg = CameraTimingConfig(frame_duration_s=0.05, drop_probability=0.0)
+    cam = CameraClock(cfg, np.random.default_rng(0))
+    durations = []
+    for i in range(8):
+        f = cam.next_frame()
+        durations.append(f.frame_duration_s)
+        if i == 2:
+            cam.request(frame_duration_s=0.04)
+    old, new = durations[0], durations[-1]
+    assert new == pytest.approx(round(0.04 / LINE_TIME_MODE5_S) * LINE_TIME_MODE5_S)
+    assert durations[3] == old and durations[4] == new  # seen frame 2 -> effective at frame 4
+    with pytest.raises(ValueError, match="frame duration"):
+        cam.request(frame_duration_s=-1.0)
+
+
+def test_drops_and_restart_are_deterministic_for_a_seed():
+    cfg = CameraTimingConfig(drop_probability=0.05)
+    cams = [CameraClock(cfg, np.random.default_rng(7)) for _ in range(2)]
+    runs = [[c.next_frame() for _ in range(500)] for c in cams]
+    assert runs[0] == runs[1]
+    assert 5 < sum(f.dropped for f in runs[0]) < 50
+    cams[0].restart(100.0)
+    f = cams[0].next_frame()
+    assert f.sequence == 0 and 100.0 - 0.06 < f.true_start_s < 100.06
+
+
+def _mcu(**kw):
+    mcu = SimulatedMcu(McuConfig(**kw), np.random.default_rng(0))
+    mcu.now_s = 0.01
+    return mcu
+
+
+def test_mcu_pulses_land_on_scheduled_ticks_with_drift():
+    mcu = _mcu(drift_ppm=100.0, gpio_connected=False)
+    mcu.schedule(100_000, 100_000, 20_000, [True, False])
+    mcu.advance_to(1.0)
+    rise = np.array(mcu.pulses.rise_tick)
+    assert list(rise[:3]) == [100_000, 300_000, 500_000]
+    assert list(np.array(mcu.pulses.fall_tick) - rise) == [20_000] * rise.size
+    # true time of tick 100000 at 100 ppm fast: 50 ms / 1.0001
+    assert mcu.pulses.rise_s[0] == pytest.approx(0.05 / 1.0001, abs=1e-12)
+
+
+def test_mcu_trim_applies_at_the_next_slot_boundary():
+    mcu = _mcu(gpio_connected=False)
+    mcu.schedule(100_000, 100_000, 20_000, [True])
+    mcu.advance_to(0.06)  # slot 0 at 50 ms done
+    mcu.now_s = 0.06
+    mcu.trim(7, 100_010)
+    mcu.advance_to(0.5)
+    rise = mcu.pulses.rise_tick
+    assert rise[1] == 200_007 and rise[2] == 300_017
+
+
+def test_mcu_refuses_out_of_envelope_and_past_requests():
+    mcu = _mcu(max_width_ticks=10_000, max_duty=0.2)
+    with pytest.raises(ScheduleRefused, match="envelope"):
+        mcu.schedule(100_000, 100_000, 20_000, [True])
+    with pytest.raises(ScheduleRefused, match="duty"):
+        mcu.schedule(100_000, 40_000, 9_000, [True])
+    with pytest.raises(ScheduleRefused, match="past"):
+        mcu.schedule(10, 100_000, 5_000, [True])
+    with pytest.raises(ScheduleRefused, match="no pulse train"):
+        mcu.trim(1, 100_000)
+
+
+def test_mcu_reset_restarts_the_counter_and_stops_the_laser():
+    mcu = _mcu(gpio_connected=False)
+    mcu.schedule(100_000, 100_000, 20_000, [True])
+    mcu.reset_at(0.5)
+    mcu.advance_to(2.0)
+    assert max(mcu.pulses.rise_s) < 0.5
+    assert mcu.ping(1.0)[1] < 0.6 * 2e6  # ticks since the reset at 0.5 s
+
+
+def test_gpio_edges_are_late_by_the_latency_model():
+    mcu = _mcu(gpio_jitter_s=20e-6, gpio_latency_min_s=3e-6, gpio_outlier_prob=0.0)
+    mcu.schedule(100_000, 100_000, 20_000, [True])
+    mcu.advance_to(60.0)
+    ev = mcu.take_gpio_events(61.0)
+    truth = np.sort(np.r_[mcu.pulses.rise_s, mcu.pulses.fall_s])
+    late = np.array([e[0] for e in ev]) * 1e-9 - truth
+    assert late.min() >= 3e-6 - 1e-9
+    assert late.mean() == pytest.approx(23e-6, rel=0.1)

@@ -1,0 +1,205 @@
+"""Reference and fast pipelines on small synthetic frame pairs with known line rows (issue 7).
+
+Synthetic frames (tests/synth_frames.py): Gaussian lines at the rows the calibration gives for
+chosen depths, gamma speckle, Gaussian noise. Hard cases: depth jump, glossy-floor ghost,
+saturation, image edge, partly lit and out-of-sync frames, empty and bright scenes.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from device.config import RangeLimits, load_preset
+from device.vision.geometry import column_geometry
+from device.vision.measurements import ColumnStatus, to_laser_scan
+from device.vision.pipelines import VARIANTS, make_pipeline
+from synth_frames import frame_pair, row_for_depth, true_points
+
+CFG = dataclasses.replace(load_preset("thesis-calibrated"), range=RangeLimits(0.1, 4.0))
+
+
+@pytest.fixture(scope="module")
+def wall2m():
+    rows = row_for_depth(CFG, np.full(CFG.width, 2.0))
+    _, rng = column_geometry(CFG).angle_range(true_points(CFG, rows))
+    return rows, rng
+
+
+@pytest.fixture(scope="module")
+def pipes():
+    return {name: make_pipeline(name, CFG) for name in VARIANTS}
+
+
+def errors(m, rows, rng):
+    ok = m.valid
+    c = m.column[ok]
+    return m.row[ok] - rows[c], (m.range[ok] - rng[c]) / rng[c], ok.mean()
+
+
+def test_fast_com_beats_the_reference_on_a_speckled_wall(wall2m, pipes):
+    rows, rng = wall2m
+    lit, unlit = frame_pair(CFG, rows, speckle=0.3, seed=1)
+    ref = pipes["reference"]
+    ref.reset()
+    e_ref, r_ref, v_ref = errors(ref.process(lit, unlit), rows, rng)
+    e, r, v = errors(pipes["fast-com"].process(lit, unlit), rows, rng)
+    assert v > 0.98
+    assert np.sqrt(np.mean(e**2)) < 0.1
+    assert np.std(r) < 0.005 and abs(np.mean(r)) < 0.002
+    assert np.sqrt(np.mean(e**2)) < np.sqrt(np.mean(e_ref**2))
+    assert v_ref > 0.9  # the reference works too, just less accurately
+
+
+@pytest.mark.parametrize("name", [v for v in VARIANTS if v.startswith("fast-")])
+def test_every_fast_estimator_on_a_clean_line(wall2m, pipes, name):
+    rows, rng = wall2m
+    lit, unlit = frame_pair(CFG, rows, speckle=0.0, noise=0.5, seed=2)
+    e, r, v = errors(pipes[name].process(lit, unlit), rows, rng)
+    assert v > 0.99
+    assert np.sqrt(np.mean(e**2)) < 0.06
+    assert np.max(np.abs(r)) < 0.01
+
+
+def test_line_fit_reduces_speckle_error(wall2m, pipes):
+    rows, rng = wall2m
+    lit, unlit = frame_pair(CFG, rows, speckle=0.5, seed=3)
+    e_raw, *_ = errors(pipes["fast-com-raw"].process(lit, unlit), rows, rng)
+    e_fit, *_ = errors(pipes["fast-com"].process(lit, unlit), rows, rng)
+    assert np.sqrt(np.mean(e_fit**2)) < 0.5 * np.sqrt(np.mean(e_raw**2))
+    assert pipes["fast-com"].resolution_deg == pytest.approx(13 * pipes["fast-com-raw"].resolution_deg)
+    assert pipes["fast-com"].resolution_deg < 1.0  # thesis requirement 4
+
+
+def test_depth_jump_has_no_phantom_points(pipes):
+    z = np.full(CFG.width, 2.5)
+    z[700:900] = 1.0
+    rows = row_for_depth(CFG, z)
+    lit, unlit = frame_pair(CFG, rows, speckle=0.4, seed=4)
+    for name in ("fast-com", "fast-gaussian", "fast-blais-rioux"):
+        m = pipes[name].process(lit, unlit)
+        depth = m.points[:, 2]
+        ok = m.valid
+        # 3-point estimators fail on more speckled columns (no range, never a wrong one)
+        assert ok.mean() > (0.95 if name == "fast-com" else 0.8)
+        between = ok & (depth > 1.1) & (depth < 2.2)  # 2.5 m wall, 1 m box
+        assert between.sum() == 0, f"{name}: phantom points at {m.column[between]}"
+        assert np.all(np.abs(depth[700:900][ok[700:900]] - 1.0) < (0.03 if name == "fast-com" else 0.06))
+
+
+def test_glossy_floor_ghost_brighter_than_the_line_is_rejected(wall2m, pipes):
+    rows, rng = wall2m
+    # the mirror image appears farther from the horizon (larger rows here), here even brighter
+    ghost = (rows + 30, 180.0)
+    lit, unlit = frame_pair(CFG, rows, amplitude=90.0, speckle=0.3, seed=5, extra_lines=(ghost,))
+    m = pipes["fast-com"].process(lit, unlit)
+    e, r, v = errors(m, rows, rng)
+    assert v > 0.95
+    assert np.max(np.abs(r)) < 0.03  # every valid column on the wall, none on the ghost
+    ref = pipes["reference"]
+    ref.reset()
+    e_ref, *_ = errors(ref.process(lit, unlit), rows, rng)
+    assert np.median(np.abs(e_ref)) > 20  # the thesis pipeline follows the brighter ghost
+
+
+def test_isolated_brighter_blob_loses_to_the_continuous_line(wall2m, pipes):
+    rows, rng = wall2m
+    blob = np.full(CFG.width, np.nan)
+    blob[800:804] = rows[800:804] - 25  # nearer the horizon, brighter, only 4 columns wide
+    lit, unlit = frame_pair(CFG, rows, amplitude=80.0, seed=6, extra_lines=((blob, 200.0),))
+    m = pipes["fast-com"].process(lit, unlit)
+    assert np.all(m.valid[795:810])
+    np.testing.assert_allclose(m.row[795:810], rows[795:810], atol=0.1)
+
+
+def test_saturated_line(wall2m, pipes):
+    rows, rng = wall2m
+    lit, unlit = frame_pair(CFG, rows, amplitude=900.0, sigma=1.6, seed=7)
+    assert (lit == 255).sum(axis=0).mean() >= 3
+    for name in ("fast-com", "fast-gaussian", "fast-parabolic", "fast-blais-rioux"):
+        e, r, v = errors(pipes[name].process(lit, unlit), rows, rng)
+        assert v > 0.95 and np.sqrt(np.mean(e**2)) < 0.15, name
+
+
+def test_line_near_the_image_side_and_the_roi_edge(pipes):
+    z = np.full(CFG.width, 3.9)  # just inside max 4 m: the line sits at the ROI's far edge
+    rows = row_for_depth(CFG, z)
+    lit, unlit = frame_pair(CFG, rows, speckle=0.2, seed=8)
+    m = pipes["fast-com"].process(lit, unlit)
+    ok = m.valid
+    assert ok[:20].any() and ok[-20:].any()  # the outermost columns still measured
+    np.testing.assert_allclose(m.row[ok], rows[m.column[ok]], atol=0.3)
+    z = np.full(CFG.width, 4.6)  # beyond max: +inf (too far / not searched), never a range
+    lit, unlit = frame_pair(CFG, row_for_depth(CFG, z), seed=9)
+    m = pipes["fast-com"].process(lit, unlit)
+    assert not np.isfinite(m.range).any() and np.all(np.isposinf(m.range) | np.isnan(m.range))
+
+
+def test_too_close_is_minus_inf():
+    cfg = dataclasses.replace(CFG, range=RangeLimits(0.5, 4.0))
+    rows = row_for_depth(cfg, np.full(cfg.width, 0.3))
+    lit, unlit = frame_pair(cfg, rows, seed=10)
+    m = make_pipeline("fast-com", cfg).process(lit, unlit)
+    assert np.mean(np.isneginf(m.range)) > 0.95
+    assert np.all(m.status[np.isneginf(m.range)] == ColumnStatus.TOO_CLOSE)
+
+
+def test_partly_lit_frame_gives_nan_not_ranges(wall2m, pipes):
+    rows, rng = wall2m
+    lit, unlit = frame_pair(CFG, rows, seed=11)
+    lit_rows = np.ones(CFG.height, bool)
+    lit_rows[:75] = False  # the pulse missed the top of the frame (rolling shutter)
+    lit[:75] = unlit[:75]
+    m = pipes["fast-com"].process(lit, unlit, lit_rows=lit_rows)
+    dark = np.nanmax(np.stack([rows - 6, rows]), axis=0) < 75
+    assert np.all(np.isnan(m.range[dark])) and np.all(m.status[dark] == ColumnStatus.UNLIT)
+    ok = m.valid
+    assert ok.sum() > 200
+    np.testing.assert_allclose(m.range[ok], rng[ok], rtol=0.01)
+
+
+def test_pulse_in_the_wrong_frame_gives_no_ranges(wall2m, pipes):
+    rows, _ = wall2m
+    lit, unlit = frame_pair(CFG, rows, seed=12)
+    m = pipes["fast-com"].process(unlit, lit)  # out of sync: the laser lit the "unlit" frame
+    assert not np.isfinite(m.range).any()
+    assert np.mean(m.status == ColumnStatus.UNLIT) > 0.95
+
+
+@pytest.mark.parametrize("background, noise", [(20, 1.5), (230, 6.0)])
+def test_empty_and_bright_scenes_give_almost_no_false_returns(pipes, background, noise):
+    nothing = np.full(CFG.width, np.nan)
+    for seed in range(3):
+        lit, unlit = frame_pair(CFG, nothing, background=background, noise=noise, seed=20 + seed)
+        for name in ("fast-com", "fast-gaussian", "fast-blais-rioux"):
+            m = pipes[name].process(lit, unlit)
+            assert np.isfinite(m.range).mean() < 0.001, name
+
+
+def test_uniform_scan_has_no_phantom_between_surfaces(pipes):
+    z = np.full(CFG.width, 2.5)
+    z[700:900] = 1.0
+    rows = row_for_depth(CFG, z)
+    lit, unlit = frame_pair(CFG, rows, speckle=0.3, seed=13)
+    m = pipes["fast-com"].process(lit, unlit)
+    angles, ranges = to_laser_scan(m, -0.9, 0.9, 721)
+    # the true range of either surface at each grid angle
+    geom = column_geometry(CFG)
+    truth = []
+    for depth in (1.0, 2.5):
+        a, r = geom.angle_range(true_points(CFG, row_for_depth(CFG, np.full(CFG.width, depth))))
+        order = np.argsort(a)
+        truth.append(np.interp(angles, a[order], r[order]))
+    fin = np.isfinite(ranges)
+    assert fin.sum() > 600
+    rel = np.min([np.abs(ranges - t) / t for t in truth], axis=0)
+    assert np.all(rel[fin] < 0.03), f"phantom ranges at {angles[fin][rel[fin] >= 0.03]}"
+
+
+def test_frames_of_the_wrong_shape_are_refused(pipes):
+    with pytest.raises(ValueError, match="configuration expects 1664x928"):
+        pipes["fast-com"].process(np.zeros((100, 100), np.uint8), np.zeros((100, 100), np.uint8))
+    with pytest.raises(ValueError, match="uint8"):
+        pipes["reference"].process(np.zeros((928, 1664)), np.zeros((928, 1664)))
+    with pytest.raises(ValueError, match="unknown pipeline"):
+        make_pipeline("fast-median", CFG)
