@@ -40,6 +40,7 @@ FRAME_DURATION_S = 0.5 / SCAN_RATE_HZ  # a lit and an unlit frame per scan
 EXPOSURE_US = 9500.0
 RANGE_M = (0.4, 3.2)
 PIPELINE = "fast-com"
+ANALOG_GAIN = 1.0  # simulated sensor gain (device/sim/sensor.py); 2 and 4 gave the same range error here
 COMCU_BAUDRATE = 250_000
 COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
 
@@ -325,8 +326,9 @@ def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.0
     return 1e3 * max_power_w(laser, closest_eye_m)
 
 
-def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
-    """SensorSource, power-on settings, Class 1 laser limit (mW) and closers for ``laserpi serve``."""
+def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list, dict]:
+    """SensorSource, power-on settings, Class 1 laser limit (mW), closers and (simulation only)
+    fault injections {name: callable} for ``laserpi serve``."""
     from device.sim.timing import CameraTimingConfig
     from device.sync.control import SyncConfig
     from device.synced_laser import SyncedLaser
@@ -344,11 +346,12 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
     limit = laser_limit_mw(cfg, max(pulse_s, cfg.laser.pulse_s))
     closers = []
     if args.simulate:
+        from device.sim.sensor import SensorParams
         from device.sim.render import SceneRenderer
         from device.sim.scene import get_scene
 
         spec = f"wall:distance={args.distance_m:g}" if args.scene == "wall" else args.scene
-        renderer = SceneRenderer(cfg, get_scene(spec), seed=args.seed)
+        renderer = SceneRenderer(cfg, get_scene(spec), SensorParams(analog_gain=ANALOG_GAIN), seed=args.seed)
         hw = SimulatedHardware(seed=args.seed)
         closers.append(hw.close)
         timing = CameraTimingConfig(frame_duration_s=FRAME_DURATION_S, exposure_s=EXPOSURE_US * 1e-6)
@@ -356,10 +359,18 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
         laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
+        faults = {"comcu-reset": hw.reset_mcu,
+                  "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
     else:
+        import importlib.util
+
         import serial
 
         from device.camera.picamera2_camera import Picamera2Camera
+
+        if importlib.util.find_spec("picamera2") is None:
+            raise RuntimeError("no camera: picamera2 is not installed (on a Pi: sudo apt install python3-picamera2); "
+                               "use --simulate to run the simulated sensor here")
         from device.comcu import CoMcu
 
         camera = Picamera2Camera(exposure_us=EXPOSURE_US, frame_duration_us=FRAME_DURATION_S * 1e6)
@@ -372,6 +383,7 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
 
         laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
         clock = time.monotonic
+        faults = {}
     geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
     source = SensorSource(camera, laser, scan, geometry, clock=clock)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
@@ -379,4 +391,4 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list]:
                               median_window=1, min_quality=0, laser_power_mw=power_mw)
     log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
              cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if args.simulate else "on a Pi")
-    return source, settings, limit, closers
+    return source, settings, limit, closers, faults

@@ -26,6 +26,7 @@ from device.camera.frame import Frame
 from device.comcu import CoMcu, CoMcuError, CoMcuNack
 from device.process import LaserError
 from device.sync.control import FrameInfo, SyncConfig, SyncController, SyncState
+from protocol import mcu
 
 log = logging.getLogger(__name__)
 
@@ -182,8 +183,22 @@ class SyncedLaser:
             except (CoMcuError, OSError, ValueError) as exc:
                 if isinstance(exc, OSError):
                     self._drop_link()
+                elif isinstance(exc, CoMcuNack):
+                    exc = CoMcuNack(exc.nack) if self._faults_of(exc) is None else self._faults_of(exc)
                 raise _laser_error(exc) from exc
         return label.lit
+
+    def _faults_of(self, exc: CoMcuNack) -> CoMcuError | None:
+        """A refusal because the co-MCU is in FAULT (not_running, busy): name its latched faults."""
+        if exc.reason not in ("not_running", "busy"):
+            return None
+        try:
+            status = self.comcu.status()
+        except (CoMcuError, OSError):
+            return None
+        if status.faults:
+            return CoMcuError(f"{exc}; the co-MCU latched faults {mcu.Fault(status.faults)!r}")
+        return None
 
     # internals
     def _ping(self, controller: SyncController) -> None:

@@ -11,6 +11,10 @@ instead (the protocol's mock device: scans computed in closed form, no camera or
 Either way the link is served by device.process.LinkSupervisor: the port is opened again when it
 fails, and the process stops cleanly on SIGTERM or SIGINT with the laser off and the --link
 symlink removed.
+
+Fault injection (``--simulate`` without ``--mock`` only, for tests): SIGUSR1 power-cycles the
+simulated co-MCU (the emulator boots the firmware again), SIGUSR2 stalls the simulated camera
+for 1 s of simulated time.
 """
 
 from __future__ import annotations
@@ -80,10 +84,21 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
     return 0
 
 
+def _injector(name: str, fault):
+    """Signal handler that injects a simulated fault from a thread (not inside the handler)."""
+
+    def handler(*_):
+        log.warning("fault injection: %s", name)
+        threading.Thread(target=fault, name=f"inject-{name}", daemon=True).start()
+
+    return handler
+
+
 def run(args: argparse.Namespace) -> int:
     from device.link import DeviceConfig
 
     closers = []
+    faults = {}
     try:
         if args.mock:
             if not args.simulate:
@@ -98,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             from device.sensor import build_sensor
 
-            source, settings, limit_mw, closers = build_sensor(args)
+            source, settings, limit_mw, closers, faults = build_sensor(args)
             if args.laser_limit_mw is not None:
                 limit_mw = args.laser_limit_mw
         config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
@@ -108,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"laserpi serve: {exc}")
         return 2
     try:
+        for sig, name in ((signal.SIGUSR1, "comcu-reset"), (signal.SIGUSR2, "camera-stall")):
+            if name in faults:
+                signal.signal(sig, _injector(name, faults[name]))
         return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud)
     finally:
         for close in reversed(closers):
