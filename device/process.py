@@ -207,10 +207,12 @@ class SensorSource:
     close = stop
 
     def status(self) -> SourceStatus:
-        with self._io:
-            errors = tuple(sorted(self._errors))
-            return SourceStatus(laser_on=self._laser_on, sync_locked=self._laser_on and bool(self.laser.locked),
-                                frames_dropped=self.counters.frames_dropped, errors=errors)
+        # Without the I/O lock: the host's HEALTH must not wait for a frame. Each field is read
+        # atomically (set.copy under the GIL); together they may be one frame apart.
+        errors = tuple(sorted(self._errors.copy()))
+        laser_on = self._laser_on
+        return SourceStatus(laser_on=laser_on, sync_locked=laser_on and bool(self.laser.locked),
+                            frames_dropped=self.counters.frames_dropped, errors=errors)
 
     def next_scan(self, timeout_s: float) -> SourceScan | None:
         deadline = self.clock() + timeout_s
@@ -368,11 +370,14 @@ class LinkSupervisor:
     """
 
     def __init__(self, open_port: Callable[[], object], source, config: DeviceConfig, *,
-                 health_log_s: float = 10.0, reopen_backoff_s: tuple[float, float] = (0.1, 2.0)):
+                 health_log_s: float = 10.0, reopen_backoff_s: tuple[float, float] = (0.1, 2.0),
+                 on_health: Callable[[ProcessHealth], None] | None = None):
+        """on_health: called with the health at every health log line and once at the end."""
         self.open_port = open_port
         self.source = source
         self.config = config
         self.health_log_s = health_log_s
+        self.on_health = on_health
         self.reopen_backoff_s = reopen_backoff_s
         self.server: LinkServer | None = None
         self.sessions = 0
@@ -411,7 +416,7 @@ class LinkSupervisor:
                 log.info("host link session %d open", self.sessions)
                 while not stop.wait(0.1) and not self.server.stopped:
                     if time.monotonic() >= next_log:
-                        log.info("health: %s", self.health().line())
+                        self._report(self.health(), "health")
                         next_log = time.monotonic() + self.health_log_s
                 self.server.close()
                 self._closed_totals += self._session_totals(self.server)
@@ -426,4 +431,9 @@ class LinkSupervisor:
                     log.warning("host link session %d ended; reopening", self.sessions)
         finally:
             self.source.stop()
-            log.info("device process stopped, laser off; %s", self.health().line())
+            self._report(self.health(), "device process stopped, laser off")
+
+    def _report(self, health: ProcessHealth, what: str) -> None:
+        log.info("%s; %s", what, health.line())
+        if self.on_health is not None:
+            self.on_health(health)

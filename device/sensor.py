@@ -22,7 +22,8 @@ import logging
 import math
 import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -111,6 +112,7 @@ class SimulatedHardware:
         self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
         self._rise: int | None = None
         self.mcu = None
+        self.clock_cpu_s = 0.0
         self.resets = -1
         self._t_base_ns = time.monotonic_ns()
         self.reset_mcu()
@@ -125,6 +127,7 @@ class SimulatedHardware:
 
     def _run_clock(self) -> None:
         while not self._stop.is_set():
+            self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
             target = time.monotonic_ns()
             now = self.now_ns()
             if now >= target:
@@ -326,9 +329,22 @@ def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.0
     return 1e3 * max_power_w(laser, closest_eye_m)
 
 
-def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list, dict]:
-    """SensorSource, power-on settings, Class 1 laser limit (mW), closers and (simulation only)
-    fault injections {name: callable} for ``laserpi serve``."""
+@dataclass
+class BuiltSensor:
+    """What ``laserpi serve`` runs: the source, its power-on settings, the Class 1 laser limit it
+    enforces, what to close at the end, and in simulation the fault injections {name: callable}
+    and the CPU seconds the simulated hardware's clock thread spent (simulation, not device)."""
+
+    source: SensorSource
+    settings: m.ScanSettings
+    laser_limit_mw: float
+    closers: list
+    faults: dict
+    sim_cpu_s: Callable[[], float] | None
+
+
+def build_sensor(args) -> BuiltSensor:
+    """The sensor for ``laserpi serve`` (simulated with ``args.simulate``)."""
     from device.sim.timing import CameraTimingConfig
     from device.sync.control import SyncConfig
     from device.synced_laser import SyncedLaser
@@ -359,6 +375,7 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list, dict]
         laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
+        sim_cpu = lambda: hw.clock_cpu_s  # noqa: E731
         faults = {"comcu-reset": hw.reset_mcu,
                   "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
     else:
@@ -383,7 +400,7 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list, dict]
 
         laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
         clock = time.monotonic
-        faults = {}
+        faults, sim_cpu = {}, None
     geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
     source = SensorSource(camera, laser, scan, geometry, clock=clock)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
@@ -391,4 +408,4 @@ def build_sensor(args) -> tuple[SensorSource, m.ScanSettings, float, list, dict]
                               median_window=1, min_quality=0, laser_power_mw=power_mw)
     log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
              cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if args.simulate else "on a Pi")
-    return source, settings, limit, closers, faults
+    return BuiltSensor(source, settings, limit, closers, faults, sim_cpu)

@@ -48,12 +48,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="serial device of the co-MCU (ignored with --simulate)")
     parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
+    parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
     parser.add_argument("--laser-limit-mw", type=float, default=None,
                         help="Class 1 limit on laser power the device enforces (default: from the safety model "
                              "for the sensor's laser and pulse; 5 mW for --mock)")
 
 
-def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600) -> int:
+def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600,
+                 on_health=None) -> int:
     """Serve ``source`` (a device.link.ScanSource) with ``config`` (a device.link.DeviceConfig)
     on a pty symlinked at ``link`` or on the serial device ``port`` until SIGTERM/SIGINT.
     The port is reopened when it fails (host unplugged). Returns 0 after a clean stop."""
@@ -66,7 +68,8 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
         if link is not None:
             with PtyLink(link) as pty:
                 print(f"serving on {link} -> {pty.slave_name}", flush=True)
-                LinkSupervisor(lambda: PacedPort(pty.port, baudrate), source, config).run(stop)
+                LinkSupervisor(lambda: PacedPort(pty.port, baudrate), source, config, health_log_s=2.0 if on_health else 10.0,
+                               on_health=on_health).run(stop)
         else:
             import serial
 
@@ -77,11 +80,32 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
                     raise OSError(str(exc)) from exc
 
             print(f"serving on {port} at {baudrate} baud", flush=True)
-            LinkSupervisor(open_port, source, config).run(stop)
+            LinkSupervisor(open_port, source, config, on_health=on_health).run(stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0
+
+
+def _stats_writer(path: str, sim_cpu):
+    """on_health callback writing the health and the process's CPU time to ``path`` (JSON)."""
+    import dataclasses
+    import json
+    import os
+    import resource
+    import time
+
+    def write(health) -> None:
+        ru = resource.getrusage(resource.RUSAGE_SELF)
+        doc = {"monotonic_s": time.monotonic(), "cpu_process_s": ru.ru_utime + ru.ru_stime,
+               "cpu_sim_clock_s": sim_cpu() if sim_cpu else 0.0, "max_rss_kb": ru.ru_maxrss,
+               **{k: v for k, v in dataclasses.asdict(health).items() if k != "notes"}}
+        tmp = f"{path}.tmp"
+        with open(tmp, "w") as f:
+            json.dump(doc, f)
+        os.replace(tmp, path)
+
+    return write
 
 
 def _injector(name: str, fault):
@@ -99,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
 
     closers = []
     faults = {}
+    sim_cpu = None
     try:
         if args.mock:
             if not args.simulate:
@@ -113,9 +138,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             from device.sensor import build_sensor
 
-            source, settings, limit_mw, closers, faults = build_sensor(args)
-            if args.laser_limit_mw is not None:
-                limit_mw = args.laser_limit_mw
+            built = build_sensor(args)
+            source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
+            sim_cpu = built.sim_cpu_s
+            limit_mw = built.laser_limit_mw if args.laser_limit_mw is None else args.laser_limit_mw
         config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
     except (ValueError, OSError, RuntimeError) as exc:
         for close in reversed(closers):
@@ -126,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         for sig, name in ((signal.SIGUSR1, "comcu-reset"), (signal.SIGUSR2, "camera-stall")):
             if name in faults:
                 signal.signal(sig, _injector(name, faults[name]))
-        return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud)
+        on_health = _stats_writer(args.stats_file, sim_cpu) if args.stats_file else None
+        return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud, on_health=on_health)
     finally:
         for close in reversed(closers):
             close()
