@@ -87,8 +87,8 @@ class CoMcu:
         return self._request(msg, mcu.Ack).info
 
     def trim(self, phase_ticks: int = 0, period_ticks: int = 0) -> int:
-        """Shift the phase and change the period at the next pulse boundary; returns the index of
-        the last pulse that keeps the old timing."""
+        """Move the first slot starting >= 100 us from now by phase_ticks and change the period
+        by period_ticks from there (see protocol.mcu.Trim); returns the index of that slot."""
         return self._request(mcu.Trim(phase_ticks, period_ticks), mcu.Ack).info
 
     def stop(self) -> int:
@@ -171,3 +171,36 @@ class CoMcu:
                 raise CoMcuTimeout("co-MCU did not answer before the port timeout")
             self._buf += chunk
         return frame
+
+
+class CoMcuTrain:
+    """The pulse train as device.sync.control.LaserScheduler sees it, on a CoMcu.
+
+    ``schedule`` replaces any running train (STOP, which also acknowledges latched faults, then
+    SCHEDULE with EDGE streaming on; the pattern as a list of lit flags), ``trim`` takes the new
+    absolute period and sends the difference, ``stop`` stops.  Refusals raise CoMcuNack.
+    """
+
+    def __init__(self, comcu: CoMcu):
+        self.comcu = comcu
+        self._period: int | None = None
+
+    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern) -> None:
+        lit = [bool(x) for x in pattern]
+        if not 1 <= len(lit) <= 32 or not any(lit):
+            raise ValueError(f"pattern must have 1..32 slots with at least one lit, got {lit}")
+        self.comcu.stop()
+        self._period = None
+        mask = sum(1 << i for i, x in enumerate(lit) if x)
+        self.comcu.schedule(first_start_tick, period_ticks, width_ticks, mask, len(lit), stream_edges=True)
+        self._period = period_ticks
+
+    def trim(self, phase_ticks: int, period_ticks: int) -> None:
+        if self._period is None:
+            raise CoMcuError("trim without a running train: schedule first")
+        self.comcu.trim(phase_ticks, period_ticks - self._period)
+        self._period = period_ticks
+
+    def stop(self) -> None:
+        self.comcu.stop()
+        self._period = None

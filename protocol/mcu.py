@@ -105,8 +105,9 @@ class Schedule(_Message):
 
 @dataclass(frozen=True, slots=True)
 class Trim(_Message):
-    """Applied at the next pulse boundary (after the pulse named in the ACK's info): the next
-    rise moves by phase_ticks + the new period, and the period changes by period_ticks."""
+    """Moves the first slot starting >= 100 us after arrival by phase_ticks; the slots after it
+    follow at period + period_ticks.  A pulse in flight or armed < 100 us ahead is never touched
+    (the trim then applies to the slot after it).  ACK.info = the slot moved."""
 
     MSG_TYPE: ClassVar[int] = 0x42
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<ii")
@@ -146,8 +147,8 @@ class Pong(_Message):
 
 @dataclass(frozen=True, slots=True)
 class Ack(_Message):
-    """info: SCHEDULE -> index of the first lit pulse; TRIM -> index of the last pulse on the
-    old timing; STOP -> pulses emitted so far; HEARTBEAT -> state | faults << 8."""
+    """info: SCHEDULE -> index of the first lit pulse; TRIM -> index of the slot it moved;
+    STOP -> pulses emitted so far; HEARTBEAT -> state | faults << 8."""
 
     MSG_TYPE: ClassVar[int] = 0x61
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<BI")

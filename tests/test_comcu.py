@@ -81,3 +81,19 @@ def test_trim_and_stop_return_the_ack_info():
     assert comcu.trim(phase_ticks=-5, period_ticks=3) == 17
     assert comcu.stop() == 17
     assert port.requests == [mcu.Trim(-5, 3), mcu.Stop()]
+
+
+def test_train_adapter_replaces_the_train_and_sends_period_differences():
+    from device.comcu import CoMcuTrain
+
+    port = ScriptedPort(lambda f: mcu.encode_message(mcu.Ack(f.msg_type, 0), f.seq))
+    train = CoMcuTrain(CoMcu(port))
+    with pytest.raises(CoMcuError, match="schedule first"):
+        train.trim(5, 66_000)
+    train.schedule(10_000, 66_667, 20_000, [True, False])
+    train.trim(-40, 66_660)
+    train.trim(3, 66_661)
+    with pytest.raises(ValueError, match="at least one lit"):
+        train.schedule(10_000, 66_667, 20_000, [False, False])
+    assert port.requests == [mcu.Stop(), mcu.Schedule(10_000, 66_667, 20_000, 0b01, 2, True),
+                             mcu.Trim(-40, -7), mcu.Trim(3, 1)]

@@ -72,20 +72,20 @@ def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
     first = ((now + 100 * MS) | 0xFFFF) + 1 - 7_000  # pulse 0 straddles a 16-bit timer overflow
     assert comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True) == 0
     run_with_heartbeats(port, comcu, 0.25)
-    last_old = comcu.trim(phase_ticks=-1_234, period_ticks=57)
+    moved = comcu.trim(phase_ticks=-1_234, period_ticks=57)  # the first slot it moves
     run_with_heartbeats(port, comcu, 0.35)
     comcu.stop()
     port.advance(0.01)
     reports = comcu.edges()
 
-    expected, rise, k = [], first, 0
-    while len(expected) < len(reports):
-        expected.append((k, rise, rise + width))
-        step = 2 * period if k < last_old else 2 * (period + 57)
-        rise += step + (-1_234 if k == last_old else 0)
-        k += 2
-    assert len(reports) >= 8 and last_old >= 2
-    assert [(e.index, e.rise_ticks, e.fall_ticks) for e in reports] == expected
+    def start(k):  # slot k before the trim, then slot `moved` shifted and the new period after it
+        if k < moved:
+            return first + k * period
+        return first + moved * period - 1_234 + (k - moved) * (period + 57)
+
+    assert len(reports) >= 8 and moved >= 3
+    assert [(e.index, e.rise_ticks, e.fall_ticks) for e in reports] == [
+        (k, start(k), start(k) + width) for k in range(0, 2 * len(reports), 2)]
     assert all(e.flags == 0 for e in reports)
     assert (reports[0].rise_ticks >> 16) != (reports[0].fall_ticks >> 16), "overflow straddled"
 
@@ -228,3 +228,38 @@ def test_shortest_pulses_at_a_high_rate_stay_exact_and_commands_responsive(link)
     reports = comcu.edges()
     assert reports and all(e.flags == 0 and e.fall_ticks - e.rise_ticks == width for e in reports)
     assert comcu.status().late == 0
+
+
+def test_random_trims_follow_the_documented_slot_model_exactly(link):
+    """60 trims at random moments (some re-arm the next rise, some wait for a pulse to end):
+    every pulse lands where the slot model of the README puts it, to the tick."""
+    port, comcu = link
+    rng = random.Random(2)
+    now = comcu.ping().mcu_ticks
+    first, period, width = now + 20 * MS, 66_667, 10_000
+    comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True)
+    moves = {}  # slot -> [phase, period delta], trims on the same slot add up
+    for i in range(60):
+        port.advance(rng.uniform(0.001, 0.012))
+        if i % 3 == 0:
+            comcu.heartbeat()
+        phase, dperiod = rng.randint(-2_000, 6_000), rng.randint(-50, 50)
+        slot = comcu.trim(phase, dperiod)
+        moves.setdefault(slot, [0, 0])
+        moves[slot][0] += phase
+        moves[slot][1] += dperiod
+    port.advance(0.02)
+    comcu.stop()
+    reports = comcu.edges()
+    assert len(reports) >= 6 and len(moves) >= 10
+
+    start, p, starts = first, period, []
+    for k in range(reports[-1].index + 1):
+        phase, dperiod = moves.get(k, (0, 0))
+        starts.append(start + phase)
+        p += dperiod
+        start = starts[-1] + p
+    assert [(e.rise_ticks, e.fall_ticks) for e in reports] == [(starts[e.index], starts[e.index] + width)
+                                                                for e in reports]
+    for (rc, fc), e in zip(pin_pulses(port), reports, strict=True):
+        assert (port.timer_count_at(rc) - 1, port.timer_count_at(fc) - 1) == (e.rise_ticks, e.fall_ticks)

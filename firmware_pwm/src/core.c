@@ -138,6 +138,25 @@ static void record_fall(core_t *c, uint64_t t, uint8_t flags)
     }
 }
 
+/* The run-time interlock, on the actual edges: may a pulse of the current width rise at `rise`
+ * after the last real fall?  Checked before every rise is armed, whatever path computed it. */
+static uint8_t gap_ok(const core_t *c, uint64_t rise)
+{
+    if (!c->have_last)
+        return 1;
+    uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
+    return rise > c->last_fall && rise - c->last_fall >= need;
+}
+
+/* Interrupts disabled: arms the next rise after the run-time interlock; a fault otherwise. */
+static void arm_next(core_t *c, uint64_t now)
+{
+    if (!gap_ok(c, c->next_rise))
+        core_fault(c, FAULT_DUTY, now);
+    else if (hw_arm_rise(c->next_rise))
+        core_fault(c, FAULT_LATE, now);
+}
+
 void core_fault(core_t *c, uint8_t flag, uint64_t now)
 {
     uint8_t was_high = c->pin_high;
@@ -166,6 +185,9 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
     record_fall(c, t, flags);
     if (c->state != STATE_RUNNING)
         return 0;
+    /* A pending trim moves the start of the slot after this pulse by trim_phase (that slot
+     * still follows at the old period) and sets the period for the slots after it. */
+    uint32_t step = c->period;
     int64_t phase = 0;
     if (c->trim_pending) {
         c->period = (uint32_t)((int64_t)c->period + c->trim_period);
@@ -174,22 +196,22 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
         c->trim_phase = 0;
         c->trim_period = 0;
     }
-    uint32_t index = c->cur_index;
-    uint8_t pos = c->cur_pos;
-    uint64_t rise = (uint64_t)((int64_t)c->cur_rise + phase);
-    do { /* the next lit slot; terminates because the accepted mask has a lit bit below n */
+    uint32_t index = c->cur_index + 1;
+    uint8_t pos = (uint8_t)(c->cur_pos + 1 == c->n ? 0 : c->cur_pos + 1);
+    uint64_t rise = (uint64_t)((int64_t)(c->cur_rise + step) + phase);
+    while (!((c->mask >> pos) & 1u)) { /* ends: the accepted mask has a lit bit below n */
         index++;
         pos = (uint8_t)(pos + 1 == c->n ? 0 : pos + 1);
         rise += c->period;
-    } while (!((c->mask >> pos) & 1u));
-    uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
-    if (rise <= t || rise - t < need) { /* run-time duty interlock on the actual edges */
+    }
+    if (!gap_ok(c, rise)) { /* run-time duty interlock on the actual edges */
         core_fault(c, FAULT_DUTY, t);
         return 0;
     }
     c->next_rise = rise;
     c->next_index = index;
     c->next_pos = pos;
+    c->slot_floor = c->cur_index + 1;
     *next = rise;
     return 1;
 }
@@ -267,14 +289,14 @@ static void do_schedule(core_t *c, const frame_t *f)
         c->next_rise = rise;
         c->next_index = index;
         c->next_pos = index;
+        c->slot_floor = 0;
         c->trim_pending = 0;
         c->trim_phase = 0;
         c->trim_period = 0;
         c->stream_edges = flags & SCHEDULE_FLAG_STREAM_EDGES;
         c->last_heartbeat = now;
         c->state = STATE_RUNNING;
-        if (hw_arm_rise(rise))
-            core_fault(c, FAULT_LATE, now);
+        arm_next(c, now);
     }
     hw_irq_restore(s);
     if (reason)
@@ -283,6 +305,22 @@ static void do_schedule(core_t *c, const frame_t *f)
         ack(f->msg_type, f->seq, index);
 }
 
+/* Slots (of the pattern) from `pos` to the next lit one: 1..n. */
+static uint8_t slots_to_next_lit(uint32_t mask, uint8_t n, uint8_t pos)
+{
+    uint8_t m = 0;
+    do {
+        m++;
+        pos = (uint8_t)(pos + 1 == n ? 0 : pos + 1);
+    } while (!((mask >> pos) & 1u));
+    return m;
+}
+
+/* TRIM: the first slot that starts more than MIN_LEAD_TICKS after the command arrives has its
+ * start moved by dphase; the slots after it follow at period + dperiod.  If the next lit pulse
+ * is still far enough ahead its rise is re-armed now; otherwise (a pulse in flight, or the next
+ * rise too close) the trim waits in trim_phase/trim_period and applies at the next fall, to the
+ * slot right after that pulse (trims waiting together add up).  ACK.info = the slot moved. */
 static void do_trim(core_t *c, const frame_t *f)
 {
     int32_t dphase = (int32_t)get_u32(f->payload);
@@ -290,44 +328,96 @@ static void do_trim(core_t *c, const frame_t *f)
     uint8_t reason = 0;
     uint32_t info = 0;
     /* The checks (64-bit products) run with interrupts enabled on a snapshot, so that they never
-     * delay an edge interrupt; the result is committed only if the snapshot is still current
-     * (a pending trim applied by the fall interrupt meanwhile changes period and trims). */
+     * delay an edge interrupt; the result is committed only if the snapshot is still current. */
     for (;;) {
+        struct {
+            uint8_t state, pin_high, trim_pending, n, have_last, cur_pos, next_pos;
+            uint32_t period, width, mask, min_gap, last_min_gap, cur_index, next_index, slot_floor;
+            int32_t trim_phase, trim_period;
+            uint64_t next_rise, last_fall;
+        } snap;
         uint8_t s = hw_irq_save();
-        uint8_t state = c->state;
-        uint32_t period0 = c->period, width = c->width, min_gap = c->min_gap, mask = c->mask;
-        uint8_t n = c->n;
-        int32_t phase0 = c->trim_phase, dper0 = c->trim_period;
+        snap.state = c->state; snap.pin_high = c->pin_high; snap.trim_pending = c->trim_pending;
+        snap.n = c->n; snap.have_last = c->have_last; snap.cur_pos = c->cur_pos; snap.next_pos = c->next_pos;
+        snap.period = c->period; snap.width = c->width; snap.mask = c->mask; snap.min_gap = c->min_gap;
+        snap.last_min_gap = c->last_min_gap; snap.cur_index = c->cur_index; snap.next_index = c->next_index;
+        snap.slot_floor = c->slot_floor; snap.trim_phase = c->trim_phase; snap.trim_period = c->trim_period;
+        snap.next_rise = c->next_rise; snap.last_fall = c->last_fall;
         hw_irq_restore(s);
-        if (state != STATE_RUNNING) {
+        if (snap.state != STATE_RUNNING) {
             reason = NACK_NOT_RUNNING;
-            info = state;
+            info = snap.state;
             break;
         }
-        int64_t phase = (int64_t)phase0 + dphase;
-        int64_t dper = (int64_t)dper0 + dperiod;
-        int64_t period = (int64_t)period0 + dper;
+        int64_t phase = (int64_t)snap.trim_phase + dphase;
+        int64_t period = (int64_t)snap.period + snap.trim_period + dperiod;
         if (phase > INT32_MAX || phase < INT32_MIN || period < (int64_t)(MIN_PULSE_TICKS + MIN_GAP_TICKS) ||
             period > 0x7FFFFFFFL) {
             reason = NACK_BAD_VALUE;
             break;
         }
-        int64_t worst = (int64_t)pattern_min_spacing(mask, n) * period + (phase < 0 ? phase : 0);
-        if (worst < (int64_t)width + min_gap) {
+        /* steady state at the new period, then the one gap the phase changes */
+        int64_t need = (int64_t)snap.width + snap.min_gap;
+        if ((int64_t)pattern_min_spacing(snap.mask, snap.n) * period < need) {
             reason = NACK_ENVELOPE_DUTY;
-            info = min_gap;
+            info = snap.min_gap;
+            break;
+        }
+        uint8_t pulse_pos = snap.pin_high ? snap.cur_pos : snap.next_pos;
+        uint32_t pulse_index = snap.pin_high ? snap.cur_index : snap.next_index;
+        uint8_t m = slots_to_next_lit(snap.mask, snap.n, pulse_pos);
+        /* a) applied at the fall of that pulse: the lit slot after it */
+        int64_t later_gap = (int64_t)snap.period + phase + (int64_t)(m - 1) * period - snap.width;
+        /* b) applied now, to the next lit pulse (not in flight, not yet too close) */
+        uint32_t slot = snap.next_index;
+        uint64_t start = snap.next_rise;
+        int64_t now_rise = 0;
+        uint64_t now = hw_now();
+        uint8_t immediate = !snap.pin_high && !snap.trim_pending && snap.next_rise > now + MIN_LEAD_TICKS;
+        if (immediate) {
+            while (slot > snap.slot_floor && start - snap.period > now + MIN_LEAD_TICKS) {
+                slot--;
+                start -= snap.period;
+            }
+            now_rise = (int64_t)start + phase + (int64_t)(snap.next_index - slot) * period;
+            if (now_rise <= (int64_t)(now + MIN_LEAD_TICKS)) {
+                reason = NACK_BAD_TIME;
+                info = (uint32_t)now;
+                break;
+            }
+            uint32_t last_need = snap.last_min_gap > snap.min_gap ? snap.last_min_gap : snap.min_gap;
+            if (snap.have_last && (uint64_t)now_rise - snap.last_fall < last_need) {
+                reason = NACK_ENVELOPE_DUTY;
+                info = last_need;
+                break;
+            }
+        } else if (later_gap < (int64_t)snap.min_gap) {
+            reason = NACK_ENVELOPE_DUTY;
+            info = snap.min_gap;
             break;
         }
         s = hw_irq_save();
-        if (c->state == state && c->period == period0 && c->trim_phase == phase0 && c->trim_period == dper0) {
-            c->trim_phase = (int32_t)phase;
-            c->trim_period = (int32_t)dper;
-            c->trim_pending = 1;
-            info = c->pin_high ? c->cur_index : c->next_index; /* last pulse on the old timing */
+        uint8_t same = c->state == snap.state && c->pin_high == snap.pin_high && c->period == snap.period &&
+                       c->next_rise == snap.next_rise && c->trim_pending == snap.trim_pending &&
+                       c->trim_phase == snap.trim_phase && c->trim_period == snap.trim_period;
+        if (same && immediate && (uint64_t)now_rise > hw_now() + ARM_MARGIN_TICKS) {
+            c->period = (uint32_t)period;
+            c->next_rise = (uint64_t)now_rise;
+            c->slot_floor = slot; /* slots before it keep their (old-period) starts */
+            arm_next(c, hw_now()); /* re-arm: replaces the rise armed before */
+            info = slot;
             hw_irq_restore(s);
             break;
         }
-        hw_irq_restore(s); /* changed underneath: check again */
+        if (same && !immediate) {
+            c->trim_phase = (int32_t)phase;
+            c->trim_period = (int32_t)(period - (int64_t)snap.period);
+            c->trim_pending = 1;
+            info = pulse_index + 1;
+            hw_irq_restore(s);
+            break;
+        }
+        hw_irq_restore(s); /* changed underneath (or now too close): decide again */
     }
     if (reason)
         refuse(c, f->msg_type, f->seq, reason, info);

@@ -31,6 +31,8 @@ typedef struct {
     uint64_t next_rise;      /* next lit pulse (armed or about to be) */
     uint32_t next_index;
     uint8_t next_pos, cur_pos; /* index mod n, kept incrementally (no division in interrupts) */
+    uint32_t slot_floor;     /* first slot after the last pulse or the last slot a trim moved
+                                (0 at the start): trims never move a slot before it */
     uint8_t pin_high;        /* a pulse is in flight (rise done, fall pending) */
     uint64_t cur_rise;
     uint32_t cur_index;

@@ -119,9 +119,12 @@ static uint8_t arm_at(uint64_t t)
     return DEFERRED;
 }
 
-/* Interrupts disabled.  0 if the rise at t is armed or deferred, 1 if too late. */
+/* Interrupts disabled, pin low.  0 if the rise at t is armed or deferred, 1 if too late.
+ * Replaces a rise armed before (a TRIM re-arms the next rise while it is still far ahead). */
 static uint8_t arm_rise(uint64_t t)
 {
+    TCCR1A = 0;
+    TIMSK1 &= (uint8_t)~(_BV(OCIE1A) | _BV(OCIE1B));
     arm_target = t;
     switch (arm_at(t)) {
     case ARMED: arm_state = ARM_RISE; return 0;

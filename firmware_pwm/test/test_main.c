@@ -276,9 +276,9 @@ static void test_trim(void)
     put_u32(t, (uint32_t)-3000); /* phase -1.5 ms */
     put_u32(t + 4, 500);         /* period +0.25 ms */
     frame_t r = command(&c, MSG_TRIM, t, sizeof t);
-    CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 0, "applies after pulse 0");
+    CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "moves slot 1 (pulse 0 in flight)");
     run_with_heartbeats(&c, first + 4 * period);
-    uint64_t want1 = first + period + 500 - 3000, want2 = want1 + period + 500;
+    uint64_t want1 = first + period - 3000, want2 = want1 + period + 500; /* slot 1 moved, then P' */
     CHECK(fake.n_edges >= 6 && fake.edge_t[0] == first && fake.edge_t[2] == want1 && fake.edge_t[4] == want2,
           "rises %llu %llu (want %llu %llu)", (unsigned long long)fake.edge_t[2],
           (unsigned long long)fake.edge_t[4], (unsigned long long)want1, (unsigned long long)want2);
@@ -295,6 +295,37 @@ static void test_trim(void)
     put_u32(t + 4, 0);
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "big negative phase refused");
+}
+
+/* A trim moves the first slot starting at least MIN_LEAD after it arrives; pattern 0b01 of 2
+ * (lit slots 0, 2, 4, ...), period 100000, phase +5000, period +1000. */
+static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, uint64_t want_rise4)
+{
+    core_t c;
+    core_init(&c, 0);
+    fake_reset(1000);
+    uint8_t p[LEN_SCHEDULE];
+    schedule_payload(p, 100000, 100000, 10000, 1, 2, 0);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, when);
+    uint8_t t[LEN_TRIM];
+    put_u32(t, 5000);
+    put_u32(t + 4, 1000);
+    frame_t r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == want_slot, "trim at %llu: slot %u",
+          (unsigned long long)when, r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 999);
+    run_with_heartbeats(&c, 600000);
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == 100000 && fake.edge_t[2] == want_rise2 && fake.edge_t[4] == want_rise4,
+          "trim at %llu: rises %llu %llu, want %llu %llu", (unsigned long long)when,
+          (unsigned long long)fake.edge_t[2], (unsigned long long)fake.edge_t[4],
+          (unsigned long long)want_rise2, (unsigned long long)want_rise4);
+}
+
+static void test_trim_slots(void)
+{
+    trim_case(150000, 1, 200000 + 5000 + 101000, 306000 + 202000);  /* next rise re-armed now */
+    trim_case(250000, 2, 300000 + 5000, 305000 + 202000);           /* slot 1 already started */
+    trim_case(299900, 3, 300000, 300000 + 100000 + 5000 + 101000);  /* too close: after pulse 2 */
 }
 
 static void test_runtime_interlock(void)
@@ -455,6 +486,7 @@ int main(void)
     test_schedule_pattern();
     test_refusals();
     test_trim();
+    test_trim_slots();
     test_runtime_interlock();
     test_heartbeat();
     test_parser_garbage();
