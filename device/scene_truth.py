@@ -1,38 +1,51 @@
 """True ranges of a simulated scene along scan rays, computed on the host side of the demo.
 
-The demo must not take its truth from the device it checks: it rebuilds the scene from the same
-description the simulator renders and intersects each scan ray with it here.
+The demo must not take its truth from the device it checks: it builds the scene from the same
+description the simulator renders (device/sim/scene.py) and casts each scan ray against it here.
+Scenes are given in the scan frame (REP 103, the laser plane is z = 0, the laser at the origin),
+as the renderer casts its laser fan (device/sim/render.py step 1).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from device.analytic_source import wall_ranges
+from device.sim.geometry import cast, laser_prims, primitives
+from device.sim.scene import Scene, get_scene
 
 
-@dataclass(frozen=True)
-class WallTruth:
-    """A wall perpendicular to +x at ``distance_m`` (REP 103 scan frame), as the 'wall' scene."""
+class SceneTruth:
+    """Ranges and a top view of one scene."""
 
-    distance_m: float
-    half_width_m: float = 10.0
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self._prims = laser_prims(primitives(scene))
 
     def ranges(self, angles: np.ndarray) -> np.ndarray:
-        """(n,) true range of each ray at ``angles`` (rad), +inf where a ray misses the wall."""
-        a = np.asarray(angles, dtype=np.float64)
-        r = wall_ranges(a, self.distance_m)
-        return np.where(np.abs(r * np.sin(a)) <= self.half_width_m, r, np.inf)
+        """(n,) true range (m) along the scan rays at ``angles`` (rad), +inf where nothing is hit."""
+        a = np.asarray(angles, dtype=np.float64).ravel()
+        dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+        return cast(np.zeros(3), dirs, self._prims).t
 
     def draw(self, ax) -> None:
-        w = min(self.half_width_m, 2.0 * self.distance_m)
-        ax.plot([-w, w], [self.distance_m, self.distance_m], "k-", lw=2, label=f"wall at {self.distance_m:g} m (truth)")
+        """True surfaces in the laser plane, seen from above (x up, y to the left)."""
+        label = f"{self.scene.name} (truth)"
+        for w in self.scene.walls:
+            if w.z_range[0] <= 0 <= w.z_range[1]:
+                ax.plot([w.start[1], w.end[1]], [w.start[0], w.end[0]], "k-", lw=2, label=label)
+                label = None
+        for b in self.scene.boxes:
+            if b.z_range[0] <= 0 <= b.z_range[1]:
+                c = np.array(b.corners() + b.corners()[:1])
+                ax.plot(c[:, 1], c[:, 0], "k-", lw=2, label=label)
+                label = None
+        t = np.linspace(0, 2 * np.pi, 64)
+        for c in self.scene.cylinders:
+            if c.z_range[0] <= 0 <= c.z_range[1]:
+                ax.plot(c.center[1] + c.radius * np.sin(t), c.center[0] + c.radius * np.cos(t), "k-", lw=2, label=label)
+                label = None
 
 
-def scene_truth(spec: str, distance_m: float) -> WallTruth:
-    """The truth of the scene ``spec`` as ``laserpi serve --scene`` understands it."""
-    if spec != "wall":
-        raise ValueError(f"scene {spec!r}: the demo knows the truth of 'wall' only")
-    return WallTruth(distance_m)
+def scene_truth(spec: str, distance_m: float) -> SceneTruth:
+    """The truth of the scene ``spec`` as ``laserpi serve --scene SPEC --distance-m D`` renders it."""
+    return SceneTruth(get_scene(f"wall:distance={distance_m:g}" if spec == "wall" else spec))

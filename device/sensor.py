@@ -2,13 +2,18 @@
 
 On a Pi: Picamera2Camera -> SyncedLaser (co-MCU on a UART) -> fast pipeline.
 Simulated (``laserpi serve --simulate``): the same SensorSource, SyncedLaser and pipeline, with
-* the camera: the scene renderer (device/sim/render.py) paced by the wall clock and timed by the
+* the camera: the scene renderer (device/sim/render.py) on the simulated clock, timed by the
   IMX219 timing simulation (device/sim/timing.py: line-quantised frame length, timestamp
-  latency, dropped frames) -- ``RealtimeSimCamera``;
-* the co-MCU: the REAL firmware ELF in the simavr harness, free-running at wall-clock speed, its
-  UART on a pty opened with pyserial exactly like the Pi's UART -- ``EmulatedCoMcu``. The laser
-  pin's edges (CPU cycles) become the pulses that light the rendered rows, and, with a simulated
-  kernel latency, the GPIO edge events of the laser trigger line that the clock map uses.
+  latency, dropped frames) -- ``SimCamera``;
+* the co-MCU: the shipped firmware ELF in the simavr harness, stepped cycle-exactly, whose cycle
+  count is also the simulated Pi's clock (``SimulatedHardware``); CoMcu talks to its UART byte
+  stream. The laser pin's edges become the pulses that light the rendered rows and, with a
+  simulated kernel latency, the GPIO edge events of the laser trigger line for the clock map.
+
+Why stepped and not the harness's free-running pty mode: on this shared 2-core machine the
+free-running emulator lagged the wall clock by 10-180 ms, so its MCU clock wandered by
+thousands of ppm and heartbeats arrived late; in simulated time nothing depends on how busy the
+machine is (it only runs slower than real time then).
 
 Operating point (both): 20 frames/s, every other frame lit (ERRATA 10), so 10 scans/s; exposure
 ``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
@@ -19,7 +24,6 @@ from __future__ import annotations
 
 import collections
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass, replace

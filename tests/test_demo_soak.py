@@ -12,7 +12,7 @@ import pytest
 
 from device.commands.demo import scan_errors
 from device.commands.soak import rss_growth_mb, verdict
-from device.scene_truth import WallTruth
+from device.scene_truth import scene_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,16 +38,19 @@ def test_verdict_passes_counted_gaps_and_fails_leaks_and_uncounted_losses():
     assert leak.verdict == "FAIL" and not leak.memory_steady
 
 
-def test_scan_errors_against_the_wall_truth():
-    wall = WallTruth(2.0)
+def test_scan_errors_against_the_scene_truth():
+    wall = scene_truth("wall", 2.0)
     a = np.linspace(-0.5, 0.5, 101)
     truth = wall.ranges(a)
-    np.testing.assert_allclose(truth, 2.0 / np.cos(a))
+    np.testing.assert_allclose(truth, 2.0 / np.cos(a), rtol=1e-9)
     measured = truth * 1.01
     measured[:10] = np.nan
     valid, compared, mean, std = scan_errors(measured, truth)
     assert (valid, compared) == (91, 91) and mean == pytest.approx(0.01) and std == pytest.approx(0.0, abs=1e-12)
-    assert np.isinf(WallTruth(2.0, half_width_m=1.0).ranges(np.array([1.2]))).all()
+    assert np.isinf(wall.ranges(np.array([1.45])))  # past the end of the 20 m wide wall
+    room = scene_truth("room", 2.0)
+    r = room.ranges(np.linspace(-3.1, 3.1, 50))
+    assert np.isfinite(r).all() and (r > 0).all()  # a closed room: every ray hits a wall
 
 
 def test_soak_short_run_on_the_mock(tmp_path):

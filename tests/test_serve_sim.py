@@ -4,7 +4,6 @@ emulator, the real pipeline) read by host_sdk.LaserPi through a pty, with faults
 from __future__ import annotations
 
 import signal
-import subprocess
 import time
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 
 import host_sdk
-from device.scene_truth import WallTruth
+from device.scene_truth import scene_truth
 from device.serve_child import start_serve, stop_serve
 
 POINTS = 1640  # the configured points per scan: the active image width of the thesis preset
@@ -42,7 +41,7 @@ def collect(sensor: host_sdk.LaserPi, seconds: float, warmup: int = 3) -> list:
 def offline_error_pct(frames: int = 3) -> float:
     """1-sigma range error (%) of the same pipeline and operating point on frames rendered here
     with an ideally placed pulse: what the device process may not make worse."""
-    from device.model.triangulation import LaserPlane  # noqa: F401  (import check of the model)
+    from device.camera.frame import Frame
     from device.sensor import ANALOG_GAIN, EXPOSURE_US, PIPELINE, RANGE_M, ScanPipeline, sensor_config
     from device.sim.render import FrameTiming, SceneRenderer
     from device.sim.scene import get_scene
@@ -56,13 +55,11 @@ def offline_error_pct(frames: int = 3) -> float:
     line_ns, t = 18904.0, 2_000_000_000
     pulse = (int(t - EXPOSURE_US * 1e3 + g.roi_lo.min() * line_ns), int(t + g.roi_hi.max() * line_ns))
     rng = np.random.default_rng(7)
-    truth = WallTruth(2.0).ranges(pipe.angles)
+    truth = scene_truth("wall", 2.0).ranges(pipe.angles)
     errs = []
     for _ in range(frames):
         lit, _ = renderer.render(FrameTiming(t, EXPOSURE_US, line_ns, (pulse,)), rng)
         dark, _ = renderer.render(FrameTiming(t + 50_000_000, EXPOSURE_US, line_ns, ()), rng)
-        from device.camera.frame import Frame
-
         r, _ = pipe(Frame(lit, 0, t, EXPOSURE_US, 5e4, line_ns), Frame(dark, 1, t + 50_000_000, EXPOSURE_US, 5e4, line_ns))
         ok = np.isfinite(r) & np.isfinite(truth)
         errs.append((r[ok] - truth[ok]) / truth[ok])
@@ -83,7 +80,7 @@ def test_scans_at_the_configured_rate_and_size_with_the_pipelines_accuracy(senso
     assert (len(scans) - 1) / (t[-1] - t[0]) >= 9.5
     assert missing == 0 and np.all(np.diff([sc.seq for sc in scans]) == 1)
     assert health.state.name == "SCANNING" and health.laser_on and health.sync_locked and health.errors == ()
-    wall = WallTruth(2.0)
+    wall = scene_truth("wall", 2.0)
     rel = []
     for sc in scans:
         truth = wall.ranges(sc.angles)
