@@ -180,6 +180,8 @@ class SyncedLaser:
                 info = FrameInfo(frame.seq, frame.sensor_timestamp_ns, frame.exposure_us * 1e-6,
                                  frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6)
                 label = controller.on_frame(info, self.clock_ns())
+                if label.lit is None and controller.state is SyncState.LOCKED:
+                    log.debug("frame %d not labelled while locked: %s", frame.seq, label.reason)
             except (CoMcuError, OSError, ValueError) as exc:
                 if isinstance(exc, OSError):
                     self._drop_link()

@@ -27,15 +27,25 @@ def sensor(tmp_path_factory):
     stop_serve(proc)
 
 
-def collect(sensor: host_sdk.LaserPi, seconds: float, warmup: int = 3) -> list:
+def collect(sensor: host_sdk.LaserPi, seconds: float, warmup_s: float = 0.0) -> list:
+    """Scans over ``seconds`` after ``warmup_s`` of scans (after the first one)."""
     it = sensor.scans()
-    for _ in range(warmup):  # the first scans come while the laser locks on
+    next(it)
+    end = time.monotonic() + warmup_s
+    while time.monotonic() < end:
         next(it)
     out, end = [], time.monotonic() + seconds
     for scan in it:
         out.append(scan)
         if time.monotonic() >= end:
             return out
+
+
+def resumed(sensor: host_sdk.LaserPi, count: int = 5) -> bool:
+    """``count`` consecutive scans arrive (each within the SDK's timeout)."""
+    it = sensor.scans()
+    seqs = [next(it).seq for _ in range(count)]
+    return seqs == list(range(seqs[0], seqs[0] + count))
 
 
 def offline_error_pct(frames: int = 3) -> float:
@@ -70,7 +80,7 @@ def test_scans_at_the_configured_rate_and_size_with_the_pipelines_accuracy(senso
     link, proc, _ = sensor
     with host_sdk.LaserPi(str(link), timeout_s=15.0) as s:
         info = s.info()
-        scans = collect(s, 4.0)
+        scans = collect(s, 4.0, warmup_s=3.0)  # the synchroniser narrows its guard in the first seconds
         health = s.health()
         missing = s.stats.scans_missing
     assert info.angles.size == POINTS and all(sc.ranges.size == POINTS for sc in scans)
@@ -99,25 +109,25 @@ def test_faults_on_the_full_stack_degrade_and_recover(sensor):
         assert collect(s, 0.5)
         proc.send_signal(signal.SIGUSR1)  # co-MCU power-cycled mid-stream
         seen = set()
-        end = time.monotonic() + 3.0
+        end = time.monotonic() + 8.0
         while time.monotonic() < end and 3 not in seen:
             seen.update(s.health().errors)
             time.sleep(0.05)
         assert 3 in seen  # LASER_FAULT while the co-MCU is away
-        assert len(collect(s, 1.0)) >= 5  # re-synchronised, scanning again
+        assert resumed(s)  # re-synchronised, scanning again
         proc.send_signal(signal.SIGUSR2)  # camera stalls for 1 s
         seen = set()
-        end = time.monotonic() + 3.0
+        end = time.monotonic() + 8.0
         while time.monotonic() < end and 4 not in seen:
             seen.update(s.health().errors)
             time.sleep(0.05)
         assert 4 in seen  # CAMERA_FAULT while it stalls
-        assert len(collect(s, 1.0)) >= 5
+        assert resumed(s)
     # host unplugged and plugged in again, with garbage and half a frame on the line first
     with open(link, "wb", buffering=0) as raw:
         raw.write(np.random.default_rng(3).integers(1, 256, 500, dtype=np.uint8).tobytes() + b"\x00\x11\x22")
     with host_sdk.LaserPi(str(link), timeout_s=15.0) as s:
-        assert len(collect(s, 1.0)) >= 5
+        assert resumed(s)
         h = s.health()
         assert h.errors == () and h.laser_on
     assert proc.poll() is None
