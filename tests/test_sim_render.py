@@ -174,3 +174,65 @@ def test_speckle_is_static_and_has_the_configured_contrast():
 def test_render_options_validate():
     with pytest.raises(ValueError, match="speckle_contrast"):
         RenderOptions(speckle_contrast=1.5)
+
+
+def test_any_image_size_renders_with_consistent_truth():
+    """A 416x232 camera (mode 5 scaled by 1/4): same geometry, smaller frames."""
+    import dataclasses
+
+    from device.model.camera import CameraModel, Intrinsics
+
+    k = CFG.camera.intrinsics
+    small = dataclasses.replace(
+        CFG, width=416, height=232, active_width=410, active_height=230,
+        camera=CameraModel(Intrinsics(k.fx / 4, k.fy / 4, k.cx / 4, k.cy / 4, 0.0, 416, 232), CFG.camera.distortion))
+    r = SceneRenderer(small, wall_scene(1.0), options=QUIET)
+    img, truth = r.render(full_pulse(), np.random.default_rng(0))
+    assert img.shape == (232, 416) and truth.row.shape == (416,) and truth.lit_rows.shape == (232,)
+    cols = np.nonzero(np.isfinite(truth.row))[0]
+    assert 300 < cols.size <= 410 and cols.max() < 410  # nothing outside the active area
+    e, _ = r.expected_electrons(full_pulse())
+    assert not e[:, 410:].any() and not e[230:].any()
+    rows = np.arange(e.shape[0])[:, None]
+    centroid = (e[:, cols] * rows).sum(0) / e[:, cols].sum(0)
+    inner = (truth.row[cols] > 6) & (truth.row[cols] < 223)  # the line's band is not cut by the frame edge
+    assert np.max(np.abs(centroid - truth.row[cols])[inner]) < 0.01
+
+
+def test_isp_denoise_lowers_noise_and_sharpening_raises_the_line_peak():
+    scene = wall_scene(1.5)
+    base = RenderOptions(speckle=False)
+    plain = SceneRenderer(CFG, scene, options=base, seed=1)
+    denoised = SceneRenderer(CFG, scene, options=RenderOptions(speckle=False, isp_denoise=1.0), seed=1)
+    flat = np.s_[600:700, 200:1400]  # floor-less wall scene: backdrop/wall texture region far from the line
+    a, _ = plain.render(FrameTiming(10**9, 40000.0, LINE_NS), np.random.default_rng(0))
+    b, _ = denoised.render(FrameTiming(10**9, 40000.0, LINE_NS), np.random.default_rng(0))
+    assert np.diff(b[flat].astype(float), axis=1).std() < 0.8 * np.diff(a[flat].astype(float), axis=1).std()
+    far = wall_scene(3.0, ambient="dark")  # an unsaturated line
+    quiet = SceneRenderer(CFG, far, options=RenderOptions(speckle=False, noise=False), seed=1)
+    sharp = SceneRenderer(CFG, far, options=RenderOptions(speckle=False, noise=False, isp_sharpen=1.0), seed=1)
+    q, truth = quiet.render(full_pulse(), np.random.default_rng(0))
+    s, _ = sharp.render(full_pulse(), np.random.default_rng(0))
+    c = 820
+    assert 20 < q[:, c].max() < 200 and s[:, c].max() > 1.2 * q[:, c].max()
+    with pytest.raises(ValueError, match="isp_denoise"):
+        RenderOptions(isp_denoise=2.0)
+
+
+def test_builtin_scenes_do_what_their_names_say():
+    fast = RenderOptions(noise=False, speckle=False, ambient=False, texture=False, ray_samples=8192)
+    # targets: the 90 % strips return 9x the electrons of the 10 % strips at the same distance
+    r = SceneRenderer(CFG, get_scene("targets"), options=fast)
+    e, _ = r.expected_electrons(full_pulse())
+    t = r.truth_template
+    sums = e.sum(axis=0)
+    refl = np.array([s.material.reflectivity for s in r.scene.surfaces])
+    ok = np.isfinite(t.row) & (np.abs(t.angle_rad) < 0.15)  # near the axis: same range and incidence
+    hi = sums[ok & (refl[t.surface] == 0.9)].mean()
+    lo = sums[ok & (refl[t.surface] == 0.1)].mean()
+    assert hi / lo == pytest.approx(9.0, rel=0.05)
+    # far: every return beyond 3.5 m; near: returns closer than 5 cm
+    far = SceneRenderer(CFG, get_scene("far"), options=fast).truth_template
+    assert np.nanmin(far.range_m[np.isfinite(far.row)]) > 3.5
+    near = SceneRenderer(CFG, get_scene("near"), options=fast).truth_template
+    assert np.nanmin(near.range_m[np.isfinite(near.row)]) < 0.05

@@ -112,3 +112,18 @@ def test_pairing_ignores_glitches_that_do_not_look_like_the_pulse():
     assert len(pairs) == 20
     for tick, n in pairs:
         assert 0 < n - truth(tick) < 10e3  # the true edges, never the glitch
+
+
+def test_gpio_map_window_follows_a_drift_change():
+    rng = np.random.default_rng(6)
+    m = GpioClockMap(TICK_HZ, window=256)
+    ticks = np.arange(1200) * 100_000
+    rate = np.where(ticks < 600 * 100_000, 100e-6, 110e-6)  # the oscillator warms up by 10 ppm
+    true_s = np.cumsum(np.r_[0.0, np.diff(ticks) / (TICK_HZ * (1 + rate[1:]))])
+    for t, s in zip(ticks, true_s):
+        m.add(int(t), int(round((s + 3e-6 + rng.exponential(20e-6)) * 1e9)))
+    est = m.estimate()
+    assert est.drift_ppm == pytest.approx(110.0, abs=1.0)
+    nxt = ticks[-1] + 100_000
+    truth = (true_s[-1] + 100_000 / (TICK_HZ * (1 + 110e-6))) * 1e9
+    assert abs(float(est.mcu_to_pi_ns(nxt)) - truth) < 3e3

@@ -96,6 +96,7 @@ def test_huge_drift_is_an_error_not_a_wrong_schedule():
     assert m["lock_frames"] is None
     assert m["frames_in_error_state"] > 0.9 * m["frames_delivered"]
     assert m["frames_lit_after_lock"] == 0
+    assert m["laser_pulses"] == 0  # refused before any train was scheduled
 
 
 def test_roi_that_does_not_fit_between_frames_is_refused():

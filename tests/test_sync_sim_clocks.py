@@ -1,6 +1,9 @@
 """The simulated IMX219 clock and the simulated co-MCU against their own definitions."""
 
 
+import copy
+import math
+
 import numpy as np
 import pytest
 
@@ -80,15 +83,18 @@ def test_mcu_pulses_land_on_scheduled_ticks_with_drift():
     assert mcu.pulses.rise_s[0] == pytest.approx(0.05 / 1.0001, abs=1e-12)
 
 
-def test_mcu_trim_applies_at_the_next_slot_boundary():
+def test_mcu_trims_add_up_and_apply_when_the_next_lit_pulse_falls():
+    # as firmware_pwm/src/core.c: the pulse after the one in progress (or next) moves
     mcu = _mcu(gpio_connected=False)
-    mcu.schedule(100_000, 100_000, 20_000, [True])
-    mcu.advance_to(0.06)  # slot 0 at 50 ms done
-    mcu.now_s = 0.06
+    mcu.schedule(100_000, 100_000, 20_000, [True, False])
+    mcu.advance_to(0.065)  # pulse 0 (slot 0, 50-60 ms) done
+    mcu.now_s = 0.065
     mcu.trim(7, 100_010)
-    mcu.advance_to(0.5)
+    mcu.trim(3, 100_010)  # reaches the MCU before the same fall: the phases add
+    mcu.advance_to(0.6)
     rise = mcu.pulses.rise_tick
-    assert rise[1] == 200_007 and rise[2] == 300_017
+    assert rise[1] == 300_000  # slot 2: lit pulse on the old timing; the trims apply at its fall
+    assert rise[2] == 300_000 + 10 + 2 * 100_010 and rise[3] == rise[2] + 2 * 100_010
 
 
 def test_mcu_refuses_out_of_envelope_and_past_requests():
@@ -121,3 +127,39 @@ def test_gpio_edges_are_late_by_the_latency_model():
     late = np.array([e[0] for e in ev]) * 1e-9 - truth
     assert late.min() >= 3e-6 - 1e-9
     assert late.mean() == pytest.approx(23e-6, rel=0.1)
+
+
+def test_simulated_camera_on_the_imx219_clock_lit_by_the_simulated_mcu():
+    """The renderer driven by CameraClock and the MCU's pulses: a pulse covering exactly the
+    exposure of rows 200-400 gives those rows the whole exposure of laser light, no row more."""
+    from device.camera.simulated import SimulatedCamera
+    from device.config import load_preset
+    from device.sim.render import FrameTiming, RenderOptions, row_overlap_s
+    from device.sim.scene import wall_scene
+    from device.sync.placement import roi_exposure_window
+
+    cfg = load_preset("thesis-calibrated")
+    timing = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.005, timestamp_jitter_s=10e-6, drop_probability=0.0)
+    mcu = SimulatedMcu(McuConfig(drift_ppm=100.0, max_width_ticks=10**6), np.random.default_rng(1))
+    cam = SimulatedCamera(cfg, wall_scene(1.5), mcu, options=RenderOptions(ray_samples=1024, background_step=8),
+                          timing=timing)
+    # place one pulse on frame 1's rows 200-400 using the truth of the clocks (what the controller
+    # estimates): a copy of the camera's own clock, random state included, foretells its frames
+    probe = copy.deepcopy(cam.clock)
+    probe.next_frame()
+    f1 = probe.next_frame()
+    ws, we = roi_exposure_window(f1.true_start_s, f1.exposure_s, f1.line_time_s, 200, 400)
+    t0 = math.ceil(mcu.tick_at(ws))
+    width = math.floor(mcu.tick_at(we)) - t0
+    mcu.now_s = 0.5
+    mcu.schedule(t0, 10**9, width, [True])  # a single pulse (next slot far away)
+    cam.start()
+    frames = [cam.capture_with_truth() for _ in range(3)]
+    assert [f.seq for f, _ in frames] == [0, 1, 2] and [f.lit for f, _ in frames] == [False, True, False]
+    f, truth = frames[1]
+    assert f.sensor_timestamp_ns > int(f1.true_start_s * 1e9)  # metadata: the late interrupt timestamp
+    timing = FrameTiming(int(round(f1.true_start_s * 1e9)), f1.exposure_s * 1e6, f1.line_time_s * 1e9,
+                         tuple(mcu.windows(0, 10**10)))
+    overlap = row_overlap_s(timing, cfg.height)
+    full = overlap >= f1.exposure_s - 1e-6  # within the tick rounding
+    assert np.flatnonzero(full).tolist() == list(range(200, 401))

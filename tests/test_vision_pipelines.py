@@ -203,3 +203,30 @@ def test_frames_of_the_wrong_shape_are_refused(pipes):
         pipes["reference"].process(np.zeros((928, 1664)), np.zeros((928, 1664)))
     with pytest.raises(ValueError, match="unknown pipeline"):
         make_pipeline("fast-median", CFG)
+
+
+def test_reference_far_row_gain_is_on_the_horizon_side():
+    from device.vision.reference import blur_kernel, far_row_gain
+
+    g = far_row_gain(CFG)
+    n = round(0.2 * CFG.height)
+    assert g[0] == pytest.approx(10.0) and g[n - 1] == pytest.approx(1.0)
+    assert np.all(np.diff(g[:n]) < 0) and np.all(g[n:] == 1.0)  # the far (top) rows, ERRATA 7
+    k = blur_kernel()
+    assert k.sum() == pytest.approx(1.0) and k[2, 2] / k[0, 0] == pytest.approx(3.0)  # 1/sqrt(1) : 1/sqrt(9)
+
+
+def test_reference_thresholds_drop_a_weak_line_the_fast_pipeline_keeps(pipes):
+    z = np.full(CFG.width, 0.2)  # rows ~220: below the top 20 %, no far-row gain
+    rows = row_for_depth(CFG, z)
+    lit, unlit = frame_pair(CFG, rows, amplitude=22.0, sigma=1.2, noise=0.3, seed=30)
+    ref = pipes["reference"]
+    ref.reset()
+    m_ref = ref.process(lit, unlit)
+    assert np.mean(m_ref.status == ColumnStatus.NO_RETURN) > 0.95  # blurred below the 0.1 floor
+    assert np.all(np.isposinf(m_ref.range[m_ref.status == ColumnStatus.NO_RETURN]))
+    m = pipes["fast-com"].process(lit, unlit)
+    assert m.valid.mean() > 0.95
+    lit, unlit = frame_pair(CFG, rows, amplitude=120.0, sigma=1.2, noise=0.3, seed=31)
+    ref.reset()
+    assert ref.process(lit, unlit).valid.mean() > 0.95

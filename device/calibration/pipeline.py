@@ -107,6 +107,59 @@ def calibrate(poses: list[Pose], base: SensorConfig, spec: BoardSpec = BoardSpec
     return CalibrationResult(config, intr, fit, detections, lines)
 
 
+@dataclass(frozen=True)
+class ViewBootstrap:
+    """Spread of the whole calibration (intrinsics, board poses and plane) over resampled views."""
+
+    samples: int
+    fx_std_px: float
+    fy_std_px: float
+    normal_std_deg: float  # RMS angle of the resampled normals to the estimate
+    offset_std_m: float
+    range_std_pct_at_2m: float  # RMS over samples of the wall-at-2 m range RMS against the estimate
+
+
+def bootstrap_views(result: CalibrationResult, spec: BoardSpec, samples: int = 30, seed: int = 0) -> ViewBootstrap:
+    """Resample the views with replacement and redo intrinsics, board poses and plane fit.
+
+    The bootstrap inside :func:`fit_laser_plane` resamples boards with the camera fixed, so it
+    misses the error the intrinsics share across all boards; this one includes it.
+    """
+    from .intrinsics import refit
+    from .simulate import wall_range_error
+
+    used = [d for d in result.detections if d.corners is not None]
+    lines = {ln.name: ln for ln in result.lines}
+    size = (result.config.width, result.config.height)
+    rng = np.random.default_rng(seed)
+    base_n = np.asarray(result.config.plane.normal)
+    fx, fy, ang, off, rng_err = [], [], [], [], []
+    for _ in range(samples):
+        pick = rng.integers(0, len(used), len(used))
+        try:
+            cam, poses = refit([used[i].corners for i in pick], spec.object_points(), size, result.config.camera, result.intrinsics.kept)
+            first = {}
+            for i, pose in zip(pick, poses):
+                first.setdefault(used[i].name, pose)
+            b_lines = [line_points(n, lines[n].pixels, cam, *first[n]) for n in first if n in lines and len(lines[n].pixels)]
+            fit = fit_laser_plane(b_lines, rng_seed=int(rng.integers(1 << 30)), ransac_iterations=100, bootstrap=0)
+        except (CalibrationError, ValueError, np.linalg.LinAlgError) as exc:
+            log.debug("bootstrap sample skipped: %s", exc)
+            continue
+        k = cam.intrinsics
+        fx.append(k.fx)
+        fy.append(k.fy)
+        n = np.asarray(fit.plane.normal)
+        ang.append(math.degrees(math.acos(min(1.0, abs(float(n @ base_n))))))
+        off.append(fit.plane.distance)
+        sample_cfg = replace(result.config, camera=replace(cam, intrinsics=replace(k, width=size[0], height=size[1])), plane=fit.plane)
+        rng_err.append(wall_range_error(result.config, sample_cfg)["rms_pct"])
+    if len(fx) < 2:
+        raise CalibrationError("the view bootstrap failed on every sample; capture more views")
+    return ViewBootstrap(len(fx), float(np.std(fx)), float(np.std(fy)), float(np.sqrt(np.mean(np.square(ang)))),
+                         float(np.std(off)), float(np.sqrt(np.nanmean(np.square(rng_err)))))
+
+
 def triangulation_table(result: CalibrationResult) -> dict[str, float]:
     """Thesis Table 4.8 for the calibrated plane: theta, psi, alpha (degrees) and s (metres)."""
     a, b, c = result.config.plane.to_abc()

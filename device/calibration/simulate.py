@@ -44,7 +44,9 @@ def wall_range_error(truth: SensorConfig, estimate: SensorConfig, distance_m: fl
     """Range error of ``estimate`` on a wall ``distance_m`` ahead (perpendicular to the true scan
     frame's forward axis): true laser points on the wall are imaged with the true camera, then
     triangulated with the estimated camera and plane; ranges compared in each one's scan frame.
-    Returns max and RMS relative error (percent) over the columns that see the wall."""
+    Returns the RMS and the worst relative error (percent) over the columns that see the wall,
+    and the error at the principal-point column (where the thesis states its 1 % at 2 m
+    requirement, section 4.1.5 and ERRATA 5)."""
     fr = scan_frame(truth.plane)
     y = np.linspace(-4 * distance_m, 4 * distance_m, samples)
     scan_pts = np.stack([np.full_like(y, distance_m), y, np.zeros_like(y)], axis=-1)
@@ -62,9 +64,11 @@ def wall_range_error(truth: SensorConfig, estimate: SensorConfig, distance_m: fl
     est_range = to_scan_plane(tri.points, scan_frame(estimate.plane))[1]
     ok = un.valid & (tri.status == RangeStatus.OK)
     if not ok.all():
-        return {"max_pct": float("nan"), "rms_pct": float("nan"), "columns": int(len(px))}
+        return {"max_pct": float("nan"), "rms_pct": float("nan"), "centre_pct": float("nan"), "columns": int(len(px))}
     rel = 100 * (est_range - true_range) / true_range
-    return {"max_pct": float(np.max(np.abs(rel))), "rms_pct": float(np.sqrt(np.mean(rel**2))), "columns": int(len(px))}
+    centre = int(np.argmin(np.abs(px[:, 0] - truth.camera.intrinsics.cx)))
+    return {"max_pct": float(np.max(np.abs(rel))), "rms_pct": float(np.sqrt(np.mean(rel**2))),
+            "centre_pct": float(abs(rel[centre])), "columns": int(len(px))}
 
 
 def compare(truth: SensorConfig, estimate: SensorConfig) -> dict[str, float]:
@@ -79,8 +83,11 @@ def compare(truth: SensorConfig, estimate: SensorConfig) -> dict[str, float]:
         "cy_err_px": ke.cy - kt.cy,
         "plane_normal_err_deg": math.degrees(math.acos(min(1.0, abs(float(nt @ ne))))),
         "plane_offset_err_mm": 1000 * (estimate.plane.distance - truth.plane.distance),
-        "range_err_pct_at_2m": wall["max_pct"],
-        "range_err_rms_pct_at_2m": wall["rms_pct"],
+        # headline: RMS over the whole scan; the worst column (frame corners, where the lens model
+        # is extrapolated beyond the board corners) and the principal-point column beside it
+        "range_err_pct_at_2m": wall["rms_pct"],
+        "range_err_max_pct_at_2m": wall["max_pct"],
+        "range_err_centre_pct_at_2m": wall["centre_pct"],
     }
 
 

@@ -40,14 +40,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame-duration-us", type=_positive, default=50000.0)
     parser.add_argument("--pulse-us", type=_positive, help="laser pulse (default: the configuration's [laser] pulse_s)")
     parser.add_argument("--every", type=int, default=2, help="fire the laser on every N-th frame (default 2)")
+    parser.add_argument("--jitter-us", type=float, default=0.0, help="mean SensorTimestamp latency (default 0)")
+    parser.add_argument("--drop", type=float, default=0.0, help="probability that a frame is dropped (default 0)")
     parser.add_argument("--analog-gain", type=_positive, default=None, help="sensor analog gain (default: simulator's)")
+    parser.add_argument("--isp-denoise", type=float, default=0.0, help="ISP denoise strength 0..1 (default off)")
+    parser.add_argument("--isp-sharpen", type=float, default=0.0, help="ISP sharpening amount 0..2 (default off)")
     parser.add_argument("--off", action="append", default=[], choices=EFFECTS, help="switch an effect off (repeatable)")
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from device.camera.base import IMX219_LINE_TIME_NS
     from device.camera.replay import save_recording
     from device.camera.simulated import SimulatedCamera
     from device.config import ConfigError, load_config, load_preset
@@ -55,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from device.sim.render import RenderOptions
     from device.sim.scene import SceneError, get_scene
     from device.sim.sensor import SIMULATOR_DEFAULT
+    from device.sim.timing import CameraTimingConfig, quantise_frame_duration
 
     if args.frames < 1 or args.every < 1:
         print("error: --frames and --every must be >= 1")
@@ -66,14 +70,23 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, SceneError, ValueError) as exc:
         print(f"error: {exc}")
         return 2
-    options = RenderOptions().without(*args.off)
+    try:
+        options = RenderOptions(isp_denoise=args.isp_denoise, isp_sharpen=args.isp_sharpen).without(*args.off)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 2
     pulse_us = args.pulse_us or cfg.laser.pulse_s * 1e6
     start_ns = 1_000_000_000
     try:
-        train = frame_aligned_train(start_ns, args.frame_duration_us, args.exposure_us, IMX219_LINE_TIME_NS,
-                                    cfg.height, pulse_us, every=args.every)
-        cam = SimulatedCamera(cfg, scene, train, exposure_us=args.exposure_us, frame_duration_us=args.frame_duration_us,
-                              start_ns=start_ns, seed=args.seed, options=options, sensor=sensor)
+        if args.exposure_us > args.frame_duration_us:
+            raise ValueError(f"--exposure-us {args.exposure_us} exceeds --frame-duration-us {args.frame_duration_us}")
+        timing = CameraTimingConfig(frame_duration_s=args.frame_duration_us * 1e-6, exposure_s=args.exposure_us * 1e-6,
+                                    start_time_s=start_ns * 1e-9, timestamp_jitter_s=args.jitter_us * 1e-6,
+                                    drop_probability=args.drop)
+        frame_us = quantise_frame_duration(timing.frame_duration_s, timing.exposure_s, timing) * timing.line_time_s * 1e6
+        train = frame_aligned_train(start_ns, frame_us, args.exposure_us, timing.line_time_s * 1e9,
+                                    timing.active_rows, pulse_us, every=args.every)
+        cam = SimulatedCamera(cfg, scene, train, timing=timing, seed=args.seed, options=options, sensor=sensor)
     except ValueError as exc:
         print(f"error: {exc}")
         return 2
@@ -94,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         "pulse_windows_ns": train.windows(start_ns - int(args.exposure_us * 1e3), frames[-1].sensor_timestamp_ns + 10**8),
         "ambient_w_m2": r.ambient_w_m2, "render_options": dataclasses.asdict(options),
         "sensor": dataclasses.asdict(sensor), "noise_model": "Gaussian shot (var = N_e) + read noise, 10-bit ADC, linear 8-bit Y",
-        "lit": [f.lit for f in frames], "simulated": True,
+        "lit": [f.lit for f in frames], "seq": [f.seq for f in frames], "simulated": True,
     }
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))
     valid = np.isfinite(truths[0].row)

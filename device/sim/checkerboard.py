@@ -246,12 +246,22 @@ def _rodrigues_xyz(rx: float, ry: float, rz: float) -> np.ndarray:
     return rot_z @ rot_y @ rot_x
 
 
-def pose_at(center_cam: np.ndarray, tilt_x: float, tilt_y: float, roll: float, spec: BoardSpec) -> BoardPose:
-    """Board whose checker-area centre is at ``center_cam``, facing the camera, tilted about its x
-    and y axes and rolled in its plane (radians)."""
-    rot = _rodrigues_xyz(tilt_x, tilt_y, roll)
+def _facing(direction: np.ndarray) -> np.ndarray:
+    """Rotation whose z axis is ``direction`` and whose x axis stays horizontal (camera x-z plane)."""
+    z = direction / np.linalg.norm(direction)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def pose_at(center_cam: np.ndarray, tilt_x: float, tilt_y: float, roll: float, spec: BoardSpec, face_camera: bool = True) -> BoardPose:
+    """Board whose checker-area centre is at ``center_cam``, facing the camera (its normal along the
+    line of sight, as a person holds it; else along the optical axis), then tilted about its x and
+    y axes and rolled in its plane (radians)."""
+    center_cam = np.asarray(center_cam, float)
+    rot = (_facing(center_cam) if face_camera else np.eye(3)) @ _rodrigues_xyz(tilt_x, tilt_y, roll)
     centre_local = np.array([(spec.squares_x - 2) / 2, (spec.squares_y - 2) / 2, 0.0]) * spec.square_m
-    return BoardPose(rot, np.asarray(center_cam, float) - rot @ centre_local)
+    return BoardPose(rot, center_cam - rot @ centre_local)
 
 
 def _in_view(cam: CameraModel, width: int, height: int, pose: BoardPose, spec: BoardSpec, margin_px: float) -> bool:
@@ -270,6 +280,10 @@ def _crosses_laser(pose: BoardPose, plane: LaserPlane, spec: BoardSpec) -> bool:
     return len(pts) > 1 and np.linalg.norm(pts[-1] - pts[0]) > 0.5 * spec.square_m * (spec.squares_x - 2)
 
 
+#: 3x3 image cells (row-major), frame corners first: they constrain the distortion most.
+_CELL_ORDER = (0, 2, 6, 8, 1, 7, 3, 5, 4)
+
+
 def generate_poses(
     cam: CameraModel,
     width: int,
@@ -282,12 +296,18 @@ def generate_poses(
     laser_fraction: float = 0.6,
     max_tilt_rad: float = math.radians(35.0),
     margin_px: float = 8.0,
+    max_view_angle_rad: float = math.radians(50.0),
+    face_camera: bool = True,
 ) -> list[BoardPose]:
     """``count`` board poses fully in view, deterministic by ``seed``.
 
-    Depths are stratified over ``depth_range``; image positions over a 3x3 grid of the frame; tilts
-    uniform within +-``max_tilt_rad``. A ``laser_fraction`` of the poses are placed so that the
+    Depths are stratified over ``depth_range``; image positions over a 3x3 grid of the frame
+    (corners first); tilts
+    uniform within +-``max_tilt_rad``, and the board is seen at most ``max_view_angle_rad`` off
+    its normal (a wide-angle lens sees boards at the frame edge obliquely even untilted). A ``laser_fraction`` of the poses are placed so that the
     laser line crosses the checker area (the rest serve the intrinsics, e.g. the lower image).
+    ``face_camera``: boards face the camera before tilting (else the optical axis: with no tilt,
+    every board is then fronto-parallel, the all-at-one-depth failure set).
     """
     rng = np.random.default_rng(seed)
     depths = depth_range[0] + (rng.permutation(count) + rng.random(count)) / count * (depth_range[1] - depth_range[0])
@@ -302,18 +322,19 @@ def generate_poses(
             roll = rng.uniform(-0.25, 0.25)
             if want_laser:
                 # centre on the laser plane at depth z, then slide the board down so it is in view
-                x = rng.uniform(-0.6, 0.6) * z
+                x = rng.uniform(-0.9, 0.9) * z
                 nx, ny, nz = plane.normal
                 y_plane = (plane.distance - nx * x - nz * z) / ny
                 y = y_plane + rng.uniform(0.0, 0.45) * spec.square_m * (spec.squares_y - 2)
             else:
-                cell = (i + _) % 9
-                gx, gy = (cell % 3 - 1) * 0.6 + rng.uniform(-0.25, 0.25), (cell // 3 - 1) * 0.6 + rng.uniform(-0.25, 0.25)
+                cell = _CELL_ORDER[(i - n_laser) % 9]  # fixed per pose, so a hard cell (a frame corner) is not given up
+                gx, gy = (cell % 3 - 1) * 0.7 + rng.uniform(-0.2, 0.2), (cell // 3 - 1) * 0.7 + rng.uniform(-0.2, 0.2)
                 x = (gx * (width / 2) / k.fx) * z
                 y = (gy * (height / 2) / k.fy) * z
-            pose = pose_at(np.array([x, y, z]), tilt[0], tilt[1], roll, spec)
-            if pose.rotation[:, 2] @ pose.translation <= 0:
-                continue
+            pose = pose_at(np.array([x, y, z]), tilt[0], tilt[1], roll, spec, face_camera)
+            centre = pose.to_camera(spec.outline().mean(axis=0))
+            if pose.rotation[:, 2] @ centre / np.linalg.norm(centre) < math.cos(max_view_angle_rad):
+                continue  # seen too obliquely (or from behind)
             if not _in_view(cam, width, height, pose, spec, margin_px):
                 continue
             if want_laser and not _crosses_laser(pose, plane, spec):

@@ -133,7 +133,7 @@ def laser_prims(prims: Primitives) -> Primitives:
                       prims.circ_c[c], prims.circ_r[c], prims.circ_z[c], prims.circ_surface[c], None, -1)
 
 
-def mirror(points: np.ndarray, surface, ) -> np.ndarray:
+def mirror(points: np.ndarray, surface: Wall | Floor) -> np.ndarray:
     """Points (N, 3) mirrored in the plane of a flat surface (a Wall's vertical plane or the Floor)."""
     p = np.array(points, dtype=float)
     if isinstance(surface, Floor):

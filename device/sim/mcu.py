@@ -9,6 +9,9 @@ The link and the wire:
 
 - Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
   ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency).
+  Trims behave as the firmware's (firmware_pwm/src/core.c): pending trims add up, and they apply
+  when the lit pulse in progress (or the next one) falls: the following rise moves by the phase
+  and the period changes from there on.
 - Every pulse is reported with its rising and falling tick; the report arrives after the falling
   edge plus a link latency.
 - The laser trigger is wired to a Pi GPIO whose edges the kernel timestamps in its interrupt
@@ -26,6 +29,7 @@ Pi's clock) before it lets the controller send commands, and ``advance_to`` runs
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -56,8 +60,8 @@ class McuConfig:
     gpio_jitter_s: float = 20e-6
     gpio_outlier_prob: float = 0.005
     gpio_spurious_hz: float = 0.0
-    max_width_ticks: int = 40_000  # 20 ms
-    max_duty: float = 0.5
+    max_width_ticks: int = 34_800  # 17.4 ms, firmware_pwm/src/config.h MAX_PULSE_TICKS
+    max_duty: float = 0.2  # the firmware's compiled-in 200 000 ppm
 
 
 @dataclass
@@ -162,9 +166,11 @@ class SimulatedMcu:
         elif kind == "start":
             p, w, pat = args
             self._train = {"next": math.ceil(self.tick_at(at)), "period": p, "width": w, "pattern": pat, "slot": 0, "trim": None}
-        elif kind == "trim":
+        elif kind == "trim":  # trims add up until they apply, as in the firmware
             if self._train is not None:
-                self._train["trim"] = args
+                pending = self._train["trim"]
+                phase = args[0] + (pending[0] if pending is not None else 0)
+                self._train["trim"] = (phase, args[1])
         elif kind == "stop":
             self._train = None
         elif kind == "reset":
@@ -184,21 +190,23 @@ class SimulatedMcu:
             if next_cmd <= next_slot:
                 self._apply(*self._pending.pop(0))
                 continue
-            if tr["trim"] is not None:  # a trim applies at the first slot boundary after its receipt
-                phase, period = tr["trim"]
-                tr["next"] += phase
-                tr["period"] = period
-                tr["trim"] = None
-                continue
             start = tr["next"]
-            if tr["pattern"][tr["slot"] % len(tr["pattern"])]:
-                self._emit(start, start + tr["width"])
+            lit = tr["pattern"][tr["slot"] % len(tr["pattern"])]
+            if lit:
+                fall_s = self._emit(start, start + tr["width"])
+                while self._pending and self._pending[0][1] == "trim" and self._pending[0][0] <= fall_s:
+                    self._apply(*self._pending.pop(0))  # trims that arrive before this pulse ends
             tr["slot"] += 1
-            tr["next"] = start + tr["period"]
+            if lit and tr["trim"] is not None:  # applied at the fall: the next rise moves, the period changes
+                phase, tr["period"] = tr["trim"]
+                tr["trim"] = None
+                tr["next"] = start + phase + tr["period"]
+            else:
+                tr["next"] = start + tr["period"]
         self._spurious(t)
         self._t = t
 
-    def _emit(self, rise: int, fall: int) -> None:
+    def _emit(self, rise: int, fall: int) -> float:
         c = self.cfg
         rs, fs = self.time_of_tick(rise), self.time_of_tick(fall)
         p = self.pulses
@@ -213,6 +221,7 @@ class SimulatedMcu:
                 if self._rng.random() < c.gpio_outlier_prob:
                     late += self._rng.uniform(100e-6, 2e-3)
                 self._gpio.append((int(round((ts + late) * 1e9)), rising))
+        return fs
 
     def _spurious(self, t: float) -> None:
         c = self.cfg
@@ -235,6 +244,17 @@ class SimulatedMcu:
         got = [e for e in self._gpio if e[0] <= lim]
         self._gpio = self._gpio[len(got):]
         return got
+
+    def windows(self, start_ns: int, end_ns: int) -> list[tuple[int, int]]:
+        """The laser's true on-windows overlapping [start_ns, end_ns] (a ``device.sim.pulses.PulseSource``).
+
+        Runs the MCU up to ``end_ns`` first, so the renderer sees every pulse of the frame.
+        """
+        self.advance_to(max(self._t, end_ns * 1e-9))
+        p = self.pulses
+        i = max(bisect.bisect_left(p.rise_s, start_ns * 1e-9) - 1, 0)
+        return [(int(round(r * 1e9)), int(round(f * 1e9))) for r, f in zip(p.rise_s[i:], p.fall_s[i:])
+                if f * 1e9 >= start_ns and r * 1e9 <= end_ns]
 
     def ping(self, t_send_s: float) -> tuple[int, int, int]:
         """A PING exchange sent at ``t_send_s``: (Pi send ns, MCU tick, Pi receive ns)."""

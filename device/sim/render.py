@@ -34,18 +34,23 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    ambient irradiance give ambient electrons per second per pixel (no hit: a 20 % backdrop).
 7. *Rolling shutter.* Row r is exposed during [T - E + r t_line, T + r t_line] (Frame docstring);
    its laser electrons are the column rate times the overlap of that window with the laser's
-   pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor).
+   pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor). For
+   speed the temporal noise comes from a cached table of standard normals (2 frames long, drawn
+   once per renderer) read from a random offset per frame: a pixel gets another table entry in
+   every frame (unless two offsets coincide), but a frame's spatial pattern is a shifted copy of
+   part of an earlier frame's (``noise_table=False`` draws afresh, several times slower).
 
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse) costs nothing.
 
 Anchoring. The free numbers (speckle contrast 1.0 and grain 2.44 lambda N, defocus blur sigma
-1.2 px, analogue gain 8 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
+1.1 px, analogue gain 10 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
 were chosen so that the thesis's reference pipeline (device.vision.reference) on this simulator,
 at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure), reproduces the
 thesis's measurements (section 6.4): range error std ~1.9 % at 2 m and ~2.3 % at 2.5 m on the
-90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking beyond
-~2-2.5 m, and no output in sunlight. See BENCHMARKS.md "Simulator" for the budget.
+90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking with range
+(two thirds left at 2.5 m, half at 3 m), and no output in sunlight. `laserpi bench sim --anchor`
+prints the table, BENCHMARKS.md "Simulator" has it with the photometric budget.
 """
 
 from __future__ import annotations
@@ -55,15 +60,15 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
-from .special import erf
 
 from ..config import SensorConfig
 from ..model.camera import project_points, undistort_robust, pixel_grid
 from ..model.scan_frame import scan_frame, to_scan_plane
-from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from ..model.irradiance import band_irradiance_w_m2
+from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
 from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
 from .sensor import SIMULATOR_DEFAULT, SensorParams, sensor_frame
+from .special import erf
 from .truth import FrameTruth
 
 PLANCK_J_S = 6.62607015e-34
@@ -83,11 +88,13 @@ class RenderOptions:
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
     speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
     speckle_grain_factor: float = 2.44  # grain = factor x lambda x N at the image (2.44: Airy diameter)
-    blur_sigma_px: float = 1.2  # lens defocus blur (Gaussian sigma) of the line, pixels
+    blur_sigma_px: float = 1.1  # lens defocus blur (Gaussian sigma) of the line, pixels
     optics_transmission: float = 0.8  # lens x bandpass filter at the laser wavelength (ASSUMPTION)
     ray_samples: int = 16384  # laser rays across the fan
     background_step: int = 2  # background rays every N pixels (texture detail, paid once)
     noise_table: bool = True  # draw noise from a cached table (fast) instead of per frame
+    isp_denoise: float = 0.0  # ISP spatial denoise: blend towards a 3x3 Gaussian, 0 (off) .. 1
+    isp_sharpen: float = 0.0  # ISP sharpening: unsharp-mask amount (5x5 Gaussian), 0 (off) .. 2
 
     def __post_init__(self) -> None:
         if not 0 <= self.speckle_contrast <= 1:
@@ -97,6 +104,9 @@ class RenderOptions:
                 raise ValueError(f"render: {name} must be positive, got {getattr(self, name)}")
         if self.blur_sigma_px < 0.3:
             raise ValueError(f"render: blur_sigma_px must be >= 0.3 px (a lens is never sharper), got {self.blur_sigma_px}")
+        if not 0 <= self.isp_denoise <= 1 or not 0 <= self.isp_sharpen <= 2:
+            raise ValueError(f"render: isp_denoise must be in [0, 1] and isp_sharpen in [0, 2], got "
+                             f"{self.isp_denoise}, {self.isp_sharpen}")
         if self.ray_samples < 16 or self.background_step < 1:
             raise ValueError("render: ray_samples must be >= 16 and background_step >= 1")
 
@@ -326,8 +336,8 @@ class SceneRenderer:
         off = np.arange(-half, half + 1)
         r = np.floor(rows)[:, None] + off[None, :]
         s2 = math.sqrt(2) * sigma[:, None]
-        edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2).astype(np.float64)
-        frac = 0.5 * np.diff(edges, axis=1)
+        edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2)
+        frac = 0.5 * np.diff(edges, axis=1)  # each pixel's share: erf at its two edges
         val = rate[:, None] * frac
         r = r.astype(np.int64)
         c = np.broadcast_to(cols[:, None], r.shape)
@@ -387,4 +397,22 @@ class SceneRenderer:
             off = int(rng.integers(0, n))
             normals = self._normals[off: off + n].reshape(e.shape)
         image = sensor_frame(e, rng if self.options.noise else None, self.sensor, normals=normals)
+        if self.options.isp_denoise or self.options.isp_sharpen:
+            image = isp_filter(image, self.options.isp_denoise, self.options.isp_sharpen)
         return image, replace(self.truth_template, lit_rows=overlap > 0)
+
+
+def isp_filter(image: np.ndarray, denoise: float, sharpen: float) -> np.ndarray:
+    """Optional ISP look on the 8-bit Y plane: spatial denoise, then unsharp-mask sharpening.
+
+    The Pi's ISP does both on its internal data before the Y output; applying them to the 8-bit
+    frame is an approximation (one extra rounding). OpenCV's Gaussian blur does the filtering.
+    """
+    import cv2
+
+    y = image.astype(np.float32)
+    if denoise:
+        y = (1 - denoise) * y + denoise * cv2.GaussianBlur(y, (3, 3), 0)
+    if sharpen:
+        y = y + sharpen * (y - cv2.GaussianBlur(y, (5, 5), 0))
+    return np.clip(np.rint(y), 0, 255).astype(np.uint8)

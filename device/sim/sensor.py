@@ -79,9 +79,9 @@ class SensorParams:
 
 #: The IMX219 in sensor mode 5 with the module-level defaults.
 IMX219_MODE5 = SensorParams()
-#: The settings the simulator uses by default: analogue gain 8, the fixed gain that, with the
+#: The settings the simulator uses by default: analogue gain 10, the fixed gain that, with the
 #: rest of the photometry, reproduces the thesis's measurements (device/sim/render.py, anchoring).
-SIMULATOR_DEFAULT = SensorParams(analog_gain=8.0)
+SIMULATOR_DEFAULT = SensorParams(analog_gain=10.0)
 
 
 def sensor_frame(

@@ -38,7 +38,6 @@ import bisect
 import functools
 import logging
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,11 +155,11 @@ def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sig
 
 
 class Window:
-    """The last ``size`` rows of int64 pairs, as contiguous numpy views (cheaper than deques per fit)."""
+    """The last ``size`` rows of int64 columns, as contiguous numpy views (cheaper than deques per fit)."""
 
-    def __init__(self, size: int) -> None:
+    def __init__(self, size: int, columns: int = 2) -> None:
         self.size = size
-        self._buf = np.zeros((2 * size, 2), np.int64)
+        self._buf = np.zeros((2 * size, columns), np.int64)
         self._lo = 0
         self._hi = 0
 
@@ -170,12 +169,12 @@ class Window:
     def clear(self) -> None:
         self._lo = self._hi = 0
 
-    def append(self, a: int, b: int) -> None:
+    def append(self, *row: int) -> None:
         if self._hi == self._buf.shape[0]:
             n = len(self)
             self._buf[:n] = self._buf[self._lo:self._hi]
             self._lo, self._hi = 0, n
-        self._buf[self._hi] = (a, b)
+        self._buf[self._hi] = row
         self._hi += 1
         if self._hi - self._lo > self.size:
             self._lo += 1
@@ -185,16 +184,19 @@ class Window:
         self._buf[:rows.shape[0]] = rows
         self._lo, self._hi = 0, rows.shape[0]
 
+    def column(self, i: int) -> np.ndarray:
+        return self._buf[self._lo:self._hi, i]
+
     @property
     def a(self) -> np.ndarray:
-        return self._buf[self._lo:self._hi, 0]
+        return self.column(0)
 
     @property
     def b(self) -> np.ndarray:
-        return self._buf[self._lo:self._hi, 1]
+        return self.column(1)
 
-    def last(self) -> tuple[int, int] | None:
-        return (int(self._buf[self._hi - 1, 0]), int(self._buf[self._hi - 1, 1])) if self._hi > self._lo else None
+    def last(self) -> tuple[int, ...] | None:
+        return tuple(int(v) for v in self._buf[self._hi - 1]) if self._hi > self._lo else None
 
 
 @dataclass(frozen=True)
@@ -285,50 +287,57 @@ class GpioClockMap:
 class PingClockMap:
     """Windowed minimum-delay (NTP-style) map from PING exchanges; lower accuracy than the GPIO map."""
 
-    def __init__(self, tick_hz: float, link_min_rtt_s: float, window: int = 256, min_samples: int = 3) -> None:
+    def __init__(self, tick_hz: float, link_min_rtt_s: float, window: int = 1024, blocks: int = 16,
+                 min_samples: int = 3) -> None:
         self.tick_hz = tick_hz
         self.link_min_rtt_s = link_min_rtt_s
+        self.blocks = blocks
         self.min_samples = min_samples
-        self._s: deque[tuple[int, int, int]] = deque(maxlen=window)
+        self._w = Window(window, columns=3)
         self._est: ClockEstimate | None = None
         self._dirty = False
 
     def __len__(self) -> int:
-        return len(self._s)
+        return len(self._w)
 
     def clear(self) -> None:
-        self._s.clear()
+        self._w.clear()
         self._est = None
 
     @property
     def last_tick(self) -> int | None:
-        return self._s[-1][1] if self._s else None
+        last = self._w.last()
+        return None if last is None else last[1]
 
     def add(self, send_ns: int, tick: int, recv_ns: int) -> None:
         if recv_ns < send_ns:
             raise ValueError(f"ping received ({recv_ns}) before it was sent ({send_ns})")
-        self._s.append((int(send_ns), int(tick), int(recv_ns)))
+        self._w.append(send_ns, tick, recv_ns)
         self._dirty = True
 
     def estimate(self) -> ClockEstimate | None:
         if not self._dirty:
             return self._est
         self._dirty = False
-        if len(self._s) < self.min_samples:
+        if len(self._w) < self.min_samples:
             self._est = None
             return None
-        a = np.array(self._s, dtype=np.int64)
+        a = self._w.column(slice(None))
         rtt = (a[:, 2] - a[:, 0]) * 1e-9
         n = len(a)
-        nb = min(8, max(1, n // 4))
+        nb = min(self.blocks, max(1, n // 4))
         m = n // nb
         sel = (n - nb * m) + np.arange(nb) * m + np.argmin(rtt[n - nb * m:].reshape(nb, m), axis=1)
         ref_tick = int(a[-1, 1])
         ref_ns = int((a[-1, 0] + a[-1, 2]) // 2)
         x = (a[sel, 1] - ref_tick) / self.tick_hz
         y = ((a[sel, 0] + a[sel, 2]) // 2 - ref_ns) * 1e-9
-        if nb >= 2 and np.ptp(x) > 0:
-            b, c = np.polyfit(x, y, 1)
+        xbar = float(x.sum()) / nb
+        sxx = float(((x - xbar) ** 2).sum())
+        if sxx > 0:
+            ybar = float(y.sum()) / nb
+            b = float(((x - xbar) * (y - ybar)).sum()) / sxx
+            c = ybar - b * xbar
         else:
             b, c = 1.0, float(np.mean(y - x))
         # Each kept exchange places the tick within +-excess/2 of the midpoint (the legs' unknown
@@ -336,9 +345,7 @@ class PingClockMap:
         excess = np.maximum(rtt[sel] - self.link_min_rtt_s, 0.0)
         point = float(np.sqrt(np.mean(excess**2))) / (2 * math.sqrt(3))
         spread = float(np.sqrt(np.sum((y - (c + b * x)) ** 2) / (nb - 2))) if nb > 2 else 0.0
-        xbar = float(np.mean(x))
-        fit = LineFit(a=float(c), b=float(b), x_mean=xbar, sxx=float(np.sum((x - xbar) ** 2)), n_points=nb,
-                      point_sigma=max(point, spread, 1e-6))
+        fit = LineFit(a=float(c), b=float(b), x_mean=xbar, sxx=sxx, n_points=nb, point_sigma=max(point, spread, 1e-6))
         self._est = ClockEstimate("ping", ref_tick, ref_ns, self.tick_hz, fit, n)
         return self._est
 

@@ -54,11 +54,13 @@ THESIS_GAIN_PER_HZ = 7.0 / 30.0  # thesis 5.3.2: P = 7 at 30 Hz, i.e. 0.233 f
 class LaserScheduler(Protocol):
     """The co-MCU's pulse train, as the controllers use it (the real one is ``device.comcu``).
 
-    - ``schedule``: replace the train from ``first_start_tick`` on: slot n starts at
+    - ``schedule``: replace the train (stopping a running one) from ``first_start_tick`` on: slot n starts at
       ``first_start_tick + n * period_ticks`` and is lit (for ``width_ticks``) if
       ``pattern[n % len(pattern)]``.
-    - ``trim``: at the first slot start after the command arrives, add ``phase_ticks`` to that
-      start and use ``period_ticks`` from then on.
+    - ``trim``: as the firmware's TRIM (firmware_pwm/src/core.c), but with the new period given
+      absolute: trims add up until they apply, which is when the lit pulse in progress, or the
+      next one, falls; the next lit rise is then that pulse's rise + ``phase_ticks`` + k x
+      ``period_ticks`` (k slots later), and the period stays ``period_ticks``.
     - ``stop``: laser off, train cleared.
     Out-of-envelope or impossible requests raise an exception naming the reason.
     """
@@ -225,7 +227,6 @@ class _Train:
     width: int
     guard_s: float
     scheduled_ns: int
-    last_trim_slot: int = -1
     pending_reports: dict[int, int] = field(default_factory=dict)  # rise tick -> fall tick
 
     def start(self, slot: int) -> int:
@@ -390,23 +391,30 @@ class SyncController:
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
 
     def _trim(self, frame: FrameInfo, est: ClockEstimate) -> None:
+        """Place the lit pulse after the next boundary the MCU will see (``LaserScheduler.trim``)."""
         cfg, tr = self.cfg, self.train
         lat = cfg.cmd_latency_max_s * 1e9
-        slot = max(frame.sequence - tr.frame0 + 1, 0)
-        while est.mcu_to_pi_ns(tr.start(slot)) <= self._now_ns + lat:
-            slot += 1
-        if slot - 1 >= tr.ref_slot and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
-            return  # the command could land on either side of the previous boundary: wait a frame
-        if slot <= tr.last_trim_slot:
-            return  # one trim per boundary: the MCU would replace, not add to, a pending one
-        ws, _ = self._window_ns(tr.frame0 + slot, frame)
+        lit = lambda slot: cfg.lit(tr.frame0 + slot)  # noqa: E731
+        fall = lambda slot: float(est.mcu_to_pi_ns(tr.start(slot) + tr.width))  # noqa: E731
+        boundary = max(frame.sequence - tr.frame0, 0)  # the lit pulse at whose fall the trim applies
+        while not lit(boundary) or fall(boundary) <= self._now_ns + lat:
+            boundary += 1
+        prev = boundary - 1
+        while prev >= 0 and not lit(prev):
+            prev -= 1
+        if prev >= 0 and fall(prev) > self._now_ns - 50e3:
+            return  # the command could arrive before or after the previous pulse ends: wait a frame
+        target = boundary + 1
+        while not lit(target):
+            target += 1
+        ws, _ = self._window_ns(tr.frame0 + target, frame)
         want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9)))
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
-        phase = want - tr.start(slot)
+        phase = want - (tr.start(boundary) + (target - boundary) * period)
         if phase == 0 and period == tr.period:
             return
         self.mcu.trim(phase, period)
-        tr.ref_tick, tr.ref_slot, tr.period, tr.last_trim_slot = tr.start(slot) + phase, slot, period, slot
+        tr.ref_slot, tr.ref_tick, tr.period = target, want, period
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
@@ -446,8 +454,10 @@ class SyncController:
             self.train = None
         if self.state is not SyncState.LOCKED:
             return self._label(frame, None, self.reason)
-        if status == "n/a":
-            return FrameLabel(frame.sequence, False, self.state, True)
+        if status == "n/a":  # an unlit slot; a lit one before the current train began is not known
+            lit = cfg.lit(frame.sequence)
+            return FrameLabel(frame.sequence, None if lit else False, self.state, not lit,
+                              "before the current pulse train" if lit else "")
         if status == "ok":
             return FrameLabel(frame.sequence, True, self.state, True)
         return FrameLabel(frame.sequence, None, self.state, False, f"this frame's pulse is {status}")

@@ -229,4 +229,5 @@ def evaluate(frames: dict, mcu: SimulatedMcu, p: SimParams) -> dict:
         "frames_leaked_after_lock": int((unlit & overlap).sum()),
         "frames_unknown_after_lock": int((after & delivered & (label == -1)).sum()),
         "frames_in_error_state": int((frames["error_state"] & delivered).sum()),
+        "laser_pulses": int(rise.size),
     }

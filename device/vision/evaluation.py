@@ -29,10 +29,10 @@ class FramePair:
 
 
 #: Operating point of the simulated camera for evaluation: 40 ms exposure (the pulse of 17.4 ms
-#: fits in the 22.5 ms during which all rows expose), analog gain 8 (the weak far returns need it;
+#: fits in the 22.5 ms during which all rows expose), analog gain 4 (the weak far returns need it;
 #: the IMX219 allows 1..10.67).
 EXPOSURE_US = 40000.0
-ANALOG_GAIN = 8.0
+ANALOG_GAIN = 4.0
 
 
 def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int = 0, options=None,
@@ -74,6 +74,8 @@ class Score:
     row_err: list = field(default_factory=list)
     range_rel_err: list = field(default_factory=list)
     true_range: list = field(default_factory=list)
+    all_true_range: list = field(default_factory=list)  # every column with a return
+    all_valid: list = field(default_factory=list)
     columns_with_return: int = 0
     valid_with_return: int = 0
     columns_without_return: int = 0
@@ -90,14 +92,35 @@ class Score:
         self.columns_without_return += int((~has).sum())
         self.false_returns += int((~has & ok).sum())
         both = has & ok
+        self.all_true_range.append(t_rng[has])
+        self.all_valid.append(ok[has])
         self.row_err.append(meas.row[both] - t_row[both])
         self.range_rel_err.append((meas.range[both] - t_rng[both]) / t_rng[both])
         self.true_range.append(t_rng[both])
+
+    def valid_fraction_within(self, max_range_m: float) -> float:
+        """Valid share of the columns whose true range is at most ``max_range_m``."""
+        rng = np.concatenate(self.all_true_range) if self.all_true_range else np.zeros(0)
+        ok = np.concatenate(self.all_valid) if self.all_valid else np.zeros(0, bool)
+        m = rng <= max_range_m
+        return float(ok[m].mean()) if m.any() else float("nan")
+
+    def range_error_near(self, range_m: float, half_width_m: float = 0.25) -> tuple[float, float]:
+        """(mean, std) of the relative range error (%) of columns whose true range is within
+        +-half_width_m of ``range_m``."""
+        rel = np.concatenate(self.range_rel_err) if self.range_rel_err else np.zeros(0)
+        rng = np.concatenate(self.true_range) if self.true_range else np.zeros(0)
+        m = np.abs(rng - range_m) <= half_width_m
+        if m.sum() < 2:
+            return float("nan"), float("nan")
+        return float(np.mean(rel[m]) * 100), float(np.std(rel[m]) * 100)
 
     def summary(self) -> dict:
         row = np.concatenate(self.row_err) if self.row_err else np.zeros(0)
         rel = np.concatenate(self.range_rel_err) if self.range_rel_err else np.zeros(0)
         rng = np.concatenate(self.true_range) if self.true_range else np.zeros(0)
+        all_rng = np.concatenate(self.all_true_range) if self.all_true_range else np.zeros(0)
+        all_ok = np.concatenate(self.all_valid) if self.all_valid else np.zeros(0, bool)
         out = {
             "subpixel_rms_px": _rms(row),
             "subpixel_bias_px": float(np.mean(row)) if row.size else float("nan"),
@@ -110,12 +133,16 @@ class Score:
         }
         for lo, hi in zip(DISTANCE_BINS[:-1], DISTANCE_BINS[1:]):
             m = (rng >= lo) & (rng < hi)
-            if m.sum() < 2:
+            n_truth = int(((all_rng >= lo) & (all_rng < hi)).sum())
+            if n_truth == 0:
                 continue
             e = rel[m] * 100
             out["range_error_by_distance"].append({
-                "bin_m": [lo, hi], "n": int(m.sum()), "mean_pct": float(np.mean(e)), "std_pct": float(np.std(e)),
-                "p95_abs_pct": float(np.percentile(np.abs(e), 95)),
+                "bin_m": [lo, hi], "columns": n_truth, "n": int(m.sum()),
+                "valid_fraction": float(all_ok[(all_rng >= lo) & (all_rng < hi)].mean()),
+                "mean_pct": float(np.mean(e)) if e.size else float("nan"),
+                "std_pct": float(np.std(e)) if e.size > 1 else float("nan"),
+                "p95_abs_pct": float(np.percentile(np.abs(e), 95)) if e.size else float("nan"),
             })
         return out
 

@@ -58,7 +58,7 @@ class FastParams:
     min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
     noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
-    min_run: int = 3  # continuous columns for a detection to count
+    min_run: int = 5  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
     jump_rel: float = 0.05  # relative depth step that separates surfaces
     support_half: int = 4  # neighbour columns consulted to pick among candidates
@@ -103,7 +103,7 @@ class FastPipeline:
             self.near_top, self.near_bottom = 0, int(g.roi_lo.max())
             rn = np.arange(0, self.near_bottom)[:, None]
             near = rn < g.roi_lo[None, :]
-        self.near_mask = np.where(near, 255, 0).astype(np.uint8)
+        self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
@@ -126,25 +126,45 @@ class FastPipeline:
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
         d = cv2.subtract(a, b)
-        sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
-        pair = cv2.bitwise_and(sat[1:], sat[:-1])
-        sat = np.zeros_like(sat)
-        sat[1:] = pair
-        sat[:-1] |= pair
-        d = cv2.bitwise_and(cv2.max(d, sat), self.mask)
+        if a.max() == 255:
+            sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
+            pair = cv2.bitwise_and(sat[1:], sat[:-1])
+            sat = np.zeros_like(sat)
+            sat[1:] = pair
+            sat[:-1] |= pair
+            d = cv2.max(d, sat)
+        d = cv2.bitwise_and(d, self.mask)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
         sm = cv2.blur(d, DETECT_KERNEL)
-        noise = cv2.blur(cv2.bitwise_and(cv2.subtract(b, a), self.mask), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
+        # the band's rows are as noisy as the column's own interval, and it saves a pass)
+        noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
         k1, k2 = (self._local_max(d, k) for k in self._candidates(sm))
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
-        c2 = refine_peaks(d, k2, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal)
+        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
+        # detection is decided before the estimator's own validity, so that a line whose sub-pixel
+        # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
-        det1 = c1.valid & (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
-        det2 = c2.valid & (s2 >= thr) & (c2.peak >= 0.5 * s2) & (c2.spread <= p.max_spread_px)
-        row, peak, found = self._choose(c1.row, c2.row, c1.peak, c2.peak, det1, det2)
+        det1 = (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        r1 = np.where(c1.valid, c1.row, k1)
+        # second candidates: refined only where they are strong enough to matter (few columns)
+        W = self.cols.size
+        det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
+        idx = np.nonzero(s2 >= thr)[0]
+        if idx.size:
+            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width,
+                              p.pedestal, 255)
+            det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
+            r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
+        pick2 = self._choose(r1, r2, det1, det2)
+        row = np.where(pick2, r2, r1)
+        peak = np.where(pick2, v2, c1.peak)
+        measured = np.where(pick2, ok2, c1.valid)
+        found = det1 | det2
+        failed = found & ~measured  # a line is there, its sub-pixel estimate is not
+        found &= measured
         row = row + self.top
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
@@ -152,18 +172,20 @@ class FastPipeline:
         if p.smooth_half:
             row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
-        status[found & outlier] = ColumnStatus.REJECTED
+        status[(found & outlier) | failed] = ColumnStatus.REJECTED
         # wide profiles with nothing else found: a line was there but could not be measured
-        wide = ~found & c1.valid & (s1 >= thr) & (c1.spread > p.max_spread_px)
+        wide = ~found & (s1 >= thr) & ~(c1.spread <= p.max_spread_px)
         status[wide] = ColumnStatus.REJECTED
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         if self.near_bottom > self.near_top:
-            la = luminance(lit, "lit")[self.near_top : self.near_bottom]
-            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom]
+            # every other row: a line is at least two rows high
+            la = luminance(lit, "lit")[self.near_top : self.near_bottom : 2]
+            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom : 2]
             near = cv2.bitwise_and(cv2.subtract(la, ua), self.near_mask).max(axis=0)
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), self.near_mask).max(axis=0)
-            close = (near >= np.maximum(p.min_peak, p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
+            # stricter than in range (twice the noise ratio): a false "too close" stops a robot
+            close = (near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
             status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
@@ -186,7 +208,7 @@ class FastPipeline:
         bmax = blocks.max(axis=1)
         b1 = np.argmax(bmax, axis=0)
         k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
-        sep = 2 * self.params.half_width + 1
+        sep = self.params.half_width + 1
         blk = np.arange(nb)[:, None]
         near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
         b2 = np.argmax(np.where(near, 0, bmax), axis=0)
@@ -196,28 +218,27 @@ class FastPipeline:
         k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
         return k1, k2
 
-    def _choose(self, r1, r2, v1, v2, det1, det2):
-        """Pick one of two candidate rows per column by neighbour support, then geometry."""
+    def _choose(self, r1, r2, det1, det2) -> np.ndarray:
+        """Where to take the second candidate: by neighbour support, then geometry."""
         h = self.params.support_half
-        cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
-        W = cand.shape[1]
-        support = np.zeros((2, W))
-        padded = np.pad(cand, ((0, 0), (h, h)), constant_values=np.nan)
-        for o in range(-h, h + 1):
-            if o == 0:
-                continue
-            nb = padded[:, h + o : h + o + W]  # neighbours' candidates at column offset o
-            tol = 1.0 + 0.5 * abs(o)
-            with np.errstate(invalid="ignore"):
-                agree = (np.abs(cand[:, None, :] - nb[None, :, :]) <= tol).any(axis=1)
-            support += agree
-        # the candidate nearer the horizon is the farther range: compare depths
-        z = np.stack([self.geometry.triangulate(cand[i] + self.top).depth for i in range(2)])
-        z = np.where(np.isfinite(z), z, -np.inf)
-        pick2 = det2 & (~det1 | (support[1] > support[0]) | ((support[1] == support[0]) & (z[1] > z[0])))
-        row = np.where(pick2, r2, r1)
-        peak = np.where(pick2, v2, v1)
-        return row, peak, det1 | det2
+        W = r1.size
+        pick2 = det2 & ~det1
+        idx = np.nonzero(det1 & det2)[0]
+        if idx.size:
+            cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
+            own = cand[:, idx]  # (2, n)
+            support = np.zeros(own.shape)
+            for o in range(-h, h + 1):
+                j = idx + o
+                if o == 0:
+                    continue
+                nb = np.where(((j >= 0) & (j < W))[None, :], cand[:, np.clip(j, 0, W - 1)], np.nan)  # (2, n)
+                with np.errstate(invalid="ignore"):
+                    support += (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
+            # the candidate nearer the horizon is the farther range: smaller inverse depth
+            iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
+            pick2[idx] = (support[1] > support[0]) | ((support[1] == support[0]) & (iz[1] < iz[0]))
+        return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Label of the continuous surface run of each column (-1 where not found), and the
@@ -230,10 +251,9 @@ class FastPipeline:
         """
         p = self.params
         med = _running_median(np.where(found, row, np.nan), 2)
-        z = self.geometry.triangulate(med).depth
-        z1 = self.geometry.triangulate(med + 0.5).depth
+        iz, slope = self.geometry.inverse_depth(med)
         with np.errstate(invalid="ignore", divide="ignore"):
-            step = np.abs(p.jump_rel * z / ((z1 - z) * 2.0))  # rows for jump_rel of depth
+            step = np.abs(p.jump_rel * iz / slope)  # rows for a jump_rel change of depth
         step = np.where(np.isfinite(step), np.maximum(step, 1.0), 1.0)
         lim = np.minimum(step[1:], step[:-1])
         with np.errstate(invalid="ignore"):

@@ -149,9 +149,11 @@ def refine_peaks(
     background=0.0,
     half_width: int = 4,
     pedestal: float = 0.1,
+    plateau_min: float = 0.0,
 ) -> ColumnPeaks:
     """Sub-pixel refinement of given integer peak rows ``argmax`` (W,) (-1: none), same options
-    as :func:`column_peaks`; use it when the candidates come from elsewhere (a second peak)."""
+    as :func:`column_peaks`; use it when the candidates come from elsewhere (a second peak).
+    ``plateau_min``: only maxima at least this high count as a flat top (e.g. 255: saturation)."""
     img = _check_args(image, estimator, half_width, pedestal)
     height, width = img.shape
     lo = _limits(row_lo, 0, width, height, "row_lo")
@@ -173,7 +175,7 @@ def refine_peaks(
 
     fp1, in_p1 = sample(1)
     fp2, in_p2 = sample(2)
-    plateau = in_p1 & in_p2 & (fp1 == f0) & (fp2 == f0)
+    plateau = in_p1 & in_p2 & (fp1 == f0) & (fp2 == f0) & (f0 >= plateau_min)
     valid = (f0 >= min_peak) & ~empty
 
     com_row, com_ok, spread = _centre_of_mass(img, np.maximum(k, 0), f0, bg, lo, hi, half_width, pedestal)

@@ -1,0 +1,119 @@
+"""`laserpi bench pipeline`: every pipeline variant on the same simulated frames, in one run.
+
+Time per frame pair: the median CPU time of the calling thread (``time.thread_time``) over
+``--repeats`` calls of ``process`` on one pair, OpenCV limited to one thread; CPU time rather than
+wall time because the machine is shared (a loaded machine stretches wall time, not CPU time) next to the error against ground truth on 90 % walls at 2 m and 3 m (indoor light,
+thesis-calibrated geometry), and the speed-up over the reference as a ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=3, help="frame pairs per wall for the error (default 3)")
+    parser.add_argument("--repeats", type=int, default=50, help="timed calls per variant (default 50)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--preset", default="thesis-calibrated")
+    parser.add_argument("--min-range", type=float, default=0.1, help="fast pipeline depth limits, m (default 0.1)")
+    parser.add_argument("--max-range", type=float, default=10.0, help="(default 10)")
+    parser.add_argument("--variants", default="all", help="comma-separated variants (default all)")
+    parser.add_argument("--png", help="write a plot of time against error to this PNG")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+
+
+def measure(args) -> list[dict]:
+    import cv2
+    import numpy as np
+
+    from ..config import load_preset
+    from ..vision.evaluation import run_pipeline, simulated_pairs
+    from ..vision.pipelines import VARIANTS, make_pipeline
+
+    cv2.setNumThreads(1)  # one core
+    cfg = load_preset(args.preset)
+    names = list(VARIANTS) if args.variants == "all" else [v.strip() for v in args.variants.split(",")]
+    if "reference" not in names:
+        names.insert(0, "reference")
+    pipes = {n: make_pipeline(n, cfg, args.min_range, args.max_range) for n in names}
+    walls = {d: simulated_pairs(cfg, f"wall:distance={d},reflectivity=0.9", args.frames, args.seed + i)
+             for i, d in enumerate((2, 3))}
+    timing_pair = walls[2][0]
+    rows = []
+    for name, pipe in pipes.items():
+        s2 = run_pipeline(pipe, walls[2])
+        s3 = run_pipeline(pipe, walls[3])
+        times = []
+        for _ in range(max(args.repeats, 1)):
+            t0 = time.thread_time()
+            pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)
+            times.append(time.thread_time() - t0)
+        sum2, sum3 = s2.summary(), s3.summary()
+        n2, n3 = sum2["columns_with_return"], sum3["columns_with_return"]
+        rows.append({
+            "variant": name,
+            "ms_per_pair": float(np.median(times) * 1e3),
+            "subpixel_rms_px": sum2["subpixel_rms_px"],
+            "range_err_pct_2m": s2.range_error_near(2.0)[1],
+            "range_err_pct_3m": s3.range_error_near(3.0)[1],
+            "valid_fraction": (sum2["valid_fraction"] * n2 + sum3["valid_fraction"] * n3) / (n2 + n3),
+            "resolution_deg": float(getattr(pipe, "resolution_deg", float("nan"))),
+        })
+    ref_ms = next(r["ms_per_pair"] for r in rows if r["variant"] == "reference")
+    for r in rows:
+        r["speedup_vs_reference"] = ref_ms / r["ms_per_pair"]
+    return rows
+
+
+def _plot(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for r in rows:
+        ax.scatter(r["ms_per_pair"], r["range_err_pct_2m"], color="tab:red" if r["variant"] == "reference" else "tab:blue")
+        ax.annotate(r["variant"], (r["ms_per_pair"], r["range_err_pct_2m"]), textcoords="offset points", xytext=(5, 4), fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("CPU time per frame pair (ms, one thread, log)")
+    ax.set_ylabel("range error at 2 m, 1 sigma (%)")
+    ax.set_title("LaserPi pipelines on simulated 90 % walls: speed against error")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..config import ConfigError
+
+    if args.frames < 1 or args.repeats < 1:
+        print("laserpi bench pipeline: --frames and --repeats must be >= 1")
+        return 2
+    try:
+        rows = measure(args)
+    except (ConfigError, ValueError) as exc:
+        print(f"laserpi bench pipeline: {exc}")
+        return 2
+    if args.png:
+        _plot(rows, args.png)
+    keys = ("variant", "ms_per_pair", "speedup_vs_reference", "subpixel_rms_px", "range_err_pct_2m",
+            "range_err_pct_3m", "valid_fraction", "resolution_deg")
+    if args.json:
+        print(json.dumps([{k: r[k] for k in keys} for r in rows], indent=2))
+        return 0
+    print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, OpenCV 1 thread")
+    print(f"{'variant':<18} {'ms/pair':>8} {'speed-up':>9} {'subpx RMS':>10} {'err 2m %':>9} {'err 3m %':>9} "
+          f"{'valid':>6} {'res deg':>8}")
+    for r in rows:
+        f = lambda v, s: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, s)
+        print(f"{r['variant']:<18} {f(r['ms_per_pair'], '8.2f')} {f(r['speedup_vs_reference'], '8.1f')}x "
+              f"{f(r['subpixel_rms_px'], '10.3f')} {f(r['range_err_pct_2m'], '9.2f')} {f(r['range_err_pct_3m'], '9.2f')} "
+              f"{f(r['valid_fraction'], '6.3f')} {f(r['resolution_deg'], '8.2f')}")
+    return 0
