@@ -1,6 +1,6 @@
 """The robot side of LaserPi: ``host_sdk.LaserPi('/dev/ttyUSB0').scans()``.
 
-Needs numpy, pyserial and cobs only (no OpenCV). See docs/on-your-robot.md.
+Needs numpy, pyserial and cobs only (no OpenCV). See the README section "On your robot".
 """
 
 from host_sdk.device import LaserPi

@@ -195,11 +195,15 @@ def test_picamera2_errors(fake_picamera2, mocker):
     pc.wait.side_effect = TimeoutError()
     with pytest.raises(CaptureTimeout):
         cam.capture(0.01)
+    timed_out_job = pc.capture_request.return_value
     pc.wait.side_effect = None
+    pc.capture_request.reset_mock()
     req = FakeRequest(np.zeros((10, 10), np.uint8), {})
     pc.wait.return_value = req
     with pytest.raises(CameraError, match="unexpected YUV420 buffer"):
         cam.capture()
+    pc.capture_request.assert_not_called()  # the timed-out job was waited on again, not leaked
+    assert pc.wait.call_args.args[0] is timed_out_job
     assert req.released  # the buffer goes back to the camera even on error
     with pytest.raises(ValueError):
         Picamera2Camera(exposure_us=60000, frame_duration_us=50000)

@@ -1,13 +1,12 @@
-"""The controller's LaserScheduler on the real firmware (simavr), and the simulator's MCU model
-against it: the same commands give the same pulse ticks."""
+"""The simulator's MCU model against the real firmware (simavr) driven through CoMcuTrain, the
+controller's LaserScheduler on device.comcu: the same commands give the same pulse ticks."""
 
 import numpy as np
 import pytest
 
-from device.comcu import CoMcu
+from device.comcu import CoMcu, CoMcuTrain
 from device.comcu_emulator import SteppedMcuPort, build_emulator
 from device.sim.mcu import McuConfig, SimulatedMcu
-from device.sync.comcu_scheduler import CoMcuScheduler
 
 MS = 2000
 
@@ -31,7 +30,7 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
     period, width, pattern = 100_000, 25_000, [True, False]
     with SteppedMcuPort(*emulator) as port:
         comcu = CoMcu(port)
-        sched = CoMcuScheduler(comcu)
+        sched = CoMcuTrain(comcu)
         first = comcu.ping().mcu_ticks + 60 * MS
         sched.schedule(first, period, width, pattern)
         _run(port, comcu, 0.13)  # lit pulse 0 (0-12.5 ms after first) is over, the next (at 100 ms) not begun
@@ -41,9 +40,9 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
         second = comcu.ping().mcu_ticks + 120 * MS
         sched.schedule(second, period, width, pattern)  # replaces the train: stopped first
         _run(port, comcu, 0.3)
-        fw = sched.edge_reports()
+        fw = [(e.rise_ticks, e.fall_ticks) for e in comcu.edges() if not e.flags]
     # the same commands on the simulated MCU, at the same MCU times (no drift, no latency)
-    sim = SimulatedMcu(McuConfig(drift_ppm=0.0, gpio_connected=False, cmd_latency_min_s=0.0, cmd_latency_max_s=0.0),
+    sim = SimulatedMcu(McuConfig(drift_ppm=0.0, gpio_connected=False, cmd_latency_min_s=1e-3, cmd_latency_max_s=1e-3),
                        np.random.default_rng(0))
     sim.now_s = first / 2e6 - 0.06
     sim.schedule(first, period, width, pattern)
@@ -54,19 +53,7 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
     fw_rise = [r for r, _ in fw][:len(sim.pulses.rise_tick)]
     assert len(fw_rise) >= 4
     assert fw_rise == sim.pulses.rise_tick[:len(fw_rise)]
-    assert fw_rise[2] == first + 2 * period + (-321 + 21) + 2 * (period + 50)
+    # trims sent ~70 ms after the first rise: slot 2 (lit, at 100 ms) is the first they reach
+    assert fw_rise[1] == first + 2 * period - 300 and fw_rise[2] == fw_rise[1] + 2 * (period + 50)
     assert all(f - r == width for r, f in fw)
     assert [r for r, _ in fw if r >= second][:2] == [second, second + 2 * period]
-
-
-def test_adapter_sends_the_period_change_and_refuses_a_trim_without_a_train(mocker):
-    comcu = mocker.Mock()
-    sched = CoMcuScheduler(comcu)
-    with pytest.raises(RuntimeError, match="trim before any schedule"):
-        sched.trim(1, 100)
-    sched.schedule(10_000, 100_000, 20_000, [True, False, False])
-    comcu.schedule.assert_called_once_with(10_000, 100_000, 20_000, mask=0b001, n=3, stream_edges=True)
-    sched.trim(5, 100_012)
-    comcu.trim.assert_called_once_with(5, 12)
-    with pytest.raises(ValueError, match="1 to 32"):
-        sched.schedule(0, 1, 1, [True] * 33)

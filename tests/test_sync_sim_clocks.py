@@ -83,18 +83,18 @@ def test_mcu_pulses_land_on_scheduled_ticks_with_drift():
     assert mcu.pulses.rise_s[0] == pytest.approx(0.05 / 1.0001, abs=1e-12)
 
 
-def test_mcu_trims_add_up_and_apply_when_the_next_lit_pulse_falls():
-    # as firmware_pwm/src/core.c: the pulse after the one in progress (or next) moves
-    mcu = _mcu(gpio_connected=False)
+def test_mcu_trims_move_the_next_slot_and_add_up():
+    # as firmware_pwm (README, TRIM): the first slot, lit or not, starting >= 100 us after arrival
+    mcu = _mcu(gpio_connected=False, cmd_latency_min_s=1e-3, cmd_latency_max_s=1e-3)
     mcu.schedule(100_000, 100_000, 20_000, [True, False])
-    mcu.advance_to(0.065)  # pulse 0 (slot 0, 50-60 ms) done
+    mcu.advance_to(0.065)  # lit slot 0 (50-60 ms) done; slot 1 (unlit) starts at 100 ms
     mcu.now_s = 0.065
     mcu.trim(7, 100_010)
-    mcu.trim(3, 100_010)  # reaches the MCU before the same fall: the phases add
+    mcu.trim(3, 100_020)  # waiting for the same slot: the phases add, the last period stays
     mcu.advance_to(0.6)
     rise = mcu.pulses.rise_tick
-    assert rise[1] == 300_000  # slot 2: lit pulse on the old timing; the trims apply at its fall
-    assert rise[2] == 300_000 + 10 + 2 * 100_010 and rise[3] == rise[2] + 2 * 100_010
+    assert rise[1] == 200_000 + 10 + 100_020  # slot 1 moved by 10, slot 2 one new period later
+    assert rise[2] == rise[1] + 2 * 100_020
 
 
 def test_mcu_refuses_out_of_envelope_and_past_requests():

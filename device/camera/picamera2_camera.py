@@ -49,6 +49,7 @@ class Picamera2Camera:
         self._camera_num, self._output, self._sensor, self._crop = camera_num, output_size, sensor_size, scaler_crop
         self._buffer_count = buffer_count
         self._cam = None
+        self._pending = None  # capture job still outstanding after a timeout
         self._seq = 0
         self._lock = threading.Lock()
 
@@ -89,6 +90,7 @@ class Picamera2Camera:
 
     def stop(self) -> None:
         cam, self._cam = self._cam, None
+        self._pending = None
         if cam is not None:
             try:
                 cam.stop()
@@ -113,11 +115,14 @@ class Picamera2Camera:
     def capture(self, timeout_s: float = 1.0) -> Frame:
         if self._cam is None:
             raise CameraError("camera not started: call start() first")
-        job = self._cam.capture_request(wait=False)
+        # a job that timed out is waited on again next time, so its request is not leaked
+        job = self._pending if self._pending is not None else self._cam.capture_request(wait=False)
         try:
             request = self._cam.wait(job, timeout=timeout_s)
         except TimeoutError:
+            self._pending = job
             raise CaptureTimeout(f"no frame from picamera2 within {timeout_s} s") from None
+        self._pending = None
         try:
             yuv = request.make_array("main")
             meta = request.get_metadata()

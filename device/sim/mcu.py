@@ -9,9 +9,9 @@ The link and the wire:
 
 - Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
   ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency).
-  Trims behave as the firmware's (firmware_pwm/src/core.c): pending trims add up, and they apply
-  when the lit pulse in progress (or the next one) falls: the following rise moves by the phase
-  and the period changes from there on.
+  Trims behave as the firmware's (firmware_pwm/README.md, TRIM): the first slot, lit or not,
+  that starts at least 100 us after the trim arrives moves by the phase and the slots after it
+  follow the new period; trims waiting together add up.
 - Every pulse is reported with its rising and falling tick; the report arrives after the falling
   edge plus a link latency.
 - The laser trigger is wired to a Pi GPIO whose edges the kernel timestamps in its interrupt
@@ -37,6 +37,7 @@ from typing import Sequence
 import numpy as np
 
 TICK_HZ = 16e6 / 8
+TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM moves the first slot starting at least 100 us after it arrives
 
 
 class ScheduleRefused(ValueError):
@@ -143,7 +144,8 @@ class SimulatedMcu:
         pattern = self._train["pattern"] if self._train else next(a[3] for _, k, a in reversed(self._pending) if k == "schedule")
         width = self._train["width"] if self._train else next(a[2] for _, k, a in reversed(self._pending) if k == "schedule")
         self._check_envelope(period_ticks, width, pattern)
-        self._pending.append((self._receipt(), "trim", (int(phase_ticks), int(period_ticks))))
+        # effective for the first slot starting TRIM_LEAD_S after it arrives (a slot in flight is never moved)
+        self._pending.append((self._receipt() + TRIM_LEAD_S, "trim", (int(phase_ticks), int(period_ticks))))
 
     def stop(self) -> None:
         self._pending.append((self._receipt(), "stop", ()))
@@ -190,23 +192,20 @@ class SimulatedMcu:
             if next_cmd <= next_slot:
                 self._apply(*self._pending.pop(0))
                 continue
-            start = tr["next"]
-            lit = tr["pattern"][tr["slot"] % len(tr["pattern"])]
-            if lit:
-                fall_s = self._emit(start, start + tr["width"])
-                while self._pending and self._pending[0][1] == "trim" and self._pending[0][0] <= fall_s:
-                    self._apply(*self._pending.pop(0))  # trims that arrive before this pulse ends
-            tr["slot"] += 1
-            if lit and tr["trim"] is not None:  # applied at the fall: the next rise moves, the period changes
+            if tr["trim"] is not None:  # this slot moves by the phase; the slots after it follow the new period
                 phase, tr["period"] = tr["trim"]
                 tr["trim"] = None
-                tr["next"] = start + phase + tr["period"]
-            else:
-                tr["next"] = start + tr["period"]
+                tr["next"] += phase
+                continue
+            start = tr["next"]
+            if tr["pattern"][tr["slot"] % len(tr["pattern"])]:
+                self._emit(start, start + tr["width"])
+            tr["slot"] += 1
+            tr["next"] = start + tr["period"]
         self._spurious(t)
         self._t = t
 
-    def _emit(self, rise: int, fall: int) -> float:
+    def _emit(self, rise: int, fall: int) -> None:
         c = self.cfg
         rs, fs = self.time_of_tick(rise), self.time_of_tick(fall)
         p = self.pulses
@@ -221,7 +220,6 @@ class SimulatedMcu:
                 if self._rng.random() < c.gpio_outlier_prob:
                     late += self._rng.uniform(100e-6, 2e-3)
                 self._gpio.append((int(round((ts + late) * 1e9)), rising))
-        return fs
 
     def _spurious(self, t: float) -> None:
         c = self.cfg

@@ -16,6 +16,8 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    height; the lens (f-number N, transmission T) gives image irradiance pi L / (4 N^2), and one
    pixel row covers z / f_y metres of the surface, so the column collects
    ``T pitch^2 rho P cos(i) f_y / (4 N^2 phi r z)`` watts, times QE * lambda / (h c) electrons/J.
+   Off-axis factors (cos^4 falloff, the pixel's footprint growing off axis and with the wall's
+   tilt to the ray, distortion's local scale) are left out; the anchoring absorbs their mean.
 3. *Line profile.* A Gaussian in the row direction of sigma^2 = blur^2 + (f_y h / 4 / z)^2
    (h = [laser] line_height_m as the 1/e^2 full height, plus lens defocus blur), integrated
    over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
@@ -24,7 +26,7 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    coherent cutoff (pupil radius pitch / (2 g lambda N) cycles per pixel, i.e. grains of about
    g lambda N at the image; g = 2.44 by default, the Airy diameter), intensity |.|^2, rescaled to
    the configured contrast (default 1: fully developed speckle of a rough wall). Seeded by the
-   renderer's seed: static while the scene is static, not redrawn per frame.
+   renderer's seed and the scene and pose: static while they are, not redrawn per frame.
 5. *Gloss.* A glossy flat surface (floor or wall, ``gloss`` > 0) mirrors the lit points: the
    camera sees their mirror images (virtual points) where the reflection point lies on the
    mirror, with ``gloss`` times the radiance: a ghost line. Occlusion of the mirrored path is
@@ -56,6 +58,7 @@ prints the table, BENCHMARKS.md "Simulator" has it with the photometric budget.
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -312,7 +315,10 @@ class SceneRenderer:
     def _speckle(self) -> np.ndarray:
         """Static (H, W) multiplicative speckle field, mean 1, std = contrast."""
         h, w = self.height, self.width
-        rng = np.random.default_rng([self.seed, 0x5BEC])
+        # the pattern belongs to this scene seen from this pose: another scene or laser plane
+        # (sensor moved) gives an independent pattern, the same ones give the same pattern
+        geometry_key = zlib.crc32(repr((self.scene, self.cfg.plane, self.cfg.camera)).encode())
+        rng = np.random.default_rng([self.seed, geometry_key, 0x5BEC])
         field = rng.standard_normal((h, w)) + 1j * rng.standard_normal((h, w))
         fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
         o = self.cfg.optics

@@ -49,6 +49,7 @@ from device.sync.placement import check_separation, roi_exposure_window
 log = logging.getLogger(__name__)
 
 THESIS_GAIN_PER_HZ = 7.0 / 30.0  # thesis 5.3.2: P = 7 at 30 Hz, i.e. 0.233 f
+TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM never moves a slot starting sooner than this after it arrives
 
 
 class LaserScheduler(Protocol):
@@ -57,10 +58,9 @@ class LaserScheduler(Protocol):
     - ``schedule``: replace the train (stopping a running one) from ``first_start_tick`` on: slot n starts at
       ``first_start_tick + n * period_ticks`` and is lit (for ``width_ticks``) if
       ``pattern[n % len(pattern)]``.
-    - ``trim``: as the firmware's TRIM (firmware_pwm/src/core.c), but with the new period given
-      absolute: trims add up until they apply, which is when the lit pulse in progress, or the
-      next one, falls; the next lit rise is then that pulse's rise + ``phase_ticks`` + k x
-      ``period_ticks`` (k slots later), and the period stays ``period_ticks``.
+    - ``trim``: as the firmware's TRIM (firmware_pwm/README.md) with the new period absolute: the
+      first slot, lit or not, starting at least ``TRIM_LEAD_S`` after the trim arrives moves by
+      ``phase_ticks``; the slots after it follow at ``period_ticks``; trims waiting together add up.
     - ``stop``: laser off, train cleared.
     Out-of-envelope or impossible requests raise an exception naming the reason.
     """
@@ -391,30 +391,22 @@ class SyncController:
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
 
     def _trim(self, frame: FrameInfo, est: ClockEstimate) -> None:
-        """Place the lit pulse after the next boundary the MCU will see (``LaserScheduler.trim``)."""
+        """Move the first slot the trim can still reach onto its frame's window (``LaserScheduler.trim``)."""
         cfg, tr = self.cfg, self.train
-        lat = cfg.cmd_latency_max_s * 1e9
-        lit = lambda slot: cfg.lit(tr.frame0 + slot)  # noqa: E731
-        fall = lambda slot: float(est.mcu_to_pi_ns(tr.start(slot) + tr.width))  # noqa: E731
-        boundary = max(frame.sequence - tr.frame0, 0)  # the lit pulse at whose fall the trim applies
-        while not lit(boundary) or fall(boundary) <= self._now_ns + lat:
-            boundary += 1
-        prev = boundary - 1
-        while prev >= 0 and not lit(prev):
-            prev -= 1
-        if prev >= 0 and fall(prev) > self._now_ns - 50e3:
-            return  # the command could arrive before or after the previous pulse ends: wait a frame
-        target = boundary + 1
-        while not lit(target):
-            target += 1
-        ws, _ = self._window_ns(tr.frame0 + target, frame)
+        reach = self._now_ns + (cfg.cmd_latency_max_s + TRIM_LEAD_S) * 1e9
+        slot = max(frame.sequence - tr.frame0 + 1, 0)
+        while est.mcu_to_pi_ns(tr.start(slot)) <= reach:
+            slot += 1
+        if slot - 1 >= 0 and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
+            return  # the trim could move this slot or the one before: wait a frame
+        ws, _ = self._window_ns(tr.frame0 + slot, frame)
         want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9)))
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
-        phase = want - (tr.start(boundary) + (target - boundary) * period)
+        phase = want - tr.start(slot)
         if phase == 0 and period == tr.period:
             return
-        self.mcu.trim(phase, period)
-        tr.ref_slot, tr.ref_tick, tr.period = target, want, period
+        self.mcu.trim(phase, period)  # trims waiting for the same slot add up, as the copy assumes
+        tr.ref_slot, tr.ref_tick, tr.period = slot, want, period
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
