@@ -20,43 +20,15 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Callable, Sequence
+from typing import Callable
 
 from device.camera.frame import Frame
-from device.comcu import CoMcu, CoMcuError, CoMcuNack
+from device.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTrain
 from device.process import LaserError
 from device.sync.control import FrameInfo, SyncConfig, SyncController, SyncState
 from protocol import mcu
 
 log = logging.getLogger(__name__)
-
-
-class ComcuScheduler:
-    """device.sync.control.LaserScheduler over a CoMcu: absolute period in, the firmware's
-    period delta out; every schedule streams its edge reports for the controller to verify."""
-
-    def __init__(self, comcu: CoMcu):
-        self.comcu = comcu
-        self.period_ticks: int | None = None
-
-    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> None:
-        """Replace the running train (the firmware refuses SCHEDULE while running: STOP first)."""
-        mask = sum(1 << i for i, lit in enumerate(pattern) if lit)
-        if self.period_ticks is not None:
-            self.comcu.stop()
-            self.period_ticks = None
-        self.comcu.schedule(first_start_tick, period_ticks, width_ticks, mask, len(pattern), stream_edges=True)
-        self.period_ticks = period_ticks
-
-    def trim(self, phase_ticks: int, period_ticks: int) -> None:
-        if self.period_ticks is None:
-            raise CoMcuError("trim without a schedule")
-        self.comcu.trim(phase_ticks, period_ticks - self.period_ticks)
-        self.period_ticks = period_ticks
-
-    def stop(self) -> None:
-        self.comcu.stop()
-        self.period_ticks = None
 
 
 class LockedComcu:
@@ -131,7 +103,7 @@ class SyncedLaser:
                     self.comcu = LockedComcu(self.open_comcu())
                     self._boots = len(self.comcu.boot_infos)
                 self.comcu.stop()  # whatever an earlier run left scheduled
-                controller = SyncController(self.sync, ComcuScheduler(self.comcu))
+                controller = SyncController(self.sync, CoMcuTrain(self.comcu))
                 for _ in range(self.pings_at_start):
                     self._ping(controller)
                 self.comcu.edges()  # drop reports of an older schedule
