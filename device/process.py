@@ -10,7 +10,7 @@ Composed of narrow interfaces so that the same orchestration runs on a Pi and in
 ``SensorSource`` joins them into the ScanSource the link server (device/link.py) streams from.
 It pairs each lit frame with its neighbouring unlit frame (frame differencing, ERRATA 10) into
 one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
-``status()`` and ``health()`` instead:
+``status()`` (HEALTH.errors, codes in ``ProcessError``) and ``LinkSupervisor.health()`` instead:
 
 * camera error or stall (no frame for ``stall_timeout_s``): laser off, error CAMERA_FAULT,
   camera restarted (counted), the laser re-synchronised on the first new frame;
@@ -20,7 +20,7 @@ one scan, and it never raises out of ``next_scan``: every failure degrades and i
   are not neighbours;
 * a pipeline exception: that scan is skipped and counted, the error is logged.
 
-``serve_link`` runs the link server over a port and opens it again when the host side fails
+``LinkSupervisor`` runs the link server over a port and opens it again when the host side fails
 (a USB gadget port that vanishes when the host is unplugged); host garbage and scans dropped on
 a slow link are counted by the link server and collected into ``ProcessHealth``.
 """
@@ -31,7 +31,7 @@ import enum
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Protocol
 
 import numpy as np
@@ -132,7 +132,6 @@ class ProcessHealth:
     host_garbage_bytes: int = 0  # host bytes that were not part of an intact frame
     host_bad_frames: int = 0  # CRC, decode and oversize errors from the host
     host_sessions: int = 0  # times the link was (re)opened
-    notes: list[str] = field(default_factory=list)
 
     def line(self) -> str:
         s = self.source
@@ -203,8 +202,6 @@ class SensorSource:
             except Exception as exc:  # a failed camera must not keep the laser or the process hostage
                 log.warning("camera stop failed: %s", exc)
             self._camera_ok = False
-
-    close = stop
 
     def status(self) -> SourceStatus:
         # Without the I/O lock: the host's HEALTH must not wait for a frame. Each field is read

@@ -99,7 +99,7 @@ def _stats_writer(path: str, sim_cpu):
         ru = resource.getrusage(resource.RUSAGE_SELF)
         doc = {"monotonic_s": time.monotonic(), "cpu_process_s": ru.ru_utime + ru.ru_stime,
                "cpu_sim_clock_s": sim_cpu() if sim_cpu else 0.0, "max_rss_kb": ru.ru_maxrss,
-               **{k: v for k, v in dataclasses.asdict(health).items() if k != "notes"}}
+               **dataclasses.asdict(health)}
         tmp = f"{path}.tmp"
         with open(tmp, "w") as f:
             json.dump(doc, f)
