@@ -60,7 +60,8 @@ class Camera(Protocol):
 
 class LaserError(RuntimeError):
     """The co-MCU cannot drive the laser now. ``reason``: "lost" (no answer), "reset" (it
-    restarted and forgot the schedule) or "refused" (it declined the schedule)."""
+    restarted and forgot the schedule), "fault" (it latched a fault and switched the laser off)
+    or "refused" (it declined the schedule)."""
 
     def __init__(self, reason: str, detail: str):
         super().__init__(f"co-MCU {reason}: {detail}")

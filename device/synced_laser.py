@@ -52,7 +52,7 @@ class LockedComcu:
 
 
 def _laser_error(exc: Exception) -> LaserError:
-    if isinstance(exc, CoMcuNack):
+    if isinstance(exc, (CoMcuNack, ValueError)):  # refused by the firmware or by the placement
         return LaserError("refused", str(exc))
     return LaserError("lost", f"{type(exc).__name__}: {exc}")
 
@@ -154,25 +154,24 @@ class SyncedLaser:
                 label = controller.on_frame(info, self.clock_ns())
                 if label.lit is None and controller.state is SyncState.LOCKED:
                     log.debug("frame %d not labelled while locked: %s", frame.seq, label.reason)
+            except CoMcuNack as exc:
+                raise self._refusal(exc) from exc
             except (CoMcuError, OSError, ValueError) as exc:
                 if isinstance(exc, OSError):
                     self._drop_link()
-                elif isinstance(exc, CoMcuNack):
-                    exc = CoMcuNack(exc.nack) if self._faults_of(exc) is None else self._faults_of(exc)
                 raise _laser_error(exc) from exc
         return label.lit
 
-    def _faults_of(self, exc: CoMcuNack) -> CoMcuError | None:
-        """A refusal because the co-MCU is in FAULT (not_running, busy): name its latched faults."""
-        if exc.reason not in ("not_running", "busy"):
-            return None
-        try:
-            status = self.comcu.status()
-        except (CoMcuError, OSError):
-            return None
-        if status.faults:
-            return CoMcuError(f"{exc}; the co-MCU latched faults {mcu.Fault(status.faults)!r}")
-        return None
+    def _refusal(self, exc: CoMcuNack) -> LaserError:
+        """A NACK; when it is because the co-MCU is in FAULT (not_running, busy), name its faults."""
+        if exc.reason in ("not_running", "busy"):
+            try:
+                faults = self.comcu.status().faults
+            except (CoMcuError, OSError):
+                faults = 0
+            if faults:
+                return LaserError("fault", f"{exc}; the co-MCU latched {mcu.Fault(faults)!r}")
+        return LaserError("refused", str(exc))
 
     # internals
     def _ping(self, controller: SyncController) -> None:
