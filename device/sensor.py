@@ -27,7 +27,6 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
@@ -216,6 +215,12 @@ class SimulatedHardware:
                 out.append((self._rise, end_ns))  # still on
             return out
 
+    def laser_on(self) -> bool:
+        """The laser pin's level now (simulated time)."""
+        with self._lock:
+            self._collect()
+            return self._rise is not None
+
     def gpio_edges(self) -> list[tuple[int, bool]]:
         with self._lock:
             self._collect()
@@ -346,14 +351,14 @@ def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.0
 class BuiltSensor:
     """What ``laserpi serve`` runs: the source, its power-on settings, the Class 1 laser limit it
     enforces, what to close at the end, and in simulation the fault injections {name: callable}
-    and the CPU seconds the simulated hardware's clock thread spent (simulation, not device)."""
+    and the simulated hardware."""
 
     source: SensorSource
     settings: m.ScanSettings
     laser_limit_mw: float
     closers: list
     faults: dict
-    sim_cpu_s: Callable[[], float] | None
+    hardware: SimulatedHardware | None = None
 
 
 def build_sensor(args) -> BuiltSensor:
@@ -392,7 +397,6 @@ def build_sensor(args) -> BuiltSensor:
         laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
-        sim_cpu = lambda: hw.clock_cpu_s  # noqa: E731
         faults = {"comcu-reset": hw.reset_mcu,
                   "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
     else:
@@ -417,7 +421,7 @@ def build_sensor(args) -> BuiltSensor:
 
         laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
         clock = time.monotonic
-        faults, sim_cpu = {}, None
+        faults, hw = {}, None
     geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
     source = SensorSource(camera, laser, scan, geometry, clock=clock)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
@@ -425,4 +429,4 @@ def build_sensor(args) -> BuiltSensor:
                               median_window=1, min_quality=0, laser_power_mw=power_mw)
     log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
              cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if args.simulate else "on a Pi")
-    return BuiltSensor(source, settings, limit, closers, faults, sim_cpu)
+    return BuiltSensor(source, settings, limit, closers, faults, hw)

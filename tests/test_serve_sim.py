@@ -138,3 +138,30 @@ def test_faults_on_the_full_stack_degrade_and_recover(sensor):
     assert int(counts["comcu_resets"]) + int(counts["comcu_lost"]) >= 1
     assert int(counts["camera_restarts"]) >= 1 and int(counts["host_garbage_bytes"]) >= 500
     assert int(counts["host_sessions"]) == 1  # the pty stayed: nothing to reopen
+
+
+def test_stop_leaves_the_laser_pin_low_on_the_real_firmware():
+    """In process: the simulated sensor scans, then stops; the firmware's laser pin stays low."""
+    import argparse
+
+    from device.sensor import build_sensor
+
+    args = argparse.Namespace(config=None, preset="thesis-calibrated", points=None, simulate=True, scene="wall",
+                              distance_m=2.0, seed=1, comcu=None)
+    built = build_sensor(args)
+    source, hw = built.source, built.hardware
+    try:
+        source.apply(built.settings)
+        source.start()
+        scans, end = 0, time.monotonic() + 30
+        while scans < 5 and time.monotonic() < end:
+            scans += source.next_scan(0.2) is not None
+        assert scans == 5 and source.status().laser_on
+        source.stop()
+        stopped = hw.now_ns()
+        assert hw.wait_until(stopped + 200_000_000, timeout_s=10)  # 200 ms of firmware time later
+        assert not hw.laser_on()
+        assert not [w for w in hw.windows(stopped + 1_000_000, hw.now_ns())]  # no pulse after the STOP
+    finally:
+        for close in built.closers:
+            close()

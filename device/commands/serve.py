@@ -87,7 +87,7 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
     return 0
 
 
-def _stats_writer(path: str, sim_cpu):
+def _stats_writer(path: str, hw):
     """on_health callback writing the health and the process's CPU time to ``path`` (JSON)."""
     import dataclasses
     import json
@@ -98,7 +98,7 @@ def _stats_writer(path: str, sim_cpu):
     def write(health) -> None:
         ru = resource.getrusage(resource.RUSAGE_SELF)
         doc = {"monotonic_s": time.monotonic(), "cpu_process_s": ru.ru_utime + ru.ru_stime,
-               "cpu_sim_clock_s": sim_cpu() if sim_cpu else 0.0, "max_rss_kb": ru.ru_maxrss,
+               "cpu_sim_clock_s": hw.clock_cpu_s if hw is not None else 0.0, "max_rss_kb": ru.ru_maxrss,
                **dataclasses.asdict(health)}
         tmp = f"{path}.tmp"
         with open(tmp, "w") as f:
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
 
     closers = []
     faults = {}
-    sim_cpu = None
+    hw = None
     try:
         if args.mock:
             if not args.simulate:
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
 
             built = build_sensor(args)
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
-            sim_cpu = built.sim_cpu_s
+            hw = built.hardware
             limit_mw = built.laser_limit_mw if args.laser_limit_mw is None else args.laser_limit_mw
         config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
     except (ValueError, OSError, RuntimeError) as exc:
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         for sig, name in ((signal.SIGUSR1, "comcu-reset"), (signal.SIGUSR2, "camera-stall")):
             if name in faults:
                 signal.signal(sig, _injector(name, faults[name]))
-        on_health = _stats_writer(args.stats_file, sim_cpu) if args.stats_file else None
+        on_health = _stats_writer(args.stats_file, hw) if args.stats_file else None
         return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud, on_health=on_health)
     finally:
         for close in reversed(closers):
