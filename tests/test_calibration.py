@@ -211,3 +211,26 @@ def test_a_fisheye_lens_gets_the_fisheye_model(truth):
     assert cmp["plane_normal_err_deg"] < 0.3
     # Brown-Conrady was tried and lost on held-out corners
     assert result.intrinsics.selection[-1]["model"] == "kannala-brandt"
+
+
+def test_extracted_line_matches_the_true_laser_segment(truth, twenty):
+    """The line pixels found on each board, intersected with the *true* board plane, lie on the
+    renderer's true laser segment: bias < 0.1 rows, scatter < 0.3 rows."""
+    from device.calibration.plane import line_points
+
+    result, shots = twenty
+    checked = 0
+    for ln in result.lines:
+        shot = shots[int(ln.name.split("_")[1])]
+        if len(ln.points) < 20:
+            continue
+        assert len(shot.laser_points) > 1, f"{ln.name}: line found on a board the laser does not cross"
+        on_true = line_points(ln.name, ln.pixels, truth.camera, shot.pose.rotation, shot.pose.translation)
+        a, b = shot.laser_points[0], shot.laser_points[-1]
+        u = (b - a) / np.linalg.norm(b - a)
+        rel = on_true.points - a
+        perp = rel - (rel @ u)[:, None] * u
+        rows = np.einsum("ij,ij->i", perp, on_true.row_steps) / np.einsum("ij,ij->i", on_true.row_steps, on_true.row_steps)
+        assert abs(np.median(rows)) < 0.1 and np.std(rows) < 0.3, (ln.name, np.median(rows), np.std(rows))
+        checked += 1
+    assert checked >= 8

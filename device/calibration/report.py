@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.camera import BrownConrady
-from .pipeline import CalibrationResult, triangulation_table
+from .pipeline import CalibrationResult, plane_table, triangulation_table
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -40,7 +40,10 @@ def report_dict(result: CalibrationResult) -> dict:
             "spread_ratio_s2_s1": fit.spread_ratio,
             "per_board_rms_mm": {n: 1000 * v for n, v in fit.per_board_rms_m.items()},
         },
-        "triangulation": triangulation_table(result),  # thesis Table 4.8
+        "triangulation": {  # thesis Table 4.8: the starting configuration against the calibrated one
+            "original": plane_table(result.base.plane, result.base.beta_rad),
+            "calibrated": triangulation_table(result),
+        },
     }
 
 
