@@ -26,9 +26,9 @@ def test_table_triangulation_matches_direct_backward_projection():
     assert ok.sum() > 500
     np.testing.assert_array_equal(tab.status, direct.status)
     rel = np.abs(tab.depth[ok] - direct.depth[ok]) / direct.depth[ok]
-    assert rel.max() < 2e-5  # bound of the linear ray interpolation (about 0.1 mm at 4 m)
+    assert rel.max() < 5e-5  # bound of the linear ray interpolation (0.2 mm at 4 m)
     iz, _ = g.inverse_depth(rows)
-    np.testing.assert_allclose(1 / iz[ok], direct.depth[ok], rtol=2e-5)
+    np.testing.assert_allclose(1 / iz[ok], direct.depth[ok], rtol=5e-5)
 
 
 def test_roi_holds_exactly_the_rows_of_the_range_limits():

@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-range", type=float, default=0.1,
                         help="fast pipeline depth limits: its region of interest (m, default 0.1)")
     parser.add_argument("--max-range", type=float, default=10.0, help="(m, default 10)")
-    parser.add_argument("--gain", type=float, default=None, help="simulated analog gain (default 4)")
+    parser.add_argument("--gain", type=float, default=None, help="simulated analogue gain (default: the simulator's, 8)")
     parser.add_argument("--exposure-us", type=float, default=None, help="simulated exposure (default 40000)")
     parser.add_argument("--no-lit-rows", action="store_true",
                         help="do not tell the pipeline which rows the pulse lit (as without synchronisation)")
@@ -39,14 +39,14 @@ def _config(args):
 
 
 def evaluate(args) -> list[dict]:
-    from ..vision.evaluation import ANALOG_GAIN, EXPOSURE_US, run_pipeline, simulated_pairs
+    from ..vision.evaluation import EXPOSURE_US, run_pipeline, simulated_pairs
     from ..vision.pipelines import VARIANTS, make_pipeline
 
     cfg = _config(args)
     names = list(VARIANTS) if args.pipeline == "all" else [n.strip() for n in args.pipeline.split(",") if n.strip()]
     pipes = [make_pipeline(n, cfg, args.min_range, args.max_range) for n in names]  # validates names first
     pairs = simulated_pairs(cfg, args.scene, args.frames, args.seed,
-                            exposure_us=args.exposure_us or EXPOSURE_US, analog_gain=args.gain or ANALOG_GAIN)
+                            exposure_us=args.exposure_us or EXPOSURE_US, analog_gain=args.gain)
     out = []
     for name, pipe in zip(names, pipes):
         score = run_pipeline(pipe, pairs, use_lit_rows=not args.no_lit_rows)

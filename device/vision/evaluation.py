@@ -28,15 +28,14 @@ class FramePair:
     lit_rows: np.ndarray  # (H,) rows the pulse lit in the lit frame
 
 
-#: Operating point of the simulated camera for evaluation: 40 ms exposure (the pulse of 17.4 ms
-#: fits in the 22.5 ms during which all rows expose), analog gain 4 (the weak far returns need it;
-#: the IMX219 allows 1..10.67).
+#: Operating point of the simulated camera: the simulator's anchored defaults (device/sim/render.py,
+#: "Anchoring"): 40 ms exposure (the 17.4 ms pulse fits in the 22.5 ms during which all rows
+#: expose) and analogue gain 8 (device.sim.sensor.SIMULATOR_DEFAULT).
 EXPOSURE_US = 40000.0
-ANALOG_GAIN = 4.0
 
 
 def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int = 0, options=None,
-                    exposure_us: float = EXPOSURE_US, analog_gain: float = ANALOG_GAIN,
+                    exposure_us: float = EXPOSURE_US, analog_gain: float | None = None,
                     pulse_us: float | None = None) -> list[FramePair]:
     """``count`` (lit, unlit) pairs of a simulated scene: the camera free-runs, the laser fires
     on every other frame (ERRATA 10), centred on the frame's common exposure window
@@ -46,7 +45,7 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
     from ..sim.pulses import frame_aligned_train
     from ..sim.render import RenderOptions
     from ..sim.scene import get_scene
-    from ..sim.sensor import SensorParams
+    from ..sim.sensor import SIMULATOR_DEFAULT, SensorParams
 
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
@@ -57,7 +56,7 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
     train = frame_aligned_train(start_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
     cam = SimulatedCamera(config, get_scene(scene_spec), train, exposure_us=exposure_us, frame_duration_us=frame_us,
                           start_ns=start_ns, seed=seed, options=options or RenderOptions(), line_time_ns=cam_line_ns,
-                          sensor=SensorParams(analog_gain=analog_gain))
+                          sensor=SIMULATOR_DEFAULT if analog_gain is None else SensorParams(analog_gain=analog_gain))
     cam.start()
     pairs = []
     for _ in range(count):

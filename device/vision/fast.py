@@ -7,7 +7,7 @@ Per frame pair:
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
    frame.
-2. Two candidate peaks per column: the maximum, and the maximum at least ``2 half_width + 1``
+2. Two candidate peaks per column: the maximum, and the maximum at least ``half_width + 1``
    rows away from it, both found through 16-row block maxima (contiguous reductions, much
    faster than a strided argmax over the whole band). Each is refined by the selected
    sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
@@ -15,15 +15,17 @@ Per frame pair:
    peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
    (a noise peak is alone; a line is not).
-4. Several peaks in a column (a glossy floor's mirror image, multipath): the candidate that more
-   neighbouring columns agree with wins; on a tie the one nearer the plane's horizon (the farther
-   range), because a mirror image in a floor below the laser plane, or a secondary reflection
-   off it, always appears farther from the horizon than the line that causes it. Never by
-   brightness alone.
+4. Several peaks in a column (a glossy floor's mirror image, multipath, an occlusion edge): by
+   consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
+   in a floor below the laser plane, or a secondary reflection off it, always appears farther
+   from the horizon than the line that causes it and runs alongside it; the nearer line of an
+   occlusion edge continues alone on its side. See :meth:`FastPipeline._choose`.
 5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
-   columns, only within a run of columns whose rows are continuous (no depth jump: adjacent
-   rows differ by less than the row step of a ``jump_rel`` depth change, at least 1 px), so no
-   point is ever pulled towards another surface. The effective angular resolution is the fit
+   columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
+   running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
+   change, at least 1 px, and their raw rows by less than ``jump_factor`` times that), so no
+   point is ever pulled towards another surface; a column far from its median is an outlier
+   (REJECTED, NaN). The effective angular resolution is the fit
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 7. Nearer than the region of interest: the rows on the near side of it are not searched for a
@@ -41,7 +43,7 @@ import numpy as np
 from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
-from .peaks import ESTIMATORS, refine_peaks
+from .peaks import ESTIMATORS, clamp, refine_peaks
 
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
@@ -54,13 +56,14 @@ DETECT_KERNEL = (5, 3)
 class FastParams:
     estimator: str = "com"
     half_width: int = 4  # centre-of-mass window (rows each side)
-    pedestal: float = 0.1  # centre-of-mass threshold, fraction of the peak
+    pedestal: float = 0.0  # centre-of-mass threshold, fraction of the peak (0: best under speckle)
     min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
     noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
     min_run: int = 5  # continuous columns for a detection to count
     smooth_half: int = 6  # local line fit over 2 smooth_half + 1 columns (0: off)
-    jump_rel: float = 0.05  # relative depth step that separates surfaces
+    jump_rel: float = 0.08  # relative depth step that separates surfaces (on the running median)
+    jump_factor: float = 3.0  # adjacent raw rows may differ by this x the jump step (speckle)
     support_half: int = 4  # neighbour columns consulted to pick among candidates
 
     def __post_init__(self) -> None:
@@ -197,7 +200,7 @@ class FastPipeline:
     def _local_max(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
         """Move each row k to the largest of d[k-1], d[k], d[k+1] (the smoothed peak can sit a
         row off the unsmoothed one)."""
-        r = np.clip(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
+        r = clamp(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
         return r[np.argmax(d[r, self.cols], axis=0), self.cols]
 
     def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -219,25 +222,40 @@ class FastPipeline:
         return k1, k2
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
-        """Where to take the second candidate: by neighbour support, then geometry."""
+        """Where to take the second candidate, for columns with two detected lines.
+
+        ``support``: neighbour columns (+-support_half) with a candidate that agrees with it;
+        ``alone``: those of them whose only detection agrees with it. A mirror image (glossy
+        floor) runs alongside the line that causes it, so it is rarely alone; the nearer line of
+        an occlusion edge (two real surfaces overlapping over a few columns) continues alone on
+        its side. So: the nearer candidate wins when it is alone in at least half the
+        neighbours (a real edge: the nearer surface is the one that matters), else the farther
+        one (nearer the horizon) unless it is backed less than half as well as the other.
+        """
         h = self.params.support_half
         W = r1.size
         pick2 = det2 & ~det1
         idx = np.nonzero(det1 & det2)[0]
         if idx.size:
             cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
+            single = det1 != det2
             own = cand[:, idx]  # (2, n)
-            support = np.zeros(own.shape)
-            for o in range(-h, h + 1):
-                j = idx + o
-                if o == 0:
-                    continue
-                nb = np.where(((j >= 0) & (j < W))[None, :], cand[:, np.clip(j, 0, W - 1)], np.nan)  # (2, n)
-                with np.errstate(invalid="ignore"):
-                    support += (np.abs(own[:, None, :] - nb[None, :, :]) <= 1.0 + 0.5 * abs(o)).any(axis=1)
-            # the candidate nearer the horizon is the farther range: smaller inverse depth
+            offs = np.array([o for o in range(-h, h + 1) if o != 0])
+            j = idx[None, :] + offs[:, None]  # (2h, n) neighbour columns
+            inside = (j >= 0) & (j < W)
+            jc = clamp(j, 0, W - 1)
+            nb = np.where(inside[None], cand[:, jc], np.nan)  # (2, 2h, n)
+            tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
+            with np.errstate(invalid="ignore"):
+                agree = (np.abs(own[:, None, None, :] - nb[None]) <= tol).any(axis=1)  # (2, 2h, n)
+            support = agree.sum(axis=1)
+            alone = (agree & (inside & single[jc])[None]).sum(axis=1)
+            # which candidate is farther: smaller inverse depth (nearer the horizon)
             iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
-            pick2[idx] = (support[1] > support[0]) | ((support[1] == support[0]) & (iz[1] < iz[0]))
+            far2 = iz[1] < iz[0]
+            near_alone = np.where(far2, alone[0], alone[1]) >= h
+            take_far = np.where(far2, 2 * support[1] >= support[0], 2 * support[0] >= support[1])
+            pick2[idx] = np.where(near_alone, ~far2, np.where(take_far, far2, ~far2))
         return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -258,7 +276,7 @@ class FastPipeline:
         lim = np.minimum(step[1:], step[:-1])
         with np.errstate(invalid="ignore"):
             outlier = found & ~(np.abs(row - med) <= step)
-            near = (np.abs(np.diff(row)) <= lim) | outlier[1:] | outlier[:-1]
+            near = (np.abs(np.diff(row)) <= p.jump_factor * lim) | outlier[1:] | outlier[:-1]
             cont = found[1:] & found[:-1] & (np.abs(np.diff(med)) <= lim) & near
         start = np.concatenate([[True], ~cont])
         label = np.cumsum(start) - 1
@@ -276,7 +294,7 @@ class FastPipeline:
         ok = status == ColumnStatus.OK
         r = np.where(ok, np.rint(row), 0).astype(np.intp)
         w = self.params.half_width
-        near_dark = dark[np.clip(r + w + 1, 0, H)] - dark[np.clip(r - w, 0, H)] > 0
+        near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[ok & near_dark] = ColumnStatus.UNLIT
         return status
 

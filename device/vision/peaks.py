@@ -57,6 +57,11 @@ class ColumnPeaks:
     spread: np.ndarray
 
 
+def clamp(x, lo, hi):
+    """np.clip without its per-call overhead (tens of microseconds on small arrays)."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 def _limits(value, default: int, width: int, height: int, name: str) -> np.ndarray:
     if value is None:
         return np.full(width, default, dtype=np.intp)
@@ -65,7 +70,7 @@ def _limits(value, default: int, width: int, height: int, name: str) -> np.ndarr
         arr = np.full(width, int(arr), dtype=np.intp)
     if arr.shape != (width,):
         raise ValueError(f"{name} must be a scalar or shape ({width},), got {arr.shape}")
-    return np.clip(arr.astype(np.intp), 0, height)
+    return clamp(arr.astype(np.intp), 0, height)
 
 
 def subpixel_offset(fm: np.ndarray, f0: np.ndarray, fp: np.ndarray, estimator: str) -> tuple[np.ndarray, np.ndarray]:
@@ -165,12 +170,12 @@ def refine_peaks(
     cols = np.arange(width)
     empty = (hi <= lo) | (k < lo) | (k >= hi)
     k = np.where(empty, -1, k)
-    f0 = np.where(empty, np.nan, img[np.clip(k, 0, height - 1), cols].astype(np.float64) - bg)
+    f0 = np.where(empty, np.nan, img[clamp(k, 0, height - 1), cols].astype(np.float64) - bg)
 
     def sample(offset: int) -> tuple[np.ndarray, np.ndarray]:
         r = k + offset
         inside = (r >= lo) & (r < hi) & ~empty
-        vals = img[np.clip(r, 0, height - 1), cols].astype(np.float64) - bg
+        vals = img[clamp(r, 0, height - 1), cols].astype(np.float64) - bg
         return np.where(inside, vals, np.nan), inside
 
     fp1, in_p1 = sample(1)
@@ -204,7 +209,7 @@ def _window(img, k, lo, hi, cols, half: int):
     offs = np.arange(-half, half + 1)[:, None]
     r = k[None, :] + offs
     inside = (r >= lo[None, :]) & (r < hi[None, :])
-    vals = img[np.clip(r, 0, img.shape[0] - 1), cols[None, :]].astype(np.float64)
+    vals = img[clamp(r, 0, img.shape[0] - 1), cols[None, :]].astype(np.float64)
     return offs, vals, inside
 
 
@@ -212,7 +217,7 @@ def _centre_of_mass(img, k, f0, bg, lo, hi, half, pedestal):
     cols = np.arange(img.shape[1])
     offs, vals, inside = _window(img, k, lo, hi, cols, half)
     t = bg + pedestal * f0
-    w = np.where(inside, np.clip(vals - t, 0.0, None), 0.0)
+    w = np.where(inside, np.maximum(vals - t, 0.0), 0.0)
     s = w.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         delta = (w * offs).sum(axis=0) / s
@@ -223,7 +228,7 @@ def _centre_of_mass(img, k, f0, bg, lo, hi, half, pedestal):
 def _cut_with_weight(img, cols, centre, span, lo, hi, threshold):
     """The window centre +- span is cut by the interval/image edge while the last sample inside
     is still above the threshold: the line continues past the edge, its centre is unmeasurable."""
-    top, bottom = np.clip(lo, 0, img.shape[0] - 1), np.clip(hi - 1, 0, img.shape[0] - 1)
+    top, bottom = clamp(lo, 0, img.shape[0] - 1), clamp(hi - 1, 0, img.shape[0] - 1)
     cut_top = (centre - span < lo) & (img[top, cols] > threshold)
     cut_bottom = (centre + span >= hi) & (img[bottom, cols] > threshold)
     return cut_top | cut_bottom
@@ -262,9 +267,9 @@ def _plateau_centre(img, k, f0, bg, lo, hi, cols, half, pedestal):
     offs = np.arange(-int(span.max()), int(span.max()) + 1)[:, None]
     r = mid[None, :] + offs
     inside = (r >= lo[None, :]) & (r < hi[None, :]) & (np.abs(offs) <= span[None, :])
-    vals = img[np.clip(r, 0, height - 1), cols[None, :]].astype(np.float64)
+    vals = img[clamp(r, 0, height - 1), cols[None, :]].astype(np.float64)
     t = bg + pedestal * f0
-    w = np.where(inside, np.clip(vals - t[None, :], 0.0, None), 0.0)
+    w = np.where(inside, np.maximum(vals - t[None, :], 0.0), 0.0)
     s = w.sum(axis=0)
     ok = (s > 0) & ~_cut_with_weight(img, cols, mid, span, lo, hi, t)
     with np.errstate(invalid="ignore", divide="ignore"):
