@@ -378,8 +378,8 @@ def build_sensor(args) -> BuiltSensor:
     # the train for guard changes of tens of microseconds (each new train costs the frames before
     # it, i.e. a scan). Exposure + ROI span + 2 x 1.3 x the 2 ms guard ceiling = 17.3 ms stays
     # inside the firmware's 17.4 ms pulse envelope.
-    sync = SyncConfig(row_min, row_max, FRAME_DURATION_S, link_min_rtt_s=2 * 16 * 10 / COMCU_BAUDRATE,
-                      cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
+    # (SyncConfig's PING/PONG minimum line times default to device.comcu's 250000 baud.)
+    sync = SyncConfig(row_min, row_max, FRAME_DURATION_S, cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
     pulse_s = EXPOSURE_US * 1e-6 + (row_max - row_min) * 18904e-9
     limit = laser_limit_mw(cfg, max(pulse_s, cfg.laser.pulse_s))
     closers = []

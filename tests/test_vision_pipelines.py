@@ -230,3 +230,18 @@ def test_reference_thresholds_drop_a_weak_line_the_fast_pipeline_keeps(pipes):
     lit, unlit = frame_pair(CFG, rows, amplitude=120.0, sigma=1.2, noise=0.3, seed=31)
     ref.reset()
     assert ref.process(lit, unlit).valid.mean() > 0.95
+
+
+def test_small_gaps_in_a_surface_are_filled_large_ones_are_not(wall2m, pipes):
+    rows, rng = wall2m
+    holed = rows.copy()
+    holed[600:602] = np.nan  # a dark speckle grain: two columns without the line
+    holed[1000:1012] = np.nan  # a 12-column hole (a black object, a doorway)
+    lit, unlit = frame_pair(CFG, holed, speckle=0.2, seed=40)
+    m = pipes["fast-com"].process(lit, unlit)
+    assert np.all(m.valid[600:602]) and np.all(m.quality[600:602] == 0)
+    np.testing.assert_allclose(m.range[600:602], rng[600:602], rtol=0.01)
+    assert np.all(np.isposinf(m.range[1003:1009]))  # no return where there is none
+    assert not np.isfinite(m.range[1000:1012]).any()  # hole edges: NaN (line only in the neighbours)
+    raw = pipes["fast-com-raw"].process(lit, unlit)
+    assert not raw.valid[600:602].any()  # without the line fit nothing is filled

@@ -55,12 +55,12 @@ def _json_default(o):
     raise TypeError(type(o).__name__)
 
 
-def _clean(o):
+def json_safe(o):
     """NaN/inf are not JSON: write them as null."""
     if isinstance(o, dict):
-        return {k: _clean(v) for k, v in o.items()}
+        return {k: json_safe(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
+        return [json_safe(v) for v in o]
     if isinstance(o, float) and not math.isfinite(o):
         return None
     return o
@@ -74,7 +74,7 @@ def write_report(result: CalibrationResult, folder: str | Path, extra: dict | No
     if extra:
         doc.update(extra)
     path = folder / "report.json"
-    path.write_text(json.dumps(_clean(json.loads(json.dumps(doc, default=_json_default))), indent=2))
+    path.write_text(json.dumps(json_safe(json.loads(json.dumps(doc, default=_json_default))), indent=2))
     _plots(result, folder, postcal_curve)
     return path
 

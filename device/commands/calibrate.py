@@ -100,7 +100,7 @@ def _postcal(result, sweep):
 def _finish(result, out: str | None, report: str | None, as_json: bool, comparison: dict | None = None, sweep=None, spec=None, bootstrap: int = 0) -> int:
     """Attach the post-calibration, write config and report, print the summary (with --json: the
     true-vs-estimated comparison when simulating, else the summary)."""
-    from ..calibration.report import _clean, write_report
+    from ..calibration.report import json_safe, write_report
     from ..config import save_config
 
     curve, extra = None, dict(comparison or {})
@@ -120,7 +120,7 @@ def _finish(result, out: str | None, report: str | None, as_json: bool, comparis
         folder = report or str(Path(out).with_suffix("")) + "_report"
         write_report(result, folder, extra, curve)
     if as_json:
-        print(json.dumps(_clean(extra if comparison is not None else summary)))
+        print(json.dumps(json_safe(extra if comparison is not None else summary)))
         return 0
     for key, v in summary.items():
         print(f"{key:>24}: {v:.6g}" if isinstance(v, float) else f"{key:>24}: {v}")

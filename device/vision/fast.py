@@ -24,8 +24,10 @@ Per frame pair:
    columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
    running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
    change, at least 1 px, and their raw rows by less than ``jump_factor`` times that), so no
-   point is ever pulled towards another surface; a column far from its median is an outlier
-   (REJECTED, NaN). The effective angular resolution is the fit
+   point is ever pulled towards another surface. A column far from its median (an outlier) is
+   left out of the fit and reports the fit; gaps of up to ``max_gap`` columns without a
+   measurement inside a run (dark speckle grains) are filled between their neighbours (quality
+   0). A line seen but not measurable is REJECTED (NaN), never "no return". The effective angular resolution is the fit
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 7. Nearer than the region of interest: the rows on the near side of it are not searched for a
@@ -65,6 +67,7 @@ class FastParams:
     jump_rel: float = 0.08  # relative depth step that separates surfaces (on the running median)
     jump_factor: float = 3.0  # adjacent raw rows may differ by this x the jump step (speckle)
     support_half: int = 4  # neighbour columns consulted to pick among candidates
+    max_gap: int = 3  # columns without a measurement filled inside a continuous run (line fit on)
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -172,13 +175,20 @@ class FastPipeline:
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
         segment = np.where(found, segment, -1)
-        if p.smooth_half:
-            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
-        status[(found & outlier) | failed] = ColumnStatus.REJECTED
-        # wide profiles with nothing else found: a line was there but could not be measured
-        wide = ~found & (s1 >= thr) & ~(c1.spread <= p.max_spread_px)
-        status[wide] = ColumnStatus.REJECTED
+        # a line seen by the smoothed detector but not measurable in the column (too wide, a
+        # failed estimate, only in the neighbours): invalid, never "no return"
+        status[~found & ((s1 >= thr) | failed)] = ColumnStatus.REJECTED
+        if p.smooth_half:
+            # outliers take the line fit of their run (the fit is what every column reports)
+            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
+            row, filled = _fill_gaps(row, found, p.max_gap, status != ColumnStatus.NO_RETURN)
+            status[filled] = ColumnStatus.OK
+            peak = np.where(filled, 0.0, peak)
+            found |= filled
+        else:
+            status[found & outlier] = ColumnStatus.REJECTED
+            found &= ~outlier
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         if self.near_bottom > self.near_top:
@@ -297,6 +307,27 @@ class FastPipeline:
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[ok & near_dark] = ColumnStatus.UNLIT
         return status
+
+
+def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fill runs of at most ``max_gap`` columns without a measurement (a dark speckle grain)
+    between two measured columns of the same surface: linear in the row between them. Only
+    where the two ends agree (|row difference| <= 1 + 0.5 x their distance in columns) and, for
+    gaps where no line was seen at all (``seen`` False everywhere), only single columns.
+    Returns the new rows and the mask of filled columns."""
+    W = row.size
+    idx = np.arange(W)
+    left = np.maximum.accumulate(np.where(found, idx, -1))
+    right = np.minimum.accumulate(np.where(found, idx, W)[::-1])[::-1]
+    span = right - left
+    ok = ~found & (left >= 0) & (right < W) & (span - 1 <= max_gap)
+    li, ri = clamp(left, 0, W - 1), clamp(right, 0, W - 1)
+    rl, rr = row[li], row[ri]
+    with np.errstate(invalid="ignore"):
+        ok &= np.abs(rr - rl) <= 1.0 + 0.5 * span
+    ok &= seen | (span == 2)
+    t = np.where(ok, (idx - left) / np.maximum(span, 1), 0.0)
+    return np.where(ok, rl + (rr - rl) * t, row), ok
 
 
 def _running_median(x: np.ndarray, half: int) -> np.ndarray:

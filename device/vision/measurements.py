@@ -53,7 +53,8 @@ class ColumnMeasurements:
     ``column``: image column (int). ``row``: sub-pixel image row of the line, NaN where none.
     ``angle``: scan angle (rad, REP 103, in the scan frame of device.model.scan_frame).
     ``range``: scan range (m), REP 117: NaN invalid, +inf no return/too far, -inf too close.
-    ``quality``: line amplitude in the difference image (8-bit levels), 0 where no line.
+    ``quality``: line amplitude in the difference image (8-bit levels), 0 where no line and
+    where a column was filled from its neighbours (fast pipeline, small gaps inside a surface).
     ``points``: (N, 3) camera-frame point (m), NaN unless OK. ``status``: :class:`ColumnStatus`.
     """
 
