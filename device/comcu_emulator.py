@@ -30,14 +30,24 @@ class EmulatorError(RuntimeError):
     """The harness could not be built or stopped answering."""
 
 
-def build_emulator() -> tuple[Path, Path]:
-    """Builds the firmware ELF and the simavr harness (make -C firmware_pwm all harness)."""
-    proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE_DIR), "all", "harness"],
+def build_emulator(build_dir: str = "build", **envelope: int) -> tuple[Path, Path]:
+    """Builds the firmware ELF and the simavr harness (make -C firmware_pwm all harness).
+
+    Without arguments: the production ELF (the Makefile's envelope) in firmware_pwm/build.  Tests
+    that need another envelope name a separate ``build_dir`` (relative to firmware_pwm) and the
+    Makefile variables to override, e.g. ``build_emulator("build/test-envelope",
+    MIN_PERIOD_TICKS=600)``, so that the production ELF is never built with them.
+    """
+    if envelope and build_dir == "build":
+        raise ValueError(f"an envelope override {envelope} needs its own build_dir, not the production build")
+    args = [f"BUILD={build_dir}"] + [f"{name}={int(value)}" for name, value in envelope.items()]
+    proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE_DIR), *args, "all", "harness"],
                           capture_output=True, text=True, timeout=300)
     if proc.returncode != 0:
         raise EmulatorError("cannot build the firmware emulator (needs gcc-avr, avr-libc, simavr and "
                             "libsimavr-dev: run `make bootstrap`):\n" + proc.stdout + proc.stderr)
-    return HARNESS, ELF
+    out = FIRMWARE_DIR / build_dir
+    return out / "laserpi_harness", out / "laserpi_pwm.elf"
 
 
 class SteppedMcuPort:

@@ -37,6 +37,7 @@ class NackReason(enum.IntEnum):
     BAD_PATTERN = 8      # n outside 1..32, no lit frame, or mask bits at or above n
     BAD_VALUE = 9        # width below 100 us (detail = minimum ticks) or a trimmed period too short
     NOT_RUNNING = 10     # TRIM without a running schedule
+    ENVELOPE_RATE = 11   # pulses closer than the firmware's MIN_PERIOD_TICKS (rise to rise or fall to fall); detail = it
 
 
 class McuState(enum.IntEnum):
@@ -50,6 +51,7 @@ class Fault(enum.IntFlag):
     WIDTH = 0x02         # run-time guard saw a pulse longer than the envelope
     DUTY = 0x04          # run-time guard refused a pulse that would break the duty envelope
     LATE = 0x08          # a rise could not be armed in time
+    RATE = 0x10          # run-time guard refused a pulse closer than the envelope's minimum period
 
 
 class EdgeFlag(enum.IntFlag):
@@ -209,13 +211,14 @@ class Info(_Message):
     """Sent unsolicited at boot (seq 0) and on InfoRequest: the compiled-in envelope."""
 
     MSG_TYPE: ClassVar[int] = 0x65
-    FORMAT: ClassVar[struct.Struct] = struct.Struct("<BBHIII")
+    FORMAT: ClassVar[struct.Struct] = struct.Struct("<BBHIIII")
     firmware_version: int
     reset_cause: int
     heartbeat_timeout_ms: int
     max_pulse_ticks: int
     max_duty_ppm: int
     ticks_per_second: int
+    min_period_ticks: int   # shortest rise-to-rise (and fall-to-fall) interval of two pulses
 
 
 MESSAGES: dict[int, type[_Message]] = {

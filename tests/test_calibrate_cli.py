@@ -35,6 +35,9 @@ def test_run_writes_config_and_report(tmp_path, capture, capsys):
     assert summary["views"] == 9 and summary["theta_deg"] > 0
     report = json.loads((tmp_path / "sensor_report" / "report.json").read_text())
     assert set(report) >= {"camera", "views", "laser_plane", "triangulation"}
+    assert report["triangulation"]["calibrated"]["theta_deg"] == pytest.approx(summary["theta_deg"])
+    assert report["triangulation"]["original"]["s_m"] > 0
+    assert all(v["used"] == (v["reason"] is None) for v in report["views"].values())
     for png in ("reprojection.png", "plane_residuals.png", "coverage.png"):
         assert (tmp_path / "sensor_report" / png).stat().st_size > 1000
 
@@ -92,8 +95,9 @@ def test_capture_keeps_still_new_poses_only(capture):
             seq += 2
     cam = FakeCamera(frames, truth.width, truth.height)
     seen = []
-    kept = capture_poses(cam, 5, BoardSpec().pattern_size, on_progress=seen.append)
-    assert len(kept) == 2 and cam.started and cam.stopped
+    saved = []
+    kept = capture_poses(cam, 5, BoardSpec().pattern_size, on_progress=seen.append, on_pose=saved.append)
+    assert len(kept) == 2 and cam.started and cam.stopped and saved == kept
     assert np.array_equal(kept[0].unlit, poses[0].unlit) and np.array_equal(kept[1].lit, poses[2].lit)
     text = render_progress(seen[-1])
     assert text.startswith("[##...] 2/5") and "|" in text

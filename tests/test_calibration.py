@@ -211,3 +211,57 @@ def test_a_fisheye_lens_gets_the_fisheye_model(truth):
     assert cmp["plane_normal_err_deg"] < 0.3
     # Brown-Conrady was tried and lost on held-out corners
     assert result.intrinsics.selection[-1]["model"] == "kannala-brandt"
+
+
+def test_extracted_line_matches_the_true_laser_segment(truth, twenty):
+    """The line pixels found on each board, intersected with the *true* board plane, lie on the
+    renderer's true laser segment: bias < 0.1 rows, scatter < 0.3 rows."""
+    from device.calibration.plane import line_points
+
+    result, shots = twenty
+    checked = 0
+    for ln in result.lines:
+        shot = shots[int(ln.name.split("_")[1])]
+        if len(ln.points) < 20:
+            continue
+        assert len(shot.laser_points) > 1, f"{ln.name}: line found on a board the laser does not cross"
+        on_true = line_points(ln.name, ln.pixels, truth.camera, shot.pose.rotation, shot.pose.translation)
+        a, b = shot.laser_points[0], shot.laser_points[-1]
+        u = (b - a) / np.linalg.norm(b - a)
+        rel = on_true.points - a
+        perp = rel - (rel @ u)[:, None] * u
+        rows = np.einsum("ij,ij->i", perp, on_true.row_steps) / np.einsum("ij,ij->i", on_true.row_steps, on_true.row_steps)
+        assert abs(np.median(rows)) < 0.1 and np.std(rows) < 0.3, (ln.name, np.median(rows), np.std(rows))
+        checked += 1
+    assert checked >= 8
+
+
+def test_poses_are_deterministic_by_seed_and_cover_the_frame(truth):
+    from device.model.camera import project_points
+
+    cam, w, h = truth.camera, truth.width, truth.height
+    a = generate_poses(cam, w, h, truth.plane, 12, seed=5)
+    b = generate_poses(cam, w, h, truth.plane, 12, seed=5)
+    c = generate_poses(cam, w, h, truth.plane, 12, seed=6)
+    assert all(np.array_equal(p.translation, q.translation) and np.array_equal(p.rotation, q.rotation) for p, q in zip(a, b))
+    assert not np.allclose(a[0].translation, c[0].translation)
+    depths = [p.translation[2] for p in a]
+    assert min(depths) < 0.5 and max(depths) > 1.0
+    centres = np.array([project_points(p.to_camera(BoardSpec().outline().mean(0)), cam) for p in a])
+    assert centres[:, 0].min() < w / 3 and centres[:, 0].max() > 2 * w / 3 and centres[:, 1].max() > h / 2
+
+
+def test_detected_corners_match_the_rendered_truth(truth, twenty):
+    """Anti-aliased rendering and sub-pixel detection agree with the true projection."""
+    from device.model.camera import project_points
+
+    result, shots = twenty
+    errs = []
+    for det in result.detections:
+        if det.corners is not None:
+            shot = shots[int(det.name.split("_")[1])]
+            true_px = project_points(shot.pose.to_camera(BoardSpec().object_points()), truth.camera)
+            errs.append(np.linalg.norm(det.corners - true_px, axis=1))
+    errs = np.concatenate(errs)
+    assert len(errs) >= 15 * 54
+    assert np.sqrt(np.mean(errs**2)) < 0.15 and errs.max() < 0.6

@@ -52,7 +52,7 @@ def test_nack_raises_with_the_reason_and_detail():
 
 def test_edges_boot_info_and_stale_or_damaged_frames_are_kept_apart():
     edge = mcu.Edge(4, 1000, 1200, 0)
-    boot = mcu.Info(1, 0x08, 50, 34_800, 200_000, 2_000_000)
+    boot = mcu.Info(2, 0x08, 50, 34_800, 200_000, 2_000_000, 180_000)
 
     def respond(f):
         damaged = bytearray(mcu.encode_message(mcu.Ack(0x45, 1), f.seq))

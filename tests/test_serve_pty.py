@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def start_serve(link: Path, *extra: str) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-m", "device.cli", "serve", "--simulate", "--scene", "wall",
+    proc = subprocess.Popen([sys.executable, "-m", "device.cli", "serve", "--simulate", "--mock",
                              "--distance-m", "2.0", "--link", str(link), "--points", "300", *extra],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 10

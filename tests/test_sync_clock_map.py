@@ -71,25 +71,35 @@ def test_gpio_map_removes_impossible_early_pairs():
     assert abs(float(est.mcu_to_pi_ns(ticks[-1])) - truth(ticks[-1])) < 3e3
 
 
-def test_ping_map_is_a_lower_accuracy_fallback():
+def test_ping_map_is_a_lower_accuracy_fallback_and_its_bounds_hold():
     rng = np.random.default_rng(4)
-    leg_min = 16 * 10 / 115200
-    m = PingClockMap(TICK_HZ, link_min_rtt_s=2 * leg_min)
+    up_min, down_min = 0.56e-3, 1.16e-3  # PING and PONG differ in length: the midpoint would be biased
     drift = 80e-6
+    maps = {"known minima": PingClockMap(TICK_HZ, up_min, down_min), "unknown": PingClockMap(TICK_HZ)}
     for k in range(256):
         t1 = 1.0 + 0.05 * k
-        up = leg_min + rng.uniform(0, 1e-3)
-        down = leg_min + rng.uniform(0, 1e-3)
+        up = up_min + rng.uniform(0, 1e-3)
+        down = down_min + rng.uniform(0, 1e-3)
         tick = int((t1 + up) * TICK_HZ * (1 + drift))
-        m.add(int(t1 * 1e9), tick, int((t1 + up + down) * 1e9))
-    est = m.estimate()
+        for m in maps.values():
+            m.add(int(t1 * 1e9), tick, int((t1 + up + down) * 1e9))
     probe = int(15.0 * TICK_HZ * (1 + drift))
-    err = float(est.mcu_to_pi_ns(probe)) * 1e-9 - 15.0
-    sigma = float(est.sigma_s(probe))
-    assert abs(err) < 4 * sigma
-    assert 1e-6 < sigma < 200e-6  # microseconds to a hundred, not the few of the GPIO map
+    for name, m in maps.items():
+        est = m.estimate()
+        err = float(est.mcu_to_pi_ns(probe)) * 1e-9 - 15.0
+        sigma = float(est.sigma_s(probe))
+        assert abs(err) < 4 * sigma, name
+    assert float(maps["known minima"].estimate().sigma_s(probe)) < 100e-6
+    # minima that the link contradicts (a faster exchange) fall back to the whole round trip
+    wrong = PingClockMap(TICK_HZ, up_min_s=5e-3, down_min_s=5e-3)
+    wrong.add(0, 2000, 3_000_000)
+    wrong.add(50_000_000, 102_000, 53_000_000)
+    wrong.add(100_000_000, 202_000, 103_000_000)
+    assert wrong.contradicted == 3 and float(wrong.estimate().sigma_s(202_000)) > 100e-6
     with pytest.raises(ValueError, match="before it was sent"):
-        m.add(10, 0, 5)
+        wrong.add(10, 0, 5)
+    with pytest.raises(ValueError, match=">= 0"):
+        PingClockMap(TICK_HZ, -1.0)
 
 
 def test_pairing_ignores_glitches_that_do_not_look_like_the_pulse():

@@ -99,6 +99,14 @@ def test_huge_drift_is_an_error_not_a_wrong_schedule():
     assert m["laser_pulses"] == 0  # refused before any train was scheduled
 
 
+def test_an_mcu_that_refuses_the_pulse_is_never_reported_lit():
+    # the firmware's envelope is narrower than the ROI window: every SCHEDULE is refused
+    r = run(replace(BASE, seconds=10.0, mcu=McuConfig(max_width_ticks=20_000)))
+    m = r.metrics
+    assert m["lock_frames"] is None and m["laser_pulses"] == 0
+    assert m["final_state"] == "acquiring" and "refused" in m["final_reason"] and "width" in m["final_reason"]
+
+
 def test_roi_that_does_not_fit_between_frames_is_refused():
     p = replace(BASE, seconds=2.0, camera=replace(BASE.camera, exposure_s=0.045), row_min=0, row_max=900)
     with pytest.raises(ValueError, match="does not fit in the frame duration"):

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera.base import Camera, EndOfRecording
+from ..camera.base import Camera, CameraError, EndOfRecording
 from ..camera.frame import Frame
 from .intrinsics import CalibrationError, detect_corners
 from .pipeline import Pose
@@ -66,8 +66,10 @@ def render_progress(p: Progress) -> str:
 def capture_poses(
     camera: Camera, count: int, pattern_size: tuple[int, int], lit_parity: int | None = None,
     on_progress: Callable[[Progress], None] | None = None, max_frames: int = 100000,
+    on_pose: Callable[[Pose], None] | None = None,
 ) -> list[Pose]:
-    """Read frames until ``count`` poses are kept (or the camera/recording ends)."""
+    """Read frames until ``count`` poses are kept (or the camera/recording ends). ``on_pose`` is
+    called with each pose as it is kept (to save it at once: a camera error later loses nothing)."""
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
     kept: list[Pose] = []
@@ -98,6 +100,8 @@ def capture_poses(
                 if still and new:
                     kept.append(Pose(f"pose_{len(kept):03d}", lit.image, unlit.image))
                     kept_corners.append(det.corners)
+                    if on_pose:
+                        on_pose(kept[-1])
                     message = f"kept pose {len(kept)}; move the board somewhere new"
                 else:
                     message = "hold the board still" if not still else "pose already captured: move the board"
@@ -127,7 +131,10 @@ def run_capture(args, spec) -> int:
     def show(p: Progress) -> None:
         print("\033[2J\033[H" + render_progress(p) if sys.stdout.isatty() else render_progress(p), flush=True)
 
-    poses = capture_poses(camera, args.count, spec.pattern_size, parity, show)
-    save_capture_dir(poses, args.dir)
+    try:
+        poses = capture_poses(camera, args.count, spec.pattern_size, parity, show, on_pose=lambda p: save_capture_dir([p], args.dir))
+    except CameraError as exc:
+        print(f"camera: {exc} (poses kept so far are in {args.dir})", file=sys.stderr)
+        return 1
     print(f"{len(poses)} poses written to {args.dir}; now run: laserpi calibrate run {args.dir} --out sensor.toml")
     return 0 if len(poses) >= args.count else 1

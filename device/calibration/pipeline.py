@@ -42,6 +42,7 @@ class CalibrationResult:
     plane_fit: PlaneFit
     detections: list[Detection]
     lines: list[BoardLine]
+    base: SensorConfig  # the configuration calibration started from (Table 4.8's "original" column)
 
 
 def load_capture_dir(path: str | Path) -> list[Pose]:
@@ -104,7 +105,7 @@ def calibrate(poses: list[Pose], base: SensorConfig, spec: BoardSpec = BoardSpec
     cam = replace(intr.camera, intrinsics=replace(intr.camera.intrinsics, width=w, height=h))
     config = replace(base, name=name or f"{base.name}-calibrated", width=w, height=h, camera=cam, plane=fit.plane,
                      active_width=min(base.active_width or w, w), active_height=min(base.active_height or h, h), post_calibration=None)
-    return CalibrationResult(config, intr, fit, detections, lines)
+    return CalibrationResult(config, intr, fit, detections, lines, base)
 
 
 @dataclass(frozen=True)
@@ -162,7 +163,12 @@ def bootstrap_views(result: CalibrationResult, spec: BoardSpec, samples: int = 3
 
 def triangulation_table(result: CalibrationResult) -> dict[str, float]:
     """Thesis Table 4.8 for the calibrated plane: theta, psi, alpha (degrees) and s (metres)."""
-    a, b, c = result.config.plane.to_abc()
-    p = params_from_plane(a, b, c, result.config.beta_rad)
+    return plane_table(result.config.plane, result.config.beta_rad)
+
+
+def plane_table(plane, beta_rad: float) -> dict[str, float]:
+    """(a_c, b_c, c_c) and the triangulation parameters of section 3.2.2 / D.2.2 for a plane."""
+    a, b, c = plane.to_abc()
+    p = params_from_plane(a, b, c, beta_rad)
     return {"a_c": a, "b_c": b, "c_c_m": c, "theta_deg": math.degrees(p.theta), "psi_deg": math.degrees(p.psi),
             "alpha_deg": math.degrees(p.alpha), "beta_deg": math.degrees(p.beta), "s_m": p.s}

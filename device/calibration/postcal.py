@@ -7,7 +7,8 @@ belongs to, so a held-out fold is a distance never seen by the fit). The fit its
 :func:`device.vision.postcal.fit`, in centred and scaled coordinates (ERRATA 8).
 
 Input: points ``(x, z_measured, z_true)`` in metres, camera frame - from frames of a flat wall at
-known distances, or from a reference scanner's readings of the same wall.
+known distances (:func:`load_wall_sweep`: ``wall_<mm>mm_lit.png`` / ``_unlit.png`` pairs), or
+from a reference scanner's readings of the same wall (:func:`load_sweep_csv`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import PostCalibration
+from ..config import PostCalibration, SensorConfig
+from ..model.camera import undistort_robust
+from ..model.scan_frame import scan_frame
+from ..model.triangulation import RangeStatus, intersect_plane
+from ..vision.peaks import column_peaks
 from ..vision.postcal import correction, fit
 from .intrinsics import CalibrationError
 
@@ -118,3 +123,53 @@ def load_sweep_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         raise CalibrationError(f"{path}: non-numeric value ({exc})") from None
     groups = np.array([r["wall"] for r in rows]) if "wall" in rows[0] else None
     return cols["x_m"], cols["z_measured_m"], cols["z_true_m"], groups
+
+
+def wall_points(lit: np.ndarray, unlit: np.ndarray, distance_m: float, config: SensorConfig, snr: float = 6.0):
+    """(x, z_measured, z_true) of one frame pair of a flat wall ``distance_m`` ahead.
+
+    The wall is perpendicular to the scan's forward axis (device.model.scan_frame) of ``config``;
+    each laser pixel (one per column, :func:`device.vision.peaks.column_peaks` on lit - unlit) is
+    triangulated with ``config``, and its true depth is where the same ray meets the wall."""
+    if lit.shape != unlit.shape:
+        raise ValueError(f"lit {lit.shape} and unlit {unlit.shape} frames differ in size")
+    diff = lit.astype(np.float64) - unlit.astype(np.float64)
+    noise = 1.4826 * float(np.median(np.abs(diff - np.median(diff)))) + 0.5  # at least a quantisation step
+    peaks = column_peaks(diff, estimator="gaussian", min_peak=snr * noise)
+    cols = np.flatnonzero(peaks.valid)
+    px = np.stack([cols.astype(np.float64), peaks.row[cols]], axis=-1)
+    un = undistort_robust(px, config.camera)
+    tri = intersect_plane(un.xy, config.plane)
+    fr = scan_frame(config.plane)
+    forward = fr.rotation[0]
+    rays = np.concatenate([un.xy, np.ones((len(px), 1))], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z_true = (distance_m + forward @ fr.origin) / (rays @ forward)
+    ok = un.valid & (tri.status == RangeStatus.OK) & np.isfinite(z_true) & (z_true > 0)
+    return tri.points[ok, 0], tri.points[ok, 2], z_true[ok]
+
+
+def load_wall_sweep(folder: str | Path, config: SensorConfig):
+    """A wall sweep folder: ``wall_<distance in mm>_lit.png`` / ``wall_<distance>_unlit.png`` pairs
+    -> (x, z_measured, z_true, wall index) for :func:`fit_postcal`."""
+    import cv2
+
+    folder = Path(folder)
+    out = []
+    pairs = []
+    for unlit_path in folder.glob("wall_*_unlit.png"):
+        tag = unlit_path.name[len("wall_"): -len("_unlit.png")]
+        if not tag.endswith("mm") or not tag[:-2].isdigit():
+            raise CalibrationError(f"{unlit_path.name}: name walls wall_<distance>mm_unlit.png, e.g. wall_1500mm_unlit.png")
+        pairs.append((int(tag[:-2]), tag, unlit_path))
+    for i, (_, tag, unlit_path) in enumerate(sorted(pairs)):
+        lit_path = folder / f"wall_{tag}_lit.png"
+        lit, unlit = cv2.imread(str(lit_path), cv2.IMREAD_GRAYSCALE), cv2.imread(str(unlit_path), cv2.IMREAD_GRAYSCALE)
+        if lit is None or unlit is None:
+            raise CalibrationError(f"{folder}: cannot read the pair for wall_{tag}")
+        x, z, zt = wall_points(lit, unlit, int(tag[:-2]) / 1000.0, config)
+        out.append(np.stack([x, z, zt, np.full(len(x), i)], axis=-1))
+    if not out:
+        raise CalibrationError(f"{folder}: no wall_<distance>mm_lit.png / _unlit.png pairs")
+    data = np.concatenate(out)
+    return data[:, 0], data[:, 1], data[:, 2], data[:, 3].astype(int)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.camera import BrownConrady
-from .pipeline import CalibrationResult, triangulation_table
+from .pipeline import CalibrationResult, plane_table, triangulation_table
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -40,7 +40,10 @@ def report_dict(result: CalibrationResult) -> dict:
             "spread_ratio_s2_s1": fit.spread_ratio,
             "per_board_rms_mm": {n: 1000 * v for n, v in fit.per_board_rms_m.items()},
         },
-        "triangulation": triangulation_table(result),  # thesis Table 4.8
+        "triangulation": {  # thesis Table 4.8: the starting configuration against the calibrated one
+            "original": plane_table(result.base.plane, result.base.beta_rad),
+            "calibrated": triangulation_table(result),
+        },
     }
 
 
@@ -52,12 +55,12 @@ def _json_default(o):
     raise TypeError(type(o).__name__)
 
 
-def _clean(o):
+def json_safe(o):
     """NaN/inf are not JSON: write them as null."""
     if isinstance(o, dict):
-        return {k: _clean(v) for k, v in o.items()}
+        return {k: json_safe(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
+        return [json_safe(v) for v in o]
     if isinstance(o, float) and not math.isfinite(o):
         return None
     return o
@@ -71,7 +74,7 @@ def write_report(result: CalibrationResult, folder: str | Path, extra: dict | No
     if extra:
         doc.update(extra)
     path = folder / "report.json"
-    path.write_text(json.dumps(_clean(json.loads(json.dumps(doc, default=_json_default))), indent=2))
+    path.write_text(json.dumps(json_safe(json.loads(json.dumps(doc, default=_json_default))), indent=2))
     _plots(result, folder, postcal_curve)
     return path
 

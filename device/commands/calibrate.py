@@ -40,12 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_p.add_argument("--out", dest="run_out", required=True, help="sensor configuration to write (TOML)")
     run_p.add_argument("--json", dest="run_json", action="store_true", help="print the summary as JSON")
     run_p.add_argument("--bootstrap", type=int, default=30, help="view-bootstrap samples for the uncertainty (0: skip)")
-    run_p.add_argument("--sweep", help="wall-sweep CSV (x_m, z_measured_m, z_true_m[, wall]) for the post-calibration of section 6.3")
+    run_p.add_argument("--sweep", help="wall sweep for the post-calibration of section 6.3: a folder of wall_<mm>mm_lit.png/_unlit.png pairs, or a CSV (x_m, z_measured_m, z_true_m[, wall]) of a reference scanner")
     _board_args(run_p)
     cap = sub.add_parser("capture", help="capture lit/unlit pose pairs live from the camera")
     cap.add_argument("dir", help="folder to write the pose pairs to")
     cap.add_argument("--count", type=int, default=20, help="poses to capture (default 20)")
-    cap.add_argument("--camera", default="device.camera.picamera2:Picamera2Camera", help="camera backend MODULE:CLASS")
+    cap.add_argument("--camera", default="device.camera.picamera2_camera:Picamera2Camera", help="camera backend MODULE:CLASS")
     cap.add_argument("--lit-frames", default="flag", choices=["flag", "even", "odd"],
                      help="which frames are lit: each frame's own flag (default), or even/odd sequence numbers")
     cap.add_argument("--squares", default="10x7")
@@ -100,7 +100,7 @@ def _postcal(result, sweep):
 def _finish(result, out: str | None, report: str | None, as_json: bool, comparison: dict | None = None, sweep=None, spec=None, bootstrap: int = 0) -> int:
     """Attach the post-calibration, write config and report, print the summary (with --json: the
     true-vs-estimated comparison when simulating, else the summary)."""
-    from ..calibration.report import _clean, write_report
+    from ..calibration.report import json_safe, write_report
     from ..config import save_config
 
     curve, extra = None, dict(comparison or {})
@@ -120,7 +120,7 @@ def _finish(result, out: str | None, report: str | None, as_json: bool, comparis
         folder = report or str(Path(out).with_suffix("")) + "_report"
         write_report(result, folder, extra, curve)
     if as_json:
-        print(json.dumps(_clean(extra if comparison is not None else summary)))
+        print(json.dumps(json_safe(extra if comparison is not None else summary)))
         return 0
     for key, v in summary.items():
         print(f"{key:>24}: {v:.6g}" if isinstance(v, float) else f"{key:>24}: {v}")
@@ -139,7 +139,6 @@ def run(args: argparse.Namespace) -> int:
 
             from ..calibration.postcal import load_sweep_csv
 
-            sweep = load_sweep_csv(args.sweep) if args.sweep else None
             if Path(args.dir).suffix == ".npz":  # a ReplayCamera recording: pair and select poses as a live capture does
                 from ..calibration.capture import capture_poses
                 from ..camera.replay import ReplayCamera
@@ -148,6 +147,11 @@ def run(args: argparse.Namespace) -> int:
             else:
                 poses = load_capture_dir(args.dir)
             result = calibrate(poses, _base(args.base), _spec(args), args.model)
+            sweep = None
+            if args.sweep:  # measured with the configuration just calibrated
+                from ..calibration.postcal import load_wall_sweep
+
+                sweep = load_wall_sweep(args.sweep, result.config) if Path(args.sweep).is_dir() else load_sweep_csv(args.sweep)
             return _finish(result, args.run_out, args.report, args.run_json, sweep=sweep, spec=_spec(args), bootstrap=args.bootstrap)
         if args.action == "capture":
             from ..calibration.capture import run_capture

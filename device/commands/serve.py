@@ -1,11 +1,20 @@
-"""`laserpi serve`: run the device end of the host link.
+"""`laserpi serve`: the device process (or a simulated sensor) on the host link.
 
-    laserpi serve --simulate --scene wall --distance-m 2.0 --link /tmp/laserpi   # pty, symlinked
-    laserpi serve --simulate --port /dev/ttyAMA0 --baud 921600                   # a real UART
+    laserpi serve --port /dev/ttyGS0                                  # on a Pi: camera, co-MCU, pipeline
+    laserpi serve --simulate --scene wall --distance-m 2.0 --link /tmp/laserpi   # simulated sensor on a pty
+    laserpi serve --simulate --mock --distance-m 2.0 --link /tmp/laserpi         # analytic mock, no images
 
-Today the only source is the analytic wall (--simulate); the device-process issue plugs the
-image pipeline or the full simulated sensor in through ``serve_source`` (a ScanSource, see
-device/link.py). Stops cleanly on SIGTERM or SIGINT and removes the --link symlink.
+``--simulate`` runs the whole sensor (device/process.py) on simulated parts: the scene renderer
+as the camera, the real co-MCU firmware in the simavr harness behind a pty, the image pipeline
+(device/sensor.py). ``--mock`` serves the analytic wall of device/analytic_source.py
+instead (the protocol's mock device: scans computed in closed form, no camera or co-MCU).
+Either way the link is served by device.process.LinkSupervisor: the port is opened again when it
+fails, and the process stops cleanly on SIGTERM or SIGINT with the laser off and the --link
+symlink removed.
+
+Fault injection (``--simulate`` without ``--mock`` only, for tests): SIGUSR1 power-cycles the
+simulated co-MCU (the emulator boots the firmware again), SIGUSR2 stalls the simulated camera
+for 1 s of simulated time.
 """
 
 from __future__ import annotations
@@ -22,25 +31,36 @@ log = logging.getLogger(__name__)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--link", metavar="PATH", help="create a pseudo-terminal and symlink PATH to it")
-    where.add_argument("--port", metavar="DEV", help="serve on this serial device (e.g. /dev/ttyAMA0)")
+    where.add_argument("--port", metavar="DEV", help="serve on this serial device (e.g. /dev/ttyAMA0, /dev/ttyGS0)")
     parser.add_argument("--baud", type=int, default=921600,
                         help="baud rate of --port; with --link, writes are paced at this rate like a UART")
-    parser.add_argument("--simulate", action="store_true", help="serve an analytic scene instead of the camera")
-    parser.add_argument("--scene", choices=["wall"], default="wall", help="analytic scene (with --simulate)")
-    parser.add_argument("--distance-m", type=float, default=2.0, help="wall distance in metres")
-    parser.add_argument("--points", type=int, default=1640, help="columns per scan")
-    parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed")
-    parser.add_argument("--laser-limit-mw", type=float, default=5.0,
-                        help="Class 1 limit on laser power the device enforces (until the IEC model sets it)")
+    parser.add_argument("--simulate", action="store_true",
+                        help="simulated camera and scene, co-MCU firmware in the emulator, real pipeline")
+    parser.add_argument("--mock", action="store_true", help="with --simulate: the analytic wall, no images")
+    parser.add_argument("--scene", default="wall",
+                        help="simulated scene: a built-in name, wall:distance=2,angle=30, or a TOML path")
+    parser.add_argument("--distance-m", type=float, default=2.0, help="distance of the 'wall' scene in metres")
+    parser.add_argument("--config", metavar="TOML", help="sensor configuration file")
+    parser.add_argument("--preset", default="thesis-calibrated", help="sensor configuration preset (without --config)")
+    parser.add_argument("--points", type=int, default=None,
+                        help="points per scan (default: 1640 for --mock, the active image width otherwise)")
+    parser.add_argument("--comcu", metavar="DEV", default="/dev/serial0",
+                        help="serial device of the co-MCU (ignored with --simulate)")
+    parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
+    parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
+    parser.add_argument("--laser-limit-mw", type=float, default=None,
+                        help="Class 1 limit on laser power the device enforces (default and maximum: from the safety model "
+                             "for the sensor's laser and pulse; 5 mW for --mock)")
 
 
-def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600) -> int:
+def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600,
+                 on_health=None) -> int:
     """Serve ``source`` (a device.link.ScanSource) with ``config`` (a device.link.DeviceConfig)
     on a pty symlinked at ``link`` or on the serial device ``port`` until SIGTERM/SIGINT.
-    Returns 0 after a clean stop, 1 if the port failed."""
-    from device.link import LinkServer
+    The port is reopened when it fails (host unplugged). Returns 0 after a clean stop."""
     from device.ports import PacedPort, PtyLink
+    from device.process import LinkSupervisor
 
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -48,36 +68,98 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
         if link is not None:
             with PtyLink(link) as pty:
                 print(f"serving on {link} -> {pty.slave_name}", flush=True)
-                server = LinkServer(PacedPort(pty.port, baudrate), source, config)
-                server.serve(stop)
+                LinkSupervisor(lambda: PacedPort(pty.port, baudrate), source, config, health_log_s=2.0 if on_health else 10.0,
+                               on_health=on_health).run(stop)
         else:
             import serial
 
-            with serial.Serial(port, baudrate, timeout=0.05, write_timeout=None, exclusive=True) as ser:
-                print(f"serving on {port} at {baudrate} baud", flush=True)
-                server = LinkServer(ser, source, config)
-                server.serve(stop)
+            def open_port():
+                try:
+                    return serial.Serial(port, baudrate, timeout=0.05, write_timeout=None, exclusive=True)
+                except serial.SerialException as exc:
+                    raise OSError(str(exc)) from exc
+
+            print(f"serving on {port} at {baudrate} baud", flush=True)
+            LinkSupervisor(open_port, source, config, on_health=on_health).run(stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    if not stop.is_set():
-        log.error("the port failed; stopped")
-        return 1
     return 0
 
 
+def _stats_writer(path: str, hw):
+    """on_health callback writing the health and the process's CPU time to ``path`` (JSON)."""
+    import dataclasses
+    import json
+    import os
+    import resource
+    import time
+
+    def write(health) -> None:
+        ru = resource.getrusage(resource.RUSAGE_SELF)
+        doc = {"monotonic_s": time.monotonic(), "cpu_process_s": ru.ru_utime + ru.ru_stime,
+               "cpu_sim_clock_s": hw.clock_cpu_s if hw is not None else 0.0, "max_rss_kb": ru.ru_maxrss,
+               **dataclasses.asdict(health)}
+        tmp = f"{path}.tmp"
+        with open(tmp, "w") as f:
+            json.dump(doc, f)
+        os.replace(tmp, path)
+
+    return write
+
+
+def _injector(name: str, fault):
+    """Signal handler that injects a simulated fault from a thread (not inside the handler)."""
+
+    def handler(*_):
+        log.warning("fault injection: %s", name)
+        threading.Thread(target=fault, name=f"inject-{name}", daemon=True).start()
+
+    return handler
+
+
 def run(args: argparse.Namespace) -> int:
-    if not args.simulate:
-        print("laserpi serve: the camera pipeline is not wired in yet; use --simulate")
-        return 2
-    from device.analytic_source import AnalyticWallSource, default_settings
     from device.link import DeviceConfig
 
+    closers = []
+    faults = {}
+    hw = None
     try:
-        source = AnalyticWallSource(args.distance_m, n_points=args.points, fov_rad=math.radians(args.fov_deg),
-                                    seed=args.seed)
-        config = DeviceConfig(laser_limit_mw=args.laser_limit_mw, settings=default_settings(args.points, min(4.0, args.laser_limit_mw)))
-    except ValueError as exc:
+        if args.mock:
+            if not args.simulate:
+                print("laserpi serve: --mock needs --simulate")
+                return 2
+            from device.analytic_source import AnalyticWallSource, default_settings
+
+            n = args.points or 1640
+            source = AnalyticWallSource(args.distance_m, n_points=n, fov_rad=math.radians(args.fov_deg), seed=args.seed)
+            limit_mw = 5.0 if args.laser_limit_mw is None else args.laser_limit_mw
+            settings = default_settings(n, min(4.0, limit_mw))
+        else:
+            from device.sensor import build_sensor
+
+            built = build_sensor(args)
+            source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
+            hw = built.hardware
+            limit_mw = built.laser_limit_mw
+            if args.laser_limit_mw is not None:
+                if args.laser_limit_mw > built.laser_limit_mw:
+                    raise ValueError(f"--laser-limit-mw {args.laser_limit_mw:g} is above the Class 1 limit of "
+                                     f"{built.laser_limit_mw:.2f} mW the safety model gives for this laser and pulse; "
+                                     "it can only lower the limit")
+                limit_mw = args.laser_limit_mw
+        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
+    except (ValueError, OSError, RuntimeError) as exc:
+        for close in reversed(closers):
+            close()
         print(f"laserpi serve: {exc}")
         return 2
-    return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud)
+    try:
+        for sig, name in ((signal.SIGUSR1, "comcu-reset"), (signal.SIGUSR2, "camera-stall")):
+            if name in faults:
+                signal.signal(sig, _injector(name, faults[name]))
+        on_health = _stats_writer(args.stats_file, hw) if args.stats_file else None
+        return serve_source(source, config, link=args.link, port=args.port, baudrate=args.baud, on_health=on_health)
+    finally:
+        for close in reversed(closers):
+            close()

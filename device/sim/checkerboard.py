@@ -344,3 +344,18 @@ def generate_poses(
         else:
             raise RuntimeError(f"could not place pose {i} in view (depth {depths[i]:.2f} m); widen the depth range")
     return poses
+
+
+def render_wall(cam: CameraModel, width: int, height: int, plane: LaserPlane, distance_m: float, rng: np.random.Generator,
+                scene: Scene = Scene(black=0.8, white=0.8)) -> Shot:
+    """A flat white wall ``distance_m`` ahead, perpendicular to the scan's forward axis
+    (device.model.scan_frame), lit and unlit: the frames of a post-calibration sweep (thesis 6.3)."""
+    from ..model.scan_frame import scan_frame
+
+    fr = scan_frame(plane)
+    forward = fr.rotation[0]
+    spec = BoardSpec(squares_x=12, squares_y=8, square_m=max(distance_m, 0.5), margin_squares=0.0)  # a wall wider than the view
+    rot = _facing(forward)
+    centre = fr.origin + distance_m * forward
+    pose = BoardPose(rot, centre - rot @ (np.array([(spec.squares_x - 2) / 2, (spec.squares_y - 2) / 2, 0.0]) * spec.square_m))
+    return render_shot(cam, width, height, plane, pose, rng, spec, scene)

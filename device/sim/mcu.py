@@ -19,8 +19,9 @@ The link and the wire:
   mean ``gpio_jitter_s``; a fraction ``gpio_outlier_prob`` of edges is delayed by 0.1-2 ms more
   (an interrupt held off), and ``gpio_spurious_hz`` adds glitch edges at random times.
   Interrupt latency cannot be negative, so the jitter is one-sided.
-- PING: the MCU stamps its tick when the request's last byte arrives; each leg takes the frame's
-  serial time plus a USB latency (uniform 0-1 ms plus an exponential tail).
+- PING: the MCU stamps its tick when the request's last byte arrives; each leg takes its frame's
+  serial time (PING 14 bytes, PONG 29 bytes) plus a USB latency (uniform 0-1 ms plus an
+  exponential tail).
 - The firmware's eye-safety envelope (maximum width and duty) refuses out-of-envelope requests.
 
 This module implements ``device.sync.control.LaserScheduler``; the harness sets ``now_s`` (the
@@ -54,7 +55,8 @@ class McuConfig:
     cmd_latency_min_s: float = 0.5e-3
     cmd_latency_max_s: float = 2.5e-3
     report_latency_s: float = 2e-3
-    link_leg_min_s: float = 16 * 10 / 115200  # a 16-byte frame at 115200 baud 8N1
+    link_up_min_s: float = 14 * 10 / 250_000  # PING, 14 bytes at 250000 baud 8N1 (device.comcu)
+    link_down_min_s: float = 29 * 10 / 250_000  # PONG, 29 bytes
     usb_latency_max_s: float = 1e-3
     gpio_connected: bool = True
     gpio_latency_min_s: float = 3e-6
@@ -257,7 +259,7 @@ class SimulatedMcu:
     def ping(self, t_send_s: float) -> tuple[int, int, int]:
         """A PING exchange sent at ``t_send_s``: (Pi send ns, MCU tick, Pi receive ns)."""
         c = self.cfg
-        up = c.link_leg_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
-        down = c.link_leg_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
+        up = c.link_up_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
+        down = c.link_down_min_s + self._rng.uniform(0, c.usb_latency_max_s) + self._rng.exponential(50e-6)
         tick = math.floor(self.tick_at(t_send_s + up))
         return int(round(t_send_s * 1e9)), tick, int(round((t_send_s + up + 20e-6 + down) * 1e9))

@@ -21,13 +21,14 @@ loop"). Here the MCU's timer is mapped onto the Pi's clock continuously, from tw
     The fit is windowed (last ``window`` pairs) so that it follows drift that changes with
     temperature.
 
-(b) **PING round trips** over serial (fallback when the wire is absent). NTP-style minimum-delay
-    filter: per block of the window the exchange with the smallest round trip is kept, its MCU
-    tick is placed at the midpoint of the Pi's send and receive times, and a line is fitted
-    through those. Each kept exchange is only known to within half its round trip's excess over
-    the link's minimum (the unknown asymmetry of the two legs); the reported sigma takes the
-    asymmetry as uniform within that bound. Expect tens of microseconds instead of a few:
-    lower accuracy, hence a wider guard and a longer pulse.
+(b) **PING round trips** over serial (fallback when the wire is absent). Bounded delays with a
+    minimum-delay filter (NTP/TICSync style): the MCU stamped its tick between the Pi's send time
+    plus the PING's minimum time on the line and the receive time minus the PONG's (the two
+    frames differ in length, so the plain midpoint would be biased by half the difference); per
+    block of the window the exchange with the narrowest bounds is kept, placed in the middle of
+    them, and a line is fitted through those. The reported sigma takes the position as uniform
+    within the bounds. Expect tens to hundreds of microseconds instead of a few: lower accuracy,
+    hence a wider guard and a longer pulse.
 
 Public units: MCU time in ticks (int), Pi time in nanoseconds (int), uncertainties in seconds.
 """
@@ -287,10 +288,17 @@ class GpioClockMap:
 class PingClockMap:
     """Windowed minimum-delay (NTP-style) map from PING exchanges; lower accuracy than the GPIO map."""
 
-    def __init__(self, tick_hz: float, link_min_rtt_s: float, window: int = 1024, blocks: int = 16,
-                 min_samples: int = 3) -> None:
+    def __init__(self, tick_hz: float, up_min_s: float = 0.0, down_min_s: float = 0.0, window: int = 1024,
+                 blocks: int = 16, min_samples: int = 3) -> None:
+        """``up_min_s``: shortest time from the Pi's send stamp to the MCU's tick stamp (the PING's
+        bytes on the line); ``down_min_s``: shortest time from there to the Pi's receive stamp (the
+        PONG's bytes). 0 when unknown: the bounds are then the whole round trip, and still hold."""
+        if up_min_s < 0 or down_min_s < 0:
+            raise ValueError(f"link minimum delays must be >= 0, got {up_min_s}, {down_min_s}")
         self.tick_hz = tick_hz
-        self.link_min_rtt_s = link_min_rtt_s
+        self.up_min_ns = up_min_s * 1e9
+        self.down_min_ns = down_min_s * 1e9
+        self.contradicted = 0  # exchanges faster than the configured minima (then ignored for them)
         self.blocks = blocks
         self.min_samples = min_samples
         self._w = Window(window, columns=3)
@@ -312,6 +320,11 @@ class PingClockMap:
     def add(self, send_ns: int, tick: int, recv_ns: int) -> None:
         if recv_ns < send_ns:
             raise ValueError(f"ping received ({recv_ns}) before it was sent ({send_ns})")
+        if recv_ns - send_ns < self.up_min_ns + self.down_min_ns:
+            if not self.contradicted:
+                log.warning("a PING round trip of %d ns is shorter than the configured link minima: "
+                            "those exchanges use the whole round trip as their bounds", recv_ns - send_ns)
+            self.contradicted += 1
         self._w.append(send_ns, tick, recv_ns)
         self._dirty = True
 
@@ -323,15 +336,23 @@ class PingClockMap:
             self._est = None
             return None
         a = self._w.column(slice(None))
-        rtt = (a[:, 2] - a[:, 0]) * 1e-9
+        # The MCU stamped its tick within [send + up_min, recv - down_min] (bounded delays); an
+        # exchange faster than the two minima says they are wrong, and only [send, recv] holds.
+        lo = a[:, 0] + self.up_min_ns
+        hi = a[:, 2] - self.down_min_ns
+        bad = hi < lo
+        if bad.any():
+            lo = np.where(bad, a[:, 0], lo)
+            hi = np.where(bad, a[:, 2], hi)
+        width = (hi - lo) * 1e-9
         n = len(a)
         nb = min(self.blocks, max(1, n // 4))
         m = n // nb
-        sel = (n - nb * m) + np.arange(nb) * m + np.argmin(rtt[n - nb * m:].reshape(nb, m), axis=1)
+        sel = (n - nb * m) + np.arange(nb) * m + np.argmin(width[n - nb * m:].reshape(nb, m), axis=1)
         ref_tick = int(a[-1, 1])
-        ref_ns = int((a[-1, 0] + a[-1, 2]) // 2)
+        ref_ns = int((lo[-1] + hi[-1]) // 2)
         x = (a[sel, 1] - ref_tick) / self.tick_hz
-        y = ((a[sel, 0] + a[sel, 2]) // 2 - ref_ns) * 1e-9
+        y = ((lo[sel] + hi[sel]) / 2 - ref_ns) * 1e-9
         xbar = float(x.sum()) / nb
         sxx = float(((x - xbar) ** 2).sum())
         if sxx > 0:
@@ -340,10 +361,9 @@ class PingClockMap:
             c = ybar - b * xbar
         else:
             b, c = 1.0, float(np.mean(y - x))
-        # Each kept exchange places the tick within +-excess/2 of the midpoint (the legs' unknown
-        # asymmetry); taken as uniform in that bound, its spread is excess / (2 sqrt 3).
-        excess = np.maximum(rtt[sel] - self.link_min_rtt_s, 0.0)
-        point = float(np.sqrt(np.mean(excess**2))) / (2 * math.sqrt(3))
+        # Each kept exchange places the tick within +-width/2 of the middle of its bounds; taken
+        # as uniform there, its spread is width / (2 sqrt 3).
+        point = float(np.sqrt(np.mean(width[sel] ** 2))) / (2 * math.sqrt(3))
         spread = float(np.sqrt(np.sum((y - (c + b * x)) ** 2) / (nb - 2))) if nb > 2 else 0.0
         fit = LineFit(a=float(c), b=float(b), x_mean=xbar, sxx=sxx, n_points=nb, point_sigma=max(point, spread, 1e-6))
         self._est = ClockEstimate("ping", ref_tick, ref_ns, self.tick_hz, fit, n)
@@ -357,8 +377,9 @@ class EdgePairing:
     follows it after the pulse's width (within ``width_tol_s``; of several candidates the pair
     whose spacing is closest to the width): a glitch on the line or an edge of another pulse
     cannot fake that, so spurious edges do not enter the fit. The window around
-    the prediction is 10 sigma of the current map (at least 100 us) and allows ``max_late_s`` of
-    interrupt latency.
+    the prediction is 10 sigma of the current map (at least 100 us, or 2 ms while the map comes
+    from pings: its error may exceed its bounds if the link's minima are wrong) and allows
+    ``max_late_s`` of interrupt latency.
     """
 
     def __init__(self, max_late_s: float = 3e-3, width_tol_s: float = 300e-6, horizon_s: float = 2.0) -> None:
@@ -391,7 +412,8 @@ class EdgePairing:
         for rise, fall in self._mcu:
             pred = float(est.mcu_to_pi_ns(rise))
             width_ns = (fall - rise) / est.tick_hz * 1e9
-            tol = min(max(10 * float(est.sigma_s(rise)), 100e-6), max_window_s) * 1e9
+            floor = 100e-6 if est.source == "gpio" else 2e-3  # a ping map may be off by more than it knows
+            tol = min(max(10 * float(est.sigma_s(rise)), floor), max_window_s) * 1e9
             lo = bisect.bisect_left(ups, pred - tol)
             hi = bisect.bisect_right(ups, pred + tol + self.max_late_ns)
             match, best = None, self.width_tol_ns

@@ -25,9 +25,10 @@ Lock: ``lock_pulses`` consecutive lit pulses measured inside the window with the
 guard is ``guard_sigmas`` times the 1-sigma placement uncertainty, at least ``min_guard_s``).
 Re-lock: dropped frames are bridged by the camera line (sequence numbers); a camera restart
 (sequence going back, or timestamps off the line) or an MCU reset (its tick going back, or the
-expected pulse reports missing) drops to ACQUIRING and starts a new train. An MCU drift beyond
-``max_drift_ppm`` or a guard above ``max_guard_s`` is an ERROR state with a reason: the laser is
-stopped rather than run on a schedule that cannot be trusted.
+expected pulse reports missing) drops to ACQUIRING and starts a new train; so does a command
+the co-MCU refuses (the reason is kept). A guard above ``max_guard_s`` stops the laser and stays
+ACQUIRING; an MCU drift beyond ``max_drift_ppm`` is the ERROR state: the laser is stopped rather
+than run on a schedule that cannot be trusted, and ``reason`` says why.
 
 Which frames are lit follows ``pattern`` on the camera's sequence number
 (``lit = pattern[sequence % len(pattern)]``, e.g. every other frame for differencing, ERRATA 10);
@@ -127,7 +128,9 @@ class SyncConfig:
     gpio_prior_jitter_s: float = 50e-6
     gpio_window: int = 256
     gpio_stale_s: float = 2.0
-    link_min_rtt_s: float = 2 * 16 * 10 / 115200
+    # PING (14 bytes on the line incl. delimiters) and PONG (29 bytes) at device.comcu's 250000 baud 8N1
+    link_up_min_s: float = 14 * 10 / 250_000
+    link_down_min_s: float = 29 * 10 / 250_000
     camera_window: int = 256
     camera_prior_jitter_s: float = 50e-6
     camera_jump_s: float = 1e-3
@@ -240,7 +243,7 @@ class SyncController:
         self.cfg = cfg
         self.mcu = scheduler
         self.gpio_map = GpioClockMap(cfg.tick_hz, cfg.gpio_latency_min_s, cfg.gpio_window, cfg.gpio_prior_jitter_s)
-        self.ping_map = PingClockMap(cfg.tick_hz, cfg.link_min_rtt_s)
+        self.ping_map = PingClockMap(cfg.tick_hz, cfg.link_up_min_s, cfg.link_down_min_s)
         self.pairing = EdgePairing()
         self.camera = CameraTimeline(cfg.camera_window, cfg.camera_prior_jitter_s, cfg.camera_jump_s)
         self.state = SyncState.ACQUIRING
@@ -252,6 +255,7 @@ class SyncController:
         self._last_pair_ns: int | None = None
         self._now_ns = 0
         self.events: list[tuple[int, str]] = []  # (Pi ns, what happened): resets, restarts, locks
+        self.refusals = 0
 
     # --- inputs --------------------------------------------------------------------------------
     def on_ping(self, send_ns: int, tick: int, recv_ns: int) -> None:
@@ -385,7 +389,8 @@ class SyncController:
         period = int(round(period_s / est.fit.b * cfg.tick_hz))
         width = t1 - t0 + 1
         pattern = [cfg.lit(seq + i) for i in range(len(cfg.pattern))]
-        self.mcu.schedule(t0, period, width, pattern)
+        if not self._command(self.mcu.schedule, t0, period, width, pattern):
+            return
         self.train = _Train(frame0=seq, ref_slot=0, ref_tick=t0, period=period, width=width, guard_s=guard,
                             scheduled_ns=self._now_ns)
         log.debug("train scheduled: frame %d at tick %d, period %d, width %d (guard %.1f us)", seq, t0, period, width, guard * 1e6)
@@ -405,8 +410,22 @@ class SyncController:
         phase = want - tr.start(slot)
         if phase == 0 and period == tr.period:
             return
-        self.mcu.trim(phase, period)  # trims waiting for the same slot add up, as the copy assumes
+        if not self._command(self.mcu.trim, phase, period):  # trims waiting for one slot add up, as the copy assumes
+            return
         tr.ref_slot, tr.ref_tick, tr.period = slot, want, period
+
+    def _command(self, send: Callable, *args) -> bool:
+        """Send a schedule/trim; a refusal or a dead link drops to ACQUIRING (a new train next frame)."""
+        try:
+            send(*args)
+            return True
+        except (ValueError, RuntimeError) as exc:  # ScheduleRefused / CoMcuNack / CoMcuTimeout name the reason
+            why = f"co-MCU refused a command: {exc}"
+            (log.debug if why == self.reason else log.warning)("%s (%s)", why, getattr(send, "__name__", send))
+            self.refusals += 1
+            self._unlock(why)
+            self.train = None
+            return False
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
@@ -511,7 +530,10 @@ def thesis_error_s(t_pts_s: float, t_pwm_s: float, period_s: float, delta_s: flo
 
 
 class ThesisController:
-    """Baseline: P controller on the camera frame rate against the predicted pulse train (open loop in drift)."""
+    """Baseline: P controller on the camera frame rate against the predicted pulse train (open loop in drift).
+
+    With a pattern (ERRATA 10) a frame is labelled lit if the slot eq. 5.1 assigns it is lit.
+    """
 
     def __init__(self, cfg: SyncConfig, camera: FrameDurationControl, t_pwm_ns: int, interval_ns: int,
                  delta_s: float, pattern: Sequence[bool], lock_frames: int = 5) -> None:
@@ -526,12 +548,10 @@ class ThesisController:
         self.lock_frames = lock_frames
         self.state = SyncState.ACQUIRING
         self._good = 0
-        self.last_error_s = math.nan
 
     def on_frame(self, frame: FrameInfo, now_ns: int) -> FrameLabel:
         p = self.cfg.frame_duration_s
         e = thesis_error_s(frame.sensor_timestamp_ns * 1e-9, self.t_pwm_s, p, self.delta_s, self.interval_s)
-        self.last_error_s = e
         f = self.f0 + self.gain * (e / p)
         self.camera.request(frame_duration_s=1.0 / f)
         self._good = self._good + 1 if abs(e) < self.interval_s else 0

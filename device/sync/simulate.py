@@ -59,7 +59,7 @@ def _sync_config(p: SimParams) -> SyncConfig:
     c = p.camera
     return SyncConfig(row_min=p.row_min, row_max=p.row_max, frame_duration_s=c.frame_duration_s, pattern=p.pattern,
                       tick_hz=p.mcu.tick_hz, gpio_latency_min_s=p.mcu.gpio_latency_min_s,
-                      link_min_rtt_s=2 * p.mcu.link_leg_min_s, **p.sync)
+                      link_up_min_s=p.mcu.link_up_min_s, link_down_min_s=p.mcu.link_down_min_s, **p.sync)
 
 
 def run(p: SimParams) -> SimResult:

@@ -9,6 +9,23 @@
  * schedules can build a denser train: a violation at run time is a fault (laser off).
  * Width: every pulse is armed to fall at rise + width <= MAX_PULSE_TICKS; a guard in the timer
  * overflow interrupt and the main loop switches the laser off if a pulse is ever seen longer.
+ *
+ * Rate rule (interlock_rate_gap).  With P = MIN_PERIOD_TICKS, two consecutive pulses of widths
+ * w1 (rise r1, fall f1 = r1 + w1) and w2 (rise r2 = f1 + g, fall f2 = r2 + w2) need
+ *     g >= P - min(w1, w2).
+ * Claim: then r2 - r1 >= P and f2 - f1 >= P, whatever w1 and w2 are.  Proof: r2 - r1 = w1 + g
+ * >= P + w1 - min(w1, w2) >= P, and f2 - f1 = g + w2 >= P + w2 - min(w1, w2) >= P.  (A rule on
+ * one width only would not do: g >= P - w1 lets a wide pulse follow a narrow one with its fall
+ * less than P after the narrow one's fall; g >= P - w2 the converse for rises.)  Consecutive
+ * rises, and consecutive falls, being each at least P apart, any time window of length L holds at
+ * most floor(L / P) + 1 rises (and as many falls): no more pulses than a regular train of period P
+ * holds, which is what device/model/envelope.py verifies against the safety model for every width
+ * the envelope allows (there a hair below P, so that floor(L / P) + 1 is counted even when L / P is
+ * whole).  Conservative across schedule changes: the run-time check takes w1 from the last pulse's
+ * actual edges (last_fall - last_rise, also when it was cut short) and w2 from the pulse about to
+ * be armed, and it runs before every rise is armed whichever path computed it (SCHEDULE after a
+ * STOP, a TRIM's phase step or period change, the next slot at a fall); the acceptance checks of
+ * SCHEDULE and TRIM apply the same rule first and refuse with NACK_ENVELOPE_RATE.
  */
 #include "core.h"
 #include "config.h"
@@ -21,6 +38,18 @@ uint32_t interlock_min_gap(uint32_t width)
     if (gap < MIN_GAP_TICKS)
         gap = MIN_GAP_TICKS;
     return gap > 0xFFFFFFFFULL ? 0xFFFFFFFFUL : (uint32_t)gap;
+}
+
+uint32_t interlock_rate_gap(uint32_t w1, uint32_t w2)
+{
+    uint32_t narrow = w1 < w2 ? w1 : w2;
+    return MIN_PERIOD_TICKS > narrow ? MIN_PERIOD_TICKS - narrow : 0;
+}
+
+/* Width of the last pulse from its actual edges (the longest possible if none is complete). */
+static uint32_t actual_width(uint64_t rise, uint64_t fall)
+{
+    return fall >= rise && fall - rise < 0xFFFFFFFFULL ? (uint32_t)(fall - rise) : 0xFFFFFFFFUL;
 }
 
 uint8_t pattern_min_spacing(uint32_t mask, uint8_t n)
@@ -90,6 +119,7 @@ void core_send_info(core_t *c, uint16_t seq)
     put_u32(p + 4, MAX_PULSE_TICKS);
     put_u32(p + 8, MAX_DUTY_PPM);
     put_u32(p + 12, TICKS_PER_SECOND);
+    put_u32(p + 16, MIN_PERIOD_TICKS);
     reply(MSG_INFO, seq, p, sizeof p);
 }
 
@@ -139,20 +169,27 @@ static void record_fall(core_t *c, uint64_t t, uint8_t flags)
 }
 
 /* The run-time interlock, on the actual edges: may a pulse of the current width rise at `rise`
- * after the last real fall?  Checked before every rise is armed, whatever path computed it. */
-static uint8_t gap_ok(const core_t *c, uint64_t rise)
+ * after the last real fall?  Returns 0 if so, else the fault: FAULT_DUTY (duty rule) or
+ * FAULT_RATE (rate rule, file comment).  No division: it runs in the fall interrupt.  Checked
+ * before every rise is armed, whatever path computed it. */
+static uint8_t gap_fault(const core_t *c, uint64_t rise)
 {
     if (!c->have_last)
-        return 1;
+        return 0;
     uint32_t need = c->last_min_gap > c->min_gap ? c->last_min_gap : c->min_gap;
-    return rise > c->last_fall && rise - c->last_fall >= need;
+    if (rise <= c->last_fall || rise - c->last_fall < need)
+        return FAULT_DUTY;
+    if (rise - c->last_fall < interlock_rate_gap(actual_width(c->last_rise, c->last_fall), c->width))
+        return FAULT_RATE;
+    return 0;
 }
 
 /* Interrupts disabled: arms the next rise after the run-time interlock; a fault otherwise. */
 static void arm_next(core_t *c, uint64_t now)
 {
-    if (!gap_ok(c, c->next_rise))
-        core_fault(c, FAULT_DUTY, now);
+    uint8_t fault = gap_fault(c, c->next_rise);
+    if (fault)
+        core_fault(c, fault, now);
     else if (hw_arm_rise(c->next_rise))
         core_fault(c, FAULT_LATE, now);
 }
@@ -204,8 +241,9 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
         pos = (uint8_t)(pos + 1 == c->n ? 0 : pos + 1);
         rise += c->period;
     }
-    if (!gap_ok(c, rise)) { /* run-time duty interlock on the actual edges */
-        core_fault(c, FAULT_DUTY, t);
+    uint8_t fault = gap_fault(c, rise); /* run-time interlock on the actual edges */
+    if (fault) {
+        core_fault(c, fault, t);
         return 0;
     }
     c->next_rise = rise;
@@ -254,6 +292,10 @@ static void do_schedule(core_t *c, const frame_t *f)
         refuse(c, f->msg_type, f->seq, NACK_ENVELOPE_DUTY, min_gap);
         return;
     }
+    if (spacing < MIN_PERIOD_TICKS) {
+        refuse(c, f->msg_type, f->seq, NACK_ENVELOPE_RATE, MIN_PERIOD_TICKS);
+        return;
+    }
     uint8_t s = hw_irq_save();
     if (c->state != STATE_IDLE) {
         uint8_t state = c->state;
@@ -275,9 +317,12 @@ static void do_schedule(core_t *c, const frame_t *f)
         detail = (uint32_t)now;
     } else if (c->have_last) {
         uint32_t need = c->last_min_gap > min_gap ? c->last_min_gap : min_gap;
-        if (rise - c->last_fall < need) {
+        if (rise <= c->last_fall || rise - c->last_fall < need) {
             reason = NACK_ENVELOPE_DUTY;
             detail = need;
+        } else if (rise - c->last_fall < interlock_rate_gap(actual_width(c->last_rise, c->last_fall), width)) {
+            reason = NACK_ENVELOPE_RATE;
+            detail = MIN_PERIOD_TICKS;
         }
     }
     if (!reason) {
@@ -334,7 +379,7 @@ static void do_trim(core_t *c, const frame_t *f)
             uint8_t state, pin_high, trim_pending, n, have_last, cur_pos, next_pos;
             uint32_t period, width, mask, min_gap, last_min_gap, cur_index, next_index, slot_floor;
             int32_t trim_phase, trim_period;
-            uint64_t next_rise, last_fall;
+            uint64_t next_rise, last_fall, last_rise;
         } snap;
         uint8_t s = hw_irq_save();
         snap.state = c->state; snap.pin_high = c->pin_high; snap.trim_pending = c->trim_pending;
@@ -342,7 +387,7 @@ static void do_trim(core_t *c, const frame_t *f)
         snap.period = c->period; snap.width = c->width; snap.mask = c->mask; snap.min_gap = c->min_gap;
         snap.last_min_gap = c->last_min_gap; snap.cur_index = c->cur_index; snap.next_index = c->next_index;
         snap.slot_floor = c->slot_floor; snap.trim_phase = c->trim_phase; snap.trim_period = c->trim_period;
-        snap.next_rise = c->next_rise; snap.last_fall = c->last_fall;
+        snap.next_rise = c->next_rise; snap.last_fall = c->last_fall; snap.last_rise = c->last_rise;
         hw_irq_restore(s);
         if (snap.state != STATE_RUNNING) {
             reason = NACK_NOT_RUNNING;
@@ -358,9 +403,15 @@ static void do_trim(core_t *c, const frame_t *f)
         }
         /* steady state at the new period, then the one gap the phase changes */
         int64_t need = (int64_t)snap.width + snap.min_gap;
-        if ((int64_t)pattern_min_spacing(snap.mask, snap.n) * period < need) {
+        int64_t spacing = (int64_t)pattern_min_spacing(snap.mask, snap.n) * period;
+        if (spacing < need) {
             reason = NACK_ENVELOPE_DUTY;
             info = snap.min_gap;
+            break;
+        }
+        if (spacing < (int64_t)MIN_PERIOD_TICKS) {
+            reason = NACK_ENVELOPE_RATE;
+            info = MIN_PERIOD_TICKS;
             break;
         }
         uint8_t pulse_pos = snap.pin_high ? snap.cur_pos : snap.next_pos;
@@ -386,25 +437,48 @@ static void do_trim(core_t *c, const frame_t *f)
                 break;
             }
             uint32_t last_need = snap.last_min_gap > snap.min_gap ? snap.last_min_gap : snap.min_gap;
-            if (snap.have_last && (uint64_t)now_rise - snap.last_fall < last_need) {
+            if (snap.have_last && ((uint64_t)now_rise <= snap.last_fall ||
+                                   (uint64_t)now_rise - snap.last_fall < last_need)) {
                 reason = NACK_ENVELOPE_DUTY;
                 info = last_need;
+                break;
+            }
+            if (snap.have_last && (uint64_t)now_rise - snap.last_fall <
+                                      interlock_rate_gap(actual_width(snap.last_rise, snap.last_fall), snap.width)) {
+                reason = NACK_ENVELOPE_RATE;
+                info = MIN_PERIOD_TICKS;
                 break;
             }
         } else if (later_gap < (int64_t)snap.min_gap) {
             reason = NACK_ENVELOPE_DUTY;
             info = snap.min_gap;
             break;
+        } else if (later_gap < (int64_t)interlock_rate_gap(snap.width, snap.width)) {
+            reason = NACK_ENVELOPE_RATE;
+            info = MIN_PERIOD_TICKS;
+            break;
         }
         s = hw_irq_save();
         uint8_t same = c->state == snap.state && c->pin_high == snap.pin_high && c->period == snap.period &&
                        c->next_rise == snap.next_rise && c->trim_pending == snap.trim_pending &&
                        c->trim_phase == snap.trim_phase && c->trim_period == snap.trim_period;
-        if (same && immediate && (uint64_t)now_rise > hw_now() + ARM_MARGIN_TICKS) {
+        if (same && immediate) {
+            /* The run-time interlock first: its 64-bit work takes up to ~50 us on the AVR
+             * (measured in simavr), and a time check made before it let a phase step that
+             * lands the rise just ahead be armed too late (a LATE fault).  Then the time check,
+             * right before arming, with room for hw_arm_rise's own work (~30 us). */
+            uint8_t fault = gap_fault(c, (uint64_t)now_rise);
+            if (!fault && (uint64_t)now_rise <= hw_now() + 3 * ARM_MARGIN_TICKS) {
+                hw_irq_restore(s); /* now too close: decide again */
+                continue;
+            }
             c->period = (uint32_t)period;
             c->next_rise = (uint64_t)now_rise;
             c->slot_floor = slot; /* slots before it keep their (old-period) starts */
-            arm_next(c, hw_now()); /* re-arm: replaces the rise armed before */
+            if (fault)
+                core_fault(c, fault, hw_now());
+            else if (hw_arm_rise(c->next_rise)) /* re-arm: replaces the rise armed before */
+                core_fault(c, FAULT_LATE, hw_now());
             info = slot;
             hw_irq_restore(s);
             break;

@@ -70,5 +70,7 @@ void core_send_info(core_t *c, uint16_t seq);
 
 /* Interlock arithmetic, exposed for the unit tests. */
 uint32_t interlock_min_gap(uint32_t width);
+/* Off time the rate rule needs between pulses of widths w1 then w2: MIN_PERIOD - min(w1, w2). */
+uint32_t interlock_rate_gap(uint32_t w1, uint32_t w2);
 uint8_t pattern_min_spacing(uint32_t mask, uint8_t n);
 #endif

@@ -21,7 +21,7 @@
 #define MSG_NACK 0x62   /* <BBI acked_type, reason, detail                        (6) */
 #define MSG_STATUS 0x63 /* <BBBBIHHHHHIIQQ see README                             (42) */
 #define MSG_EDGE 0x64   /* <IQQB index, rise, fall, flags                         (21) */
-#define MSG_INFO 0x65   /* <BBHIII version, reset_cause, hb_ms, max_pulse, max_duty_ppm, ticks/s (16) */
+#define MSG_INFO 0x65   /* <BBHIIII version, reset_cause, hb_ms, max_pulse, max_duty_ppm, ticks/s, min_period (20) */
 
 #define LEN_SCHEDULE 22
 #define LEN_TRIM 8
@@ -30,7 +30,7 @@
 #define LEN_NACK 6
 #define LEN_STATUS 42
 #define LEN_EDGE 21
-#define LEN_INFO 16
+#define LEN_INFO 20
 
 #define SCHEDULE_FLAG_STREAM_EDGES 0x01
 
@@ -45,6 +45,7 @@
 #define NACK_BAD_PATTERN 8     /* n outside 1..32, no lit frame, or mask bits beyond n */
 #define NACK_BAD_VALUE 9       /* width or period below the minimum the firmware can place */
 #define NACK_NOT_RUNNING 10    /* TRIM without a running schedule */
+#define NACK_ENVELOPE_RATE 11  /* pulses closer than MIN_PERIOD_TICKS (rise to rise or fall to fall); detail = it */
 
 /* states */
 #define STATE_IDLE 0
@@ -56,6 +57,7 @@
 #define FAULT_WIDTH 0x02       /* run-time guard: pulse exceeded MAX_PULSE_TICKS */
 #define FAULT_DUTY 0x04        /* run-time guard: next pulse would violate the duty envelope */
 #define FAULT_LATE 0x08        /* a rise could not be armed in time */
+#define FAULT_RATE 0x10        /* run-time guard: next pulse would come closer than MIN_PERIOD_TICKS */
 
 /* edge flags */
 #define EDGE_FALL_FORCED 0x01  /* the fall could not be armed in time: software ended the pulse, late */

@@ -144,6 +144,18 @@ static void test_interlock_math(void)
 {
     CHECK(interlock_min_gap(34800) == 34800UL * 4, "20%% duty -> gap 4w, got %u", interlock_min_gap(34800));
     CHECK(interlock_min_gap(10) == MIN_GAP_TICKS, "min gap floor");
+    /* rate rule: MIN_PERIOD minus the narrower width, so rises and falls are both >= MIN_PERIOD apart */
+    CHECK(interlock_rate_gap(2000, 30000) == MIN_PERIOD_TICKS - 2000, "narrow then wide");
+    CHECK(interlock_rate_gap(30000, 2000) == MIN_PERIOD_TICKS - 2000, "wide then narrow");
+    CHECK(interlock_rate_gap(MIN_PERIOD_TICKS + 5, 0xFFFFFFFFUL) == 0, "no underflow");
+    for (int i = 0; i < 100000; i++) { /* the proof of core.c, by random widths */
+        uint32_t w1 = MIN_PULSE_TICKS + rnd() % (MAX_PULSE_TICKS + 1), w2 = MIN_PULSE_TICKS + rnd() % (MAX_PULSE_TICKS + 1);
+        uint64_t gap = interlock_rate_gap(w1, w2);
+        if (w1 + gap < MIN_PERIOD_TICKS || gap + w2 < MIN_PERIOD_TICKS) {
+            CHECK(0, "w1 %u w2 %u gap %llu: rise or fall interval below MIN_PERIOD", w1, w2, (unsigned long long)gap);
+            break;
+        }
+    }
     CHECK(pattern_min_spacing(0x1, 1) == 1, "every frame");
     CHECK(pattern_min_spacing(0x1, 2) == 2, "every other");
     CHECK(pattern_min_spacing(0x5, 4) == 2, "1010");
@@ -198,7 +210,7 @@ static void test_schedule_pattern(void)
     fake_reset(1000);
     uint8_t p[LEN_SCHEDULE];
     uint64_t first = 200000;
-    uint32_t period = 66667, width = 20000; /* 30 fps, every other frame lit */
+    uint32_t period = 100000, width = 20000; /* 20 fps, every other frame lit: 10 Hz */
     schedule_payload(p, first, period, width, 0x1, 2, 0);
     frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
     CHECK(r.msg_type == MSG_ACK && r.payload[0] == MSG_SCHEDULE, "ack, got 0x%02x", r.msg_type);
@@ -211,15 +223,15 @@ static void test_schedule_pattern(void)
         exact &= fake.edge_level[k + 1] == 0 && fake.edge_t[k + 1] == rise + width;
     }
     CHECK(exact, "edges on the exact ticks");
-    /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w */
+    /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w and >= MIN_PERIOD - w */
     core_init(&c, 0);
     fake_reset(1000);
-    schedule_payload(p, first, 100000, 20000, 0x6, 3, 0);
+    schedule_payload(p, first, 200000, 20000, 0x6, 3, 0);
     r = command(&c, MSG_SCHEDULE, p, sizeof p);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "first lit index 1");
-    run_with_heartbeats(&c, first + 6 * 100000);
-    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 100000 && fake.edge_t[2] == first + 200000 &&
-              fake.edge_t[4] == first + 400000, "frames 1,2,4,5 lit");
+    run_with_heartbeats(&c, first + 6 * 200000);
+    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 200000 && fake.edge_t[2] == first + 400000 &&
+              fake.edge_t[4] == first + 800000, "frames 1,2,4,5 lit");
 }
 
 static void test_refusals(void)
@@ -237,8 +249,11 @@ static void test_refusals(void)
         {200000, 100000, 10000, 0x4, 2, NACK_BAD_PATTERN},
         {200000, 100000, 10000, 1, 33, NACK_BAD_PATTERN},
         {200000, 100000, 10, 1, 1, NACK_BAD_VALUE},
-        {1000, 100000, 10000, 1, 1, NACK_BAD_TIME},
-        {1000 + MAX_LEAD_TICKS + 1000, 100000, 10000, 1, 1, NACK_BAD_TIME},
+        {1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
+        {1000 + MAX_LEAD_TICKS + 1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
+        {200000, MIN_PERIOD_TICKS - 1, 1000, 1, 1, NACK_ENVELOPE_RATE},      /* short pulses, too often */
+        {200000, MIN_PERIOD_TICKS / 2 - 1, 1000, 1, 2, NACK_ENVELOPE_RATE},  /* every other frame */
+        {200000, MIN_PERIOD_TICKS - 1, 1000, 0x5, 3, NACK_ENVELOPE_RATE},    /* 101: slot 2 then slot 0 */
     };
     for (unsigned i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         schedule_payload(p, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
@@ -249,10 +264,10 @@ static void test_refusals(void)
     CHECK(c.refused == sizeof cases / sizeof cases[0] && c.state == STATE_IDLE, "counted, idle");
     fake_run(&c, 2000000);
     CHECK(fake.n_edges == 0, "refused schedules never light the laser");
-    /* exactly at the envelope is accepted */
-    schedule_payload(p, 2200000, 100000, 20000, 1, 1, 0);
+    /* exactly at the envelope is accepted: the shortest period with the longest pulse */
+    schedule_payload(p, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
-    CHECK(r.msg_type == MSG_ACK, "20 %% exactly accepted");
+    CHECK(r.msg_type == MSG_ACK, "MIN_PERIOD with MAX_PULSE accepted");
     r = command(&c, MSG_SCHEDULE, p, sizeof p);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "busy while running");
     const uint8_t t[LEN_TRIM] = {0};
@@ -295,6 +310,25 @@ static void test_trim(void)
     put_u32(t + 4, 0);
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "big negative phase refused");
+    /* the rate limit: a period one tick short, or a phase step that brings a rise one tick too close */
+    put_u32(t, 0);
+    put_u32(t + 4, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS + 1));
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE && get_u32(r.payload + 2) == MIN_PERIOD_TICKS,
+          "period below MIN_PERIOD refused");
+    put_u32(t, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS + 1));
+    put_u32(t + 4, 0);
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "phase step below MIN_PERIOD refused");
+    put_u32(t, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS));
+    r = command(&c, MSG_TRIM, t, sizeof t);
+    CHECK(r.msg_type == MSG_ACK, "phase step to exactly MIN_PERIOD accepted");
+    uint32_t before = fake.n_edges;
+    run_with_heartbeats(&c, fake.now + 3 * period);
+    int rate_ok = fake.n_edges > before + 2;
+    for (uint32_t k = 2; k < fake.n_edges; k++)
+        rate_ok &= fake.edge_t[k] - fake.edge_t[k - 2] >= MIN_PERIOD_TICKS;
+    CHECK(rate_ok && c.state == STATE_RUNNING, "train at exactly MIN_PERIOD runs");
 }
 
 /* A trim moves the first slot starting at least MIN_LEAD after it arrives; pattern 0b01 of 2
@@ -344,6 +378,47 @@ static void test_runtime_interlock(void)
     fake_run(&c, 1000000);
     CHECK(fake.n_edges == 2 && fake.pin == 0, "only the first pulse, got %u edges", fake.n_edges);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_DUTY), "duty fault latched");
+    /* rate rule at run time, widths changing between two pulses (acceptance bypassed): a 15 ms
+     * pulse, then 1 ms pulses.  Rise to rise stays >= MIN_PERIOD but fall to fall would not. */
+    for (int k = 0; k < 2; k++) {
+        core_init(&c, 0);
+        fake_reset(1000);
+        schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
+        command(&c, MSG_SCHEDULE, p, sizeof p);
+        run_with_heartbeats(&c, 100001);   /* pulse 0 in flight, its fall armed at 130000 */
+        c.width = 2000;                     /* the next pulses are narrow */
+        c.trim_pending = 1;
+        /* k = 0: rise 1 at 285000: rises 185000 apart, falls 157000 (< MIN_PERIOD) -> fault;
+         * k = 1: rise 1 at 310000: falls 182000 apart -> runs */
+        c.trim_phase = k == 0 ? -15000 : 10000;
+        run_with_heartbeats(&c, 400000);
+        if (k == 0)
+            CHECK(fake.n_edges == 2 && c.state == STATE_FAULT && c.faults == FAULT_RATE,
+                  "fall-to-fall too close: rate fault, %u edges, faults %u", fake.n_edges, c.faults);
+        else
+            CHECK(fake.n_edges == 4 && fake.edge_t[2] == 310000 && fake.edge_t[3] == 312000 &&
+                      c.state == STATE_RUNNING, "fall-to-fall at MIN_PERIOD: runs");
+    }
+    /* a pulse cut short by STOP counts with its actual width: SCHEDULE right after is checked on
+     * the real edges (rise to rise and fall to fall) */
+    core_init(&c, 0);
+    fake_reset(1000);
+    schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, 102000);
+    command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~2000 ticks */
+    uint64_t cut_rise = fake.edge_t[0], cut_fall = fake.edge_t[1];
+    schedule_payload(p, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
+    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: fall to fall");
+    schedule_payload(p, cut_rise + MIN_PERIOD_TICKS - 1, 200000, 1000, 1, 1, 0);
+    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: rise to rise");
+    schedule_payload(p, cut_rise + MIN_PERIOD_TICKS, 200000, (uint32_t)(cut_fall - cut_rise), 1, 1, 0);
+    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    CHECK(r.msg_type == MSG_ACK, "after a cut pulse: rises and falls exactly MIN_PERIOD apart accepted");
+    command(&c, MSG_STOP, NULL, 0);
+    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     /* width guard: a pulse seen high too long is cut */
     core_init(&c, 0);
     fake_reset(1000);
@@ -363,7 +438,7 @@ static void test_heartbeat(void)
     core_init(&c, 0);
     fake_reset(1000);
     uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 100000, 20000, 1, 1, 0);
+    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     command(&c, MSG_SCHEDULE, p, sizeof p);
     uint64_t last_hb = fake.now;
     fake_run(&c, 100000 + 10000); /* mid pulse, heartbeats stop */
@@ -404,7 +479,8 @@ static void test_parser_garbage(void)
     CHECK(r.msg_type == MSG_STATUS && r.len == LEN_STATUS && get_u16(r.payload + 12) == 1, "status counters");
     r = command(&c, MSG_INFO_REQ, NULL, 0);
     CHECK(r.msg_type == MSG_INFO && get_u32(r.payload + 4) == MAX_PULSE_TICKS &&
-              get_u32(r.payload + 8) == MAX_DUTY_PPM, "info carries the envelope");
+              get_u32(r.payload + 8) == MAX_DUTY_PPM && get_u32(r.payload + 16) == MIN_PERIOD_TICKS,
+          "info carries the envelope");
 }
 
 static void test_stop_and_edges(void)
@@ -413,9 +489,9 @@ static void test_stop_and_edges(void)
     core_init(&c, 0);
     fake_reset(1000);
     uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 100000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    schedule_payload(p, 100000, 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
     command(&c, MSG_SCHEDULE, p, sizeof p);
-    run_with_heartbeats(&c, 210000); /* pulse 0 done, pulse 1 in flight */
+    run_with_heartbeats(&c, 310000); /* pulse 0 done, pulse 1 in flight */
     core_poll(&c);
     frame_t r;
     int got = fake_reply(&r);
@@ -426,7 +502,7 @@ static void test_stop_and_edges(void)
     core_poll(&c);
     got = fake_reply(&r);
     CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 1 && r.payload[20] == EDGE_CUT &&
-              get_u64(r.payload + 12) == 210000, "cut pulse reported");
+              get_u64(r.payload + 12) == 310000, "cut pulse reported");
     fake_run(&c, 1000000);
     CHECK(fake.n_edges == 4, "nothing after stop");
 }
@@ -434,7 +510,7 @@ static void test_stop_and_edges(void)
 static void test_random_commands_interlock(void)
 {
     /* Random, mostly hostile command streams: check every emitted pulse and gap. */
-    int violations = 0, pulses = 0;
+    int violations = 0, rate_violations = 0, pulses = 0;
     for (int trial = 0; trial < 500; trial++) {
         core_t c;
         core_init(&c, 0);
@@ -444,7 +520,7 @@ static void test_random_commands_interlock(void)
             uint8_t t[LEN_TRIM];
             switch (rnd() % 6) {
             case 0:
-                schedule_payload(p, fake.now + 200 + rnd() % 400000, 1000 + rnd() % 200000,
+                schedule_payload(p, fake.now + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
                                  rnd() % (MAX_PULSE_TICKS + 5000), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
                 command(&c, MSG_SCHEDULE, p, sizeof p);
                 break;
@@ -469,11 +545,14 @@ static void test_random_commands_interlock(void)
                 uint64_t wmax = w > w2 ? w : w2;
                 uint64_t gap = fake.edge_t[k + 1] - fake.edge_t[k];
                 violations += gap * MAX_DUTY_PPM < wmax * (1000000ULL - MAX_DUTY_PPM);
+                rate_violations += k + 2 < fake.n_edges && (fake.edge_t[k + 1] - fake.edge_t[k - 1] < MIN_PERIOD_TICKS ||
+                                                            fake.edge_t[k + 2] - fake.edge_t[k] < MIN_PERIOD_TICKS);
             }
         }
     }
     CHECK(pulses > 200, "random streams produced %d pulses", pulses);
     CHECK(violations == 0, "%d envelope violations in %d pulses", violations, pulses);
+    CHECK(rate_violations == 0, "%d rise-to-rise or fall-to-fall intervals below MIN_PERIOD", rate_violations);
 }
 
 int main(void)

@@ -1,0 +1,94 @@
+"""`laserpi bench process`: CPU time per scan of the device process, and Pi Zero 2 W headroom.
+
+Runs ``laserpi serve --simulate --stats-file`` behind a pty, reads its scans with the host SDK,
+and takes the process's CPU time (getrusage: all its threads) between a snapshot after warm-up
+and the one it writes at exit. What the simulation itself costs is subtracted, because a Pi does
+not pay it: rendering the frames (the simulated camera's capture) and stepping the co-MCU
+emulator (the simulated clock thread; the emulator is a separate process anyway). What remains
+is the device: the pipeline, the synchronisation and co-MCU link, pairing, the scan link
+(encoding, writing), and the orchestration around them.
+
+Not included: the Pi's own camera capture path (picamera2 hands over the Y plane of each frame in
+its own thread); it is not simulated, so not measured here.
+
+Headroom on a Pi Zero 2 W (4 x Cortex-A53 at 1 GHz) is an estimate: device CPU per scan here
+times ``--slowdown`` (default 15: clock 1 GHz against ~3 GHz, about 2.5x lower IPC of the in-order
+A53, and half the SIMD width of NEON against AVX2 for the numpy/OpenCV-heavy parts; plausible
+range 8-25), against the 100 ms a scan may take at 10 Hz on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seconds", type=float, default=20.0, help="measured span after warm-up")
+    parser.add_argument("--warmup", type=float, default=6.0, help="seconds before the first snapshot")
+    parser.add_argument("--slowdown", type=float, default=15.0, help="Cortex-A53 @ 1 GHz per-core slowdown vs here")
+    parser.add_argument("--json", action="store_true")
+
+
+def cost_per_scan(a: dict, b: dict) -> dict:
+    """CPU ms per scan between two stats snapshots of `laserpi serve --stats-file`."""
+    scans = b["source"]["scans_made"] - a["source"]["scans_made"]
+    if scans <= 0:
+        raise ValueError("no scans between the snapshots")
+
+    def d(key, sub=None):
+        return (b[sub][key] - a[sub][key]) if sub else (b[key] - a[key])
+
+    process = d("cpu_process_s")
+    render = d("cpu_camera_s", "source")
+    sim_clock = d("cpu_sim_clock_s")
+    device = process - render - sim_clock
+    return {
+        "scans": scans,
+        "scan_rate_hz": scans / d("monotonic_s"),
+        "process_ms_per_scan": 1e3 * process / scans,
+        "simulation_ms_per_scan": 1e3 * (render + sim_clock) / scans,
+        "device_ms_per_scan": 1e3 * device / scans,
+        "pipeline_ms_per_scan": 1e3 * d("cpu_pipeline_s", "source") / scans,
+        "laser_sync_ms_per_scan": 1e3 * d("cpu_laser_s", "source") / scans,
+        "other_ms_per_scan": 1e3 * (device - d("cpu_pipeline_s", "source") - d("cpu_laser_s", "source")) / scans,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    import host_sdk
+    from device.serve_child import start_serve, stop_serve
+
+    with tempfile.TemporaryDirectory(prefix="laserpi-bench-") as tmp:
+        link, stats = Path(tmp) / "laserpi", Path(tmp) / "stats.json"
+        proc = start_serve(link, ["--simulate", "--scene", "wall", "--stats-file", str(stats)],
+                           log_path=Path(tmp) / "serve.log")
+        try:
+            with host_sdk.LaserPi(str(link), timeout_s=15.0) as sensor:
+                it = sensor.scans()
+                end = time.monotonic() + args.warmup
+                while time.monotonic() < end:
+                    next(it)
+                first = json.loads(stats.read_text())
+                end = time.monotonic() + args.seconds
+                while time.monotonic() < end:
+                    next(it)
+        finally:
+            stop_serve(proc)
+        last = json.loads(stats.read_text())
+    r = cost_per_scan(first, last)
+    pi_ms = r["device_ms_per_scan"] * args.slowdown
+    r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_core_load_at_10hz=pi_ms / 100.0)
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    print(f"{r['scans']} scans at {r['scan_rate_hz']:.2f} Hz: process {r['process_ms_per_scan']:.1f} ms CPU/scan = "
+          f"simulation {r['simulation_ms_per_scan']:.1f} + device {r['device_ms_per_scan']:.1f} "
+          f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
+          f"other {r['other_ms_per_scan']:.1f})")
+    print(f"Pi Zero 2 W estimate (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
+          f"{100 * pi_ms / 100.0:.0f} % of one of its 4 cores at 10 Hz")
+    return 0

@@ -1,0 +1,293 @@
+"""The device process's orchestration and fault handling, against fakes of camera, co-MCU and
+pipeline (tests/device_fakes.py). The real parts run end to end in tests/test_serve.py."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from device.link import DeviceConfig
+from device.ports import PacedPort, pipe_pair
+from device.process import LinkSupervisor, ProcessError, SensorSource
+from protocol import messages as m
+from protocol.framing import encode_frame
+from protocol.stream import StreamDecoder
+from tests.device_fakes import N_POINTS, WALL_M, FakeCamera, FakeLaser, FakePipeline, FakeRig, fake_geometry
+
+
+def make_source(rig: FakeRig, **kw) -> tuple[SensorSource, FakeCamera, FakeLaser, FakePipeline]:
+    cam, laser, pipe = FakeCamera(rig), FakeLaser(rig), FakePipeline()
+    src = SensorSource(cam, laser, pipe, fake_geometry(), stall_timeout_s=0.3, laser_retry_s=0.2, **kw)
+    src.apply(settings())
+    return src, cam, laser, pipe
+
+
+def settings(**kw) -> m.ScanSettings:
+    base = dict(scan_rate_hz=20.0, exposure_us=1000, roi_first=0, roi_count=N_POINTS, median_window=1,
+                min_quality=0, laser_power_mw=4.0)
+    base.update(kw)
+    return m.ScanSettings(**base)
+
+
+def scans_for(src: SensorSource, seconds: float) -> list:
+    out, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        s = src.next_scan(0.1)
+        if s is not None:
+            out.append(s)
+    return out
+
+
+def test_pairs_lit_and_dark_frames_into_scans():
+    rig = FakeRig()
+    src, cam, laser, pipe = make_source(rig)
+    src.start()
+    scans = scans_for(src, 0.6)
+    src.stop()
+    assert len(scans) >= 8  # 40 fps -> 20 pairs/s, minus the frame the laser starts on
+    assert pipe.pairs == len(scans) and src.counters.pipeline_errors == 0
+    assert all(s.ranges_m.shape == (N_POINTS,) and np.all(s.ranges_m == WALL_M) for s in scans)
+    assert rig.lit_parity is None, "laser must be off after stop"
+    assert src.status().errors == ()
+
+
+def test_camera_stall_of_one_second_is_reported_and_the_stream_resumes():
+    rig = FakeRig()
+    src, cam, laser, _ = make_source(rig)
+    src.start()
+    assert scans_for(src, 0.3)
+    rig.stall_until = time.monotonic() + 1.0
+    seen_fault = False
+    while time.monotonic() < rig.stall_until:
+        src.next_scan(0.05)
+        st = src.status()
+        if ProcessError.CAMERA_FAULT in st.errors:
+            seen_fault = True
+            assert not st.laser_on and rig.lit_parity is None, "laser must be off while the camera stalls"
+    assert seen_fault
+    after = scans_for(src, 0.6)
+    assert len(after) >= 5
+    assert src.counters.camera_stalls >= 1 and src.counters.camera_restarts >= 1 and cam.starts >= 2
+    assert ProcessError.CAMERA_FAULT not in src.status().errors and src.status().laser_on
+    src.stop()
+
+
+def test_camera_error_restarts_the_camera():
+    rig = FakeRig()
+    src, cam, _, _ = make_source(rig)
+    src.start()
+    assert scans_for(src, 0.2)
+    rig.camera_raise = 1
+    assert scans_for(src, 0.8)
+    assert src.counters.camera_errors == 1 and src.counters.camera_restarts == 1 and cam.starts == 2
+    src.stop()
+
+
+def test_comcu_reset_mid_stream_turns_laser_off_reports_and_resyncs():
+    rig = FakeRig()
+    src, _, laser, pipe = make_source(rig)
+    src.start()
+    assert scans_for(src, 0.3)
+    rig.mcu_reset_pending = True
+    deadline = time.monotonic() + 1.0
+    while ProcessError.LASER_FAULT not in src.status().errors and time.monotonic() < deadline:
+        src.next_scan(0.05)
+    st = src.status()
+    assert ProcessError.LASER_FAULT in st.errors and ProcessError.SYNC_LOST in st.errors
+    assert not st.laser_on and not st.sync_locked
+    after = scans_for(src, 0.7)
+    assert len(after) >= 5 and src.counters.comcu_resets == 1 and laser.starts == 2
+    assert src.status().errors == () and src.counters.pipeline_errors == 0
+    src.stop()
+
+
+def test_comcu_lost_for_a_while_retries_until_it_answers():
+    rig = FakeRig()
+    src, _, laser, _ = make_source(rig)
+    src.start()
+    assert scans_for(src, 0.2)
+    rig.mcu_down_until = time.monotonic() + 0.7
+    during = scans_for(src, 0.6)
+    assert len(during) <= 1  # at most a pair completed before the loss was seen
+    assert ProcessError.LASER_FAULT in src.status().errors
+    after = scans_for(src, 0.8)
+    assert len(after) >= 5
+    assert src.counters.comcu_lost == 1 and src.status().laser_on
+    src.stop()
+
+
+def test_roi_min_quality_and_median_are_applied_and_fixed_settings_refused():
+    rig = FakeRig()
+    src, _, _, _ = make_source(rig)
+    src.apply(settings(roi_first=4, roi_count=10, median_window=3))
+    with pytest.raises(ValueError, match="scan_rate_hz"):
+        src.apply(settings(scan_rate_hz=5.0))
+    src.start()
+    s = scans_for(src, 0.3)[0]
+    assert s.first_index == 4 and s.ranges_m.shape == (10,)
+    src.apply(settings(min_quality=250))
+    s = scans_for(src, 0.3)[0]
+    assert np.isnan(s.ranges_m).all()
+    src.stop()
+
+
+def test_pipeline_exception_skips_the_scan_and_is_counted():
+    rig = FakeRig()
+    src, _, _, pipe = make_source(rig)
+    calls = {"n": 0}
+
+    def flaky(lit, dark):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("numerical trouble")
+        return pipe(lit, dark)
+
+    src.pipeline = flaky
+    src.start()
+    scans = scans_for(src, 0.5)
+    src.stop()
+    assert src.counters.pipeline_errors == 1 and len(scans) == calls["n"] - 1
+
+
+# --- through the link server -------------------------------------------------------------------
+class Host:
+    """A minimal host on a port: requests and decoded replies (the SDK has its own tests)."""
+
+    def __init__(self, port):
+        self.port = port
+        self.dec = StreamDecoder(synced=True)
+        self.seq = 0
+        self.scans: list[m.ScanMessage] = []
+        self.replies: list = []
+        port.write(b"\x00")  # the device discards everything before its first delimiter
+
+    def send(self, msg) -> None:
+        self.port.write(encode_frame(msg.TYPE, self.seq, msg.encode()))
+        self.seq += 1
+
+    def pump(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            for rec in self.dec.feed(self.port.read(65536)):
+                msg = m.decode_message(rec.frame.msg_type, rec.frame.payload)
+                (self.scans if isinstance(msg, m.ScanMessage) else self.replies).append(msg)
+
+    def health(self) -> m.Health:
+        self.replies.clear()
+        self.send(m.GetHealth())
+        for _ in range(20):
+            self.pump(0.05)
+            got = [r for r in self.replies if isinstance(r, m.Health)]
+            if got:
+                return got[-1]
+        raise AssertionError("no HEALTH reply")
+
+
+def device_config() -> DeviceConfig:
+    return DeviceConfig(laser_limit_mw=5.0, settings=settings(), queue_scans=2)
+
+
+def run_supervised(open_port, rig: FakeRig):
+    src, *_ = make_source(rig)
+    sup = LinkSupervisor(open_port, src, device_config())
+    stop = threading.Event()
+    t = threading.Thread(target=sup.run, args=(stop,), daemon=True)
+    t.start()
+    return sup, stop, t
+
+
+def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    before = len(host.scans)
+    assert before >= 3
+    rng = np.random.default_rng(1)
+    half = encode_frame(m.MsgType.GET_INFO, 99, m.GetInfo().encode())[:6]
+    host_end.write(rng.integers(1, 256, 300, dtype=np.uint8).tobytes() + b"\x00" + half + b"\x00" + half)
+    host_end.write(b"\x00")
+    host.pump(0.3)
+    health = host.health()
+    assert health.state == m.DeviceState.SCANNING and health.laser_on and health.errors == ()
+    assert len(host.scans) >= before + 3
+    ph = sup.health()
+    assert ph.host_garbage_bytes >= 300 and ph.host_bad_frames >= 2
+    assert all(s.ranges_m.shape == (N_POINTS,) for s in host.scans)
+    stop.set()
+    t.join(3)
+    assert not t.is_alive() and rig.lit_parity is None
+
+
+def test_health_message_reports_a_camera_stall_while_it_lasts():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    rig.stall_until = time.monotonic() + 1.0
+    seen = None
+    while seen is None and time.monotonic() < rig.stall_until:
+        h = host.health()
+        if ProcessError.CAMERA_FAULT in h.errors:
+            seen = h
+    assert seen is not None, "HEALTH never reported the stalled camera"
+    assert not seen.laser_on
+    n = len(host.scans)
+    deadline = time.monotonic() + 4.0
+    while time.monotonic() < deadline and (len(host.scans) < n + 4 or h.errors or not h.laser_on):
+        host.pump(0.2)
+        h = host.health()
+    assert len(host.scans) >= n + 4, "the scan stream did not resume"
+    assert h.errors == () and h.laser_on and h.state == m.DeviceState.SCANNING
+    stop.set()
+    t.join(3)
+
+
+def test_slow_link_drops_whole_scans_and_counts_them():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig(fps=80.0)  # 40 scans/s of ~130 bytes on a 9600-baud link carrying ~7 of them
+    sup, stop, t = run_supervised(lambda: PacedPort(dev_end, 9600), rig)
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(1.5)
+    stop.set()
+    t.join(3)
+    ph = sup.health()
+    assert ph.scans_dropped > 10
+    assert all(s.ranges_m.shape == (N_POINTS,) for s in host.scans)
+    seqs = [s.scan_seq for s in host.scans]
+    assert seqs == sorted(seqs)
+    # every scan made is either sent, dropped on the link, or still in flight at the stop
+    assert ph.source.scans_made - ph.scans_sent - ph.scans_dropped <= 3
+
+
+def test_a_failing_port_is_reopened_and_a_new_session_served():
+    opened = []
+
+    def open_port():
+        host_end, dev_end = pipe_pair()
+        opened.append(host_end)
+        return dev_end
+
+    rig = FakeRig()
+    sup, stop, t = run_supervised(open_port, rig)
+    time.sleep(0.2)
+    opened[0].close()  # host unplugged: the port raises PortClosed
+    deadline = time.monotonic() + 3
+    while len(opened) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(opened) >= 2 and sup.sessions >= 2
+    host = Host(opened[-1])
+    host.send(m.Start())
+    host.pump(0.4)
+    assert len(host.scans) >= 3
+    stop.set()
+    t.join(3)
+    assert rig.lit_parity is None
