@@ -111,6 +111,9 @@ class FastPipeline:
             near = rn < g.roi_lo[None, :]
         self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
+        self._block_offsets = (np.arange(BLOCK_ROWS) * config.width)[None, :]  # row offsets inside a block
+        self._block_rows = np.arange(BLOCK_ROWS)[None, :]
+        self._block_index = np.arange(self.rows // BLOCK_ROWS)[:, None]
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -133,12 +136,17 @@ class FastPipeline:
         # be brightened by the laser and one of its vertical neighbours too)
         d = cv2.subtract(a, b)
         if a.max() == 255:
-            sat = cv2.bitwise_and(cv2.compare(a, 255, cv2.CMP_EQ), cv2.compare(d, SATURATED_LINE_MIN, cv2.CMP_GE))
-            pair = cv2.bitwise_and(sat[1:], sat[:-1])
-            sat = np.zeros_like(sat)
-            sat[1:] = pair
-            sat[:-1] |= pair
-            d = cv2.max(d, sat)
+            # only the rows that hold a saturated pixel (usually a few: the line's)
+            full = np.nonzero(a.max(axis=1) == 255)[0]
+            r0, r1 = int(full[0]), int(full[-1]) + 1
+            if r1 - r0 >= 2:
+                a_s, d_s = a[r0:r1], d[r0:r1]
+                sat = cv2.bitwise_and(cv2.compare(a_s, 255, cv2.CMP_EQ), cv2.compare(d_s, SATURATED_LINE_MIN, cv2.CMP_GE))
+                pair = cv2.bitwise_and(sat[1:], sat[:-1])
+                sat = np.zeros_like(sat)
+                sat[1:] = pair
+                sat[:-1] |= pair
+                d[r0:r1] = cv2.max(d_s, sat)
         d = cv2.bitwise_and(d, self.mask)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
@@ -146,7 +154,7 @@ class FastPipeline:
         # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
         # the band's rows are as noisy as the column's own interval, and it saves a pass)
         noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
-        k1, k2 = (self._local_max(d, k) for k in self._candidates(sm))
+        k1, k2 = self._candidates(sm, d)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
@@ -191,14 +199,20 @@ class FastPipeline:
             found &= ~outlier
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
-        if self.near_bottom > self.near_top:
-            # every other row: a line is at least two rows high
-            la = luminance(lit, "lit")[self.near_top : self.near_bottom : 2]
-            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom : 2]
-            near = cv2.bitwise_and(cv2.subtract(la, ua), self.near_mask).max(axis=0)
-            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), self.near_mask).max(axis=0)
+        empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
+        if self.near_bottom > self.near_top and empty.size >= p.min_run:
+            # only over the columns without a return (none: a wall fills every column); every
+            # other row: a line is at least two rows high
+            c0, c1 = int(empty[0]), int(empty[-1]) + 1
+            la = luminance(lit, "lit")[self.near_top : self.near_bottom : 2, c0:c1]
+            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom : 2, c0:c1]
+            mask = self.near_mask[:, c0:c1]
+            near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
+            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
             # stricter than in range (twice the noise ratio): a false "too close" stops a robot
-            close = (near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)) & (status == ColumnStatus.NO_RETURN)
+            close = np.zeros(W, bool)
+            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+            close &= status == ColumnStatus.NO_RETURN
             status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
@@ -207,29 +221,34 @@ class FastPipeline:
         return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
                       status, tri, self.config.post_calibration)
 
-    def _local_max(self, d: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """Move each row k to the largest of d[k-1], d[k], d[k+1] (the smoothed peak can sit a
-        row off the unsmoothed one)."""
-        r = clamp(k[None, :] + np.arange(-1, 2)[:, None], 0, d.shape[0] - 1)
-        return r[np.argmax(d[r, self.cols], axis=0), self.cols]
-
-    def _candidates(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (band coordinates) of the largest and the second, separated, peak per column."""
-        nb = d.shape[0] // BLOCK_ROWS
-        cols = self.cols
-        blocks = d[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
+    def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (band coordinates) of the largest and the second, separated, peak per column of
+        the smoothed difference ``sm``, each moved to the largest of ``d`` at k-1, k, k+1 (the
+        smoothed peak can sit a row off the unsmoothed one). Gathers are flat ``take``s on the
+        contiguous images (cheaper than 2-D fancy indexing)."""
+        nb = sm.shape[0] // BLOCK_ROWS
+        W = self.cols.size
+        blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, W)
         bmax = blocks.max(axis=1)
         b1 = np.argmax(bmax, axis=0)
-        k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
+        flat = sm.ravel()
+        k1 = b1 * BLOCK_ROWS + np.argmax(flat.take(self._block_offsets + (b1 * (BLOCK_ROWS * W) + self.cols)[:, None]), axis=1)
         sep = self.params.half_width + 1
-        blk = np.arange(nb)[:, None]
-        near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
-        b2 = np.argmax(np.where(near, 0, bmax), axis=0)
-        inner = blocks[b2, :, cols].copy()  # (W, BLOCK_ROWS)
-        rows2 = b2[:, None] * BLOCK_ROWS + np.arange(BLOCK_ROWS)[None, :]
-        inner[np.abs(rows2 - k1[:, None]) <= sep] = 0
+        blk = self._block_index
+        bmax[(blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)] = 0
+        b2 = np.argmax(bmax, axis=0)
+        inner = flat.take(self._block_offsets + (b2 * (BLOCK_ROWS * W) + self.cols)[:, None])  # (W, BLOCK_ROWS)
+        inner[np.abs(self._block_rows + (b2 * BLOCK_ROWS - k1)[:, None]) <= sep] = 0
         k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
-        return k1, k2
+        # local maximum of d around both (first of equals, as argmax over k-1, k, k+1)
+        k = np.concatenate([k1, k2])
+        cols2 = np.concatenate([self.cols, self.cols])
+        last = d.shape[0] - 1
+        dflat = d.ravel()
+        km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, last)
+        vm, v0, vp = (dflat.take(r * W + cols2) for r in (km, k, kp))
+        k = np.where((vm >= v0) & (vm >= vp), km, np.where(v0 >= vp, k, kp))
+        return k[:W], k[W:]
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
         """Where to take the second candidate, for columns with two detected lines.
