@@ -111,9 +111,11 @@ class FastPipeline:
             near = rn < g.roi_lo[None, :]
         self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
-        self._block_offsets = (np.arange(BLOCK_ROWS) * config.width)[None, :]  # row offsets inside a block
+        nb = self.rows // BLOCK_ROWS
         self._block_rows = np.arange(BLOCK_ROWS)[None, :]
-        self._block_index = np.arange(self.rows // BLOCK_ROWS)[:, None]
+        self._block_index = np.arange(nb)[:, None]
+        self._row_keys = (nb - 1 - np.arange(nb, dtype=np.uint16))[:, None]
+        self._cols2 = np.concatenate([self.cols, self.cols])
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -224,31 +226,37 @@ class FastPipeline:
     def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column of
         the smoothed difference ``sm``, each moved to the largest of ``d`` at k-1, k, k+1 (the
-        smoothed peak can sit a row off the unsmoothed one). Gathers are flat ``take``s on the
-        contiguous images (cheaper than 2-D fancy indexing)."""
+        smoothed peak can sit a row off the unsmoothed one)."""
         nb = sm.shape[0] // BLOCK_ROWS
-        W = self.cols.size
-        blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, W)
+        cols = self.cols
+        blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
         bmax = blocks.max(axis=1)
-        b1 = np.argmax(bmax, axis=0)
-        flat = sm.ravel()
-        k1 = b1 * BLOCK_ROWS + np.argmax(flat.take(self._block_offsets + (b1 * (BLOCK_ROWS * W) + self.cols)[:, None]), axis=1)
+        b1 = self._first_argmax(bmax)
+        k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
         sep = self.params.half_width + 1
         blk = self._block_index
         bmax[(blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)] = 0
-        b2 = np.argmax(bmax, axis=0)
-        inner = flat.take(self._block_offsets + (b2 * (BLOCK_ROWS * W) + self.cols)[:, None])  # (W, BLOCK_ROWS)
+        b2 = self._first_argmax(bmax)
+        inner = blocks[b2, :, cols]  # (W, BLOCK_ROWS), a copy
         inner[np.abs(self._block_rows + (b2 * BLOCK_ROWS - k1)[:, None]) <= sep] = 0
         k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
-        # local maximum of d around both (first of equals, as argmax over k-1, k, k+1)
+        # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1)
+        W = cols.size
         k = np.concatenate([k1, k2])
-        cols2 = np.concatenate([self.cols, self.cols])
-        last = d.shape[0] - 1
-        dflat = d.ravel()
-        km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, last)
-        vm, v0, vp = (dflat.take(r * W + cols2) for r in (km, k, kp))
+        km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, d.shape[0] - 1)
+        flat = d.ravel()  # contiguous: flat takes are cheaper than 2-D fancy indexing
+        vm, v0, vp = (flat.take(r * W + self._cols2) for r in (km, k, kp))
         k = np.where((vm >= v0) & (vm >= vp), km, np.where(v0 >= vp, k, kp))
         return k[:W], k[W:]
+
+    def _first_argmax(self, x: np.ndarray) -> np.ndarray:
+        """np.argmax(x, axis=0) for a small uint8 (n, W) array, as one contiguous max over keys
+        ``value << bits | (n - 1 - row)`` (a strided argmax is several times slower)."""
+        n = x.shape[0]
+        bits = max(n - 1, 1).bit_length()
+        key = x.astype(np.uint16) << bits
+        key |= self._row_keys[:n]
+        return (n - 1) - (key.max(axis=0) & ((1 << bits) - 1)).astype(np.intp)
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
         """Where to take the second candidate, for columns with two detected lines.

@@ -170,20 +170,27 @@ def refine_peaks(
     cols = np.arange(width)
     empty = (hi <= lo) | (k < lo) | (k >= hi)
     k = np.where(empty, -1, k)
-    f0 = np.where(empty, np.nan, img[clamp(k, 0, height - 1), cols].astype(np.float64) - bg)
+    # one gather of every sample any estimator needs: rows k-reach..k+reach (fewer, larger
+    # numpy calls than one gather per offset)
+    reach = max(half_width, 3 if estimator == "blais-rioux" else 2)
+    kk = np.maximum(k, 0)
+    r = kk[None, :] + np.arange(-reach, reach + 1)[:, None]
+    inside = (r >= lo) & (r < hi)
+    raw = img[clamp(r, 0, height - 1), cols].astype(np.float64)
+    vals = raw - bg
+    f0 = np.where(empty, np.nan, vals[reach])
 
     def sample(offset: int) -> tuple[np.ndarray, np.ndarray]:
-        r = k + offset
-        inside = (r >= lo) & (r < hi) & ~empty
-        vals = img[clamp(r, 0, height - 1), cols].astype(np.float64) - bg
-        return np.where(inside, vals, np.nan), inside
+        ins = inside[reach + offset] & ~empty
+        return np.where(ins, vals[reach + offset], np.nan), ins
 
     fp1, in_p1 = sample(1)
     fp2, in_p2 = sample(2)
     plateau = in_p1 & in_p2 & (fp1 == f0) & (fp2 == f0) & (f0 >= plateau_min)
     valid = (f0 >= min_peak) & ~empty
 
-    com_row, com_ok, spread = _centre_of_mass(img, np.maximum(k, 0), f0, bg, lo, hi, half_width, pedestal)
+    win = slice(reach - half_width, reach + half_width + 1)
+    com_row, com_ok, spread = _centre_of_mass(img, kk, raw[win], inside[win], f0, bg, lo, hi, half_width, pedestal)
     if estimator == "com":
         row, ok = com_row, com_ok
     elif estimator in ("gaussian", "parabolic"):
@@ -204,18 +211,11 @@ def refine_peaks(
     return ColumnPeaks(np.where(valid, row, np.nan), f0, k, valid, plateau, spread)
 
 
-def _window(img, k, lo, hi, cols, half: int):
-    """Samples k-half..k+half per column, (2 half + 1, n), and whether each lies in [lo, hi)."""
-    offs = np.arange(-half, half + 1)[:, None]
-    r = k[None, :] + offs
-    inside = (r >= lo[None, :]) & (r < hi[None, :])
-    vals = img[clamp(r, 0, img.shape[0] - 1), cols[None, :]].astype(np.float64)
-    return offs, vals, inside
-
-
-def _centre_of_mass(img, k, f0, bg, lo, hi, half, pedestal):
+def _centre_of_mass(img, k, vals, inside, f0, bg, lo, hi, half, pedestal):
+    """Centre of mass of the window ``vals`` (2 half + 1, n) of rows k-half..k+half (``inside``:
+    the row lies in [lo, hi)) above ``bg + pedestal * f0``; returns (row, ok, spread)."""
     cols = np.arange(img.shape[1])
-    offs, vals, inside = _window(img, k, lo, hi, cols, half)
+    offs = np.arange(-half, half + 1)[:, None]
     t = bg + pedestal * f0
     w = np.where(inside, np.maximum(vals - t, 0.0), 0.0)
     s = w.sum(axis=0)
