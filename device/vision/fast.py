@@ -30,6 +30,15 @@ Per frame pair:
    0). A line seen but not measurable is REJECTED (NaN), never "no return". The effective angular resolution is the fit
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
+Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
+the previous frame's line +- ``track_margin`` (one rectangle of whole blocks over all columns),
+with the last full search's per-column noise as a floor. If ``track_lost_run`` adjacent columns
+that had a line lose it (a depth jump, an object stepping in front of the tracked surface, the
+line gone), the same frame is searched again over the whole region of interest; and every
+``track_full_every``-th frame is a full search, so an object appearing outside the band in
+columns that had no line is found within ``track_full_every`` - 1 frames (0.4 s at 10 Hz with
+the default 5). Steps 6-7 are unchanged.
+
 7. Nearer than the region of interest: the rows on the near side of it are not searched for a
    line, but their per-column maximum difference (one cheap reduction) is: a column with no
    line in range and a strong return there reports "too close" (-inf), never "no return".
@@ -68,6 +77,9 @@ class FastParams:
     jump_factor: float = 3.0  # adjacent raw rows may differ by this x the jump step (speckle)
     support_half: int = 4  # neighbour columns consulted to pick among candidates
     max_gap: int = 3  # columns without a measurement filled inside a continuous run (line fit on)
+    track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
+    track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
+    track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -75,10 +87,23 @@ class FastParams:
         for name in ("half_width", "min_run", "support_half"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.track_margin < 0 or self.track_full_every < 1 or self.track_lost_run < 1:
+            raise ValueError(f"need track_margin >= 0, track_full_every >= 1, track_lost_run >= 1, got "
+                             f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
         if not (0 < self.jump_rel < 1 and self.min_peak > 0):
             raise ValueError(f"need 0 < jump_rel < 1 and min_peak > 0, got {self.jump_rel}, {self.min_peak}")
+
+
+@dataclass(frozen=True)
+class _Track:
+    """What a tracking fast pipeline keeps from the previous frame pair."""
+
+    found: np.ndarray  # (W,) columns that had a line
+    rows: np.ndarray  # (W,) its image rows
+    noise: np.ndarray  # (W,) noise of the last full search (floor for the narrow band's)
+    since_full: int  # frames since the last full search
 
 
 class FastPipeline:
@@ -89,7 +114,10 @@ class FastPipeline:
         self.config = config
         self.params = params
         g = self.geometry = column_geometry(config, min_m, max_m)
-        self.name = f"fast-{params.estimator}" + ("" if params.smooth_half else "-raw")
+        self.name = f"fast-{params.estimator}" + ("" if params.smooth_half else "-raw") + ("-track" if params.track_margin else "")
+        self._track: _Track | None = None
+        #: image rows [start, stop) searched for the line in the last frame pair (tracking narrows them)
+        self.searched_rows: tuple[int, int] | None = None
         self.top = int(g.roi_lo.min())
         n = max(int(g.roi_hi.max()) - self.top, 1)
         self.rows = int(math.ceil(n / BLOCK_ROWS) * BLOCK_ROWS)  # band height, whole blocks
@@ -125,13 +153,83 @@ class FastPipeline:
         return math.degrees((2 * self.params.smooth_half + 1) * self.column_spacing_rad)
 
     # ---------------------------------------------------------------- steps
+    def reset(self) -> None:
+        """Forget the tracked line (the next frame pair gets a full search)."""
+        self._track = None
+
     def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements:
         import cv2
 
         shape = (self.config.height, self.config.width)
-        a = luminance(lit, "lit", shape)[self.top : self.top + self.rows]
-        b = luminance(unlit, "unlit", shape)[self.top : self.top + self.rows]
+        lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
         p = self.params
+        band = self._tracking_band()
+        if band is None:
+            found, row, peak, status, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+        else:
+            found, row, peak, status, noise = self._search(lum_lit, lum_unlit, *band, self._track.noise)
+            lost = self._track.found & ~found
+            if np.any(_run_length(_runs(lost)) >= p.track_lost_run):
+                # the line left the band in some columns (a depth jump, a new object in front of
+                # the tracked surface, a lost line): search the whole region of interest now
+                found, row, peak, status, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+                band = None
+        t0, t1 = band or (0, self.rows)
+        self.searched_rows = (self.top + t0, self.top + t1)
+        if p.track_margin:
+            self._update_track(found, row, noise, full=band is None)
+        W = self.cols.size
+        empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
+        if self.near_bottom > self.near_top and empty.size >= p.min_run:
+            # only over the columns without a return (none: a wall fills every column); every
+            # other row: a line is at least two rows high
+            c0, c1 = int(empty[0]), int(empty[-1]) + 1
+            la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
+            ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
+            mask = self.near_mask[:, c0:c1]
+            near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
+            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
+            # stricter than in range (twice the noise ratio): a false "too close" stops a robot
+            close = np.zeros(W, bool)
+            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+            close &= status == ColumnStatus.NO_RETURN
+            status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
+        if lit_rows is not None:
+            status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
+        found = status == ColumnStatus.OK
+        tri = self.geometry.triangulate(np.where(found, row, np.nan))
+        return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
+                      status, tri, self.config.post_calibration)
+
+    def _tracking_band(self) -> tuple[int, int] | None:
+        """Rows [t0, t1) of the band (whole blocks) to search this frame: the previous frame's
+        line +- ``track_margin`` rows; None for a full search (tracking off, nothing tracked, or
+        ``track_full_every`` frames since the last full search, so new objects are found)."""
+        p, tr = self.params, self._track
+        if not p.track_margin or tr is None or tr.since_full + 1 >= p.track_full_every or not tr.found.any():
+            return None
+        rows = tr.rows[tr.found] - self.top
+        t0 = max(int(math.floor(rows.min())) - p.track_margin, 0) // BLOCK_ROWS * BLOCK_ROWS
+        t1 = min(-(-(int(math.ceil(rows.max())) + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
+        return None if t1 - t0 >= self.rows else (t0, t1)
+
+    def _update_track(self, found: np.ndarray, row: np.ndarray, noise: np.ndarray, full: bool) -> None:
+        tr = self._track
+        self._track = _Track(found.copy(), row.copy(), noise if full or tr is None else tr.noise,
+                             0 if full else tr.since_full + 1)
+
+    def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int, noise_floor=None):
+        """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
+        docstring. ``noise_floor``: per-column noise not to go below (a tracked band sees fewer
+        rows than the whole band, so it keeps the last full search's noise as a floor).
+        Returns (found, row, peak, status, noise), rows in image coordinates."""
+        import cv2
+
+        a = lum_lit[self.top + t0 : self.top + t1]
+        b = lum_unlit[self.top + t0 : self.top + t1]
+        p = self.params
+        W = self.cols.size
+        lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
         # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
         # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
@@ -149,39 +247,40 @@ class FastPipeline:
                 sat[1:] = pair
                 sat[:-1] |= pair
                 d[r0:r1] = cv2.max(d_s, sat)
-        d = cv2.bitwise_and(d, self.mask)
+        d = cv2.bitwise_and(d, self.mask[t0:t1])
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
         sm = cv2.blur(d, DETECT_KERNEL)
         # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
         # the band's rows are as noisy as the column's own interval, and it saves a pass)
         noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        if noise_floor is not None:
+            noise = np.maximum(noise, noise_floor)
         k1, k2 = self._candidates(sm, d)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, self.lo, self.hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
+        c1 = refine_peaks(d, k1, p.estimator, lo, hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
         # detection is decided before the estimator's own validity, so that a line whose sub-pixel
         # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
         det1 = (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
         r1 = np.where(c1.valid, c1.row, k1)
         # second candidates: refined only where they are strong enough to matter (few columns)
-        W = self.cols.size
         det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
-            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, self.lo[idx], self.hi[idx], 1.0, 0.0, p.half_width,
+            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, lo[idx], hi[idx], 1.0, 0.0, p.half_width,
                               p.pedestal, 255)
             det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
-        pick2 = self._choose(r1, r2, det1, det2)
+        pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
         row = np.where(pick2, r2, r1)
         peak = np.where(pick2, v2, c1.peak)
         measured = np.where(pick2, ok2, c1.valid)
         found = det1 | det2
         failed = found & ~measured  # a line is there, its sub-pixel estimate is not
         found &= measured
-        row = row + self.top
+        row = row + (self.top + t0)
         segment, outlier = self._segments(row, found)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
         segment = np.where(found, segment, -1)
@@ -201,27 +300,7 @@ class FastPipeline:
             found &= ~outlier
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
-        empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
-        if self.near_bottom > self.near_top and empty.size >= p.min_run:
-            # only over the columns without a return (none: a wall fills every column); every
-            # other row: a line is at least two rows high
-            c0, c1 = int(empty[0]), int(empty[-1]) + 1
-            la = luminance(lit, "lit")[self.near_top : self.near_bottom : 2, c0:c1]
-            ua = luminance(unlit, "unlit")[self.near_top : self.near_bottom : 2, c0:c1]
-            mask = self.near_mask[:, c0:c1]
-            near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
-            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
-            # stricter than in range (twice the noise ratio): a false "too close" stops a robot
-            close = np.zeros(W, bool)
-            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
-            close &= status == ColumnStatus.NO_RETURN
-            status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
-        if lit_rows is not None:
-            status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
-        found = status == ColumnStatus.OK
-        tri = self.geometry.triangulate(np.where(found, row, np.nan))
-        return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
-                      status, tri, self.config.post_calibration)
+        return found, row, peak, status, noise
 
     def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column of
@@ -234,7 +313,7 @@ class FastPipeline:
         b1 = self._first_argmax(bmax)
         k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
         sep = self.params.half_width + 1
-        blk = self._block_index
+        blk = self._block_index[:nb]
         bmax[(blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)] = 0
         b2 = self._first_argmax(bmax)
         inner = blocks[b2, :, cols]  # (W, BLOCK_ROWS), a copy
@@ -250,12 +329,12 @@ class FastPipeline:
         return k[:W], k[W:]
 
     def _first_argmax(self, x: np.ndarray) -> np.ndarray:
-        """np.argmax(x, axis=0) for a small uint8 (n, W) array, as one contiguous max over keys
+        """np.argmax(x, axis=0) for a small uint8 (n <= blocks in the band, W) array, as one contiguous max over keys
         ``value << bits | (n - 1 - row)`` (a strided argmax is several times slower)."""
         n = x.shape[0]
         bits = max(n - 1, 1).bit_length()
         key = x.astype(np.uint16) << bits
-        key |= self._row_keys[:n]
+        key |= self._row_keys[self._row_keys.size - n :]
         return (n - 1) - (key.max(axis=0) & ((1 << bits) - 1)).astype(np.intp)
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:

@@ -8,8 +8,13 @@ from .peaks import ESTIMATORS
 from .reference import ReferencePipeline
 
 #: Every variant: the thesis baseline, and the fast pipeline with each estimator (line fit over
-#: neighbouring columns), plus the centre of mass without the fit to show what the fit buys.
-VARIANTS = ("reference",) + tuple(f"fast-{e}" for e in ESTIMATORS) + ("fast-com-raw",)
+#: neighbouring columns), plus the centre of mass without the fit to show what the fit buys, and
+#: with a tracked region of interest (``-track``: rows near the previous frame's line, see
+#: :class:`device.vision.fast.FastParams`).
+VARIANTS = ("reference",) + tuple(f"fast-{e}" for e in ESTIMATORS) + ("fast-com-raw", "fast-com-track")
+
+#: Rows searched each side of the previous frame's line by the ``-track`` variants.
+TRACK_MARGIN_ROWS = 24
 
 
 def make_pipeline(name: str, config: SensorConfig, min_m: float | None = None, max_m: float | None = None):
@@ -19,9 +24,12 @@ def make_pipeline(name: str, config: SensorConfig, min_m: float | None = None, m
         return ReferencePipeline(config)
     if name.startswith("fast-"):
         est = name[len("fast-"):]
+        track = est.endswith("-track")
+        est = est[: -len("-track")] if track else est
         raw = est.endswith("-raw")
         est = est[: -len("-raw")] if raw else est
         if est in ESTIMATORS:
-            params = FastParams(estimator=est, smooth_half=0 if raw else FastParams.smooth_half)
+            params = FastParams(estimator=est, smooth_half=0 if raw else FastParams.smooth_half,
+                                track_margin=TRACK_MARGIN_ROWS if track else 0)
             return FastPipeline(config, params, min_m, max_m)
     raise ValueError(f"unknown pipeline {name!r}; choose from {', '.join(VARIANTS)}")
