@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 ESTIMATORS = ("com", "gaussian", "parabolic", "blais-rioux")
+#: Rows looked ahead per step when walking along a flat top (a saturated line is a few rows high).
+PLATEAU_STEP = 8
 
 
 @dataclass(frozen=True)
@@ -215,13 +217,14 @@ def _centre_of_mass(img, k, vals, inside, f0, bg, lo, hi, half, pedestal):
     """Centre of mass of the window ``vals`` (2 half + 1, n) of rows k-half..k+half (``inside``:
     the row lies in [lo, hi)) above ``bg + pedestal * f0``; returns (row, ok, spread)."""
     cols = np.arange(img.shape[1])
-    offs = np.arange(-half, half + 1)[:, None]
+    offs = np.arange(-half, half + 1, dtype=np.float64)
     t = bg + pedestal * f0
     w = np.where(inside, np.maximum(vals - t, 0.0), 0.0)
-    s = w.sum(axis=0)
+    # the three moments in one matrix product: sum w, sum w o, sum w o^2
+    s, s1, s2 = np.stack([np.ones_like(offs), offs, offs * offs]) @ w
     with np.errstate(invalid="ignore", divide="ignore"):
-        delta = (w * offs).sum(axis=0) / s
-        spread = np.sqrt(np.maximum((w * (offs - delta) ** 2).sum(axis=0) / s, 0.0))
+        delta = s1 / s
+        spread = np.sqrt(np.maximum(s2 / s - delta * delta, 0.0))
     return k + delta, (s > 0) & ~_cut_with_weight(img, cols, k, half, lo, hi, t), spread
 
 
@@ -254,14 +257,16 @@ def _plateau_centre(img, k, f0, bg, lo, hi, cols, half, pedestal):
     """Centre of mass over a window centred on the middle of a run of equal maxima."""
     height = img.shape[0]
     end = k.copy()
-    run = np.ones(k.shape, dtype=bool)
-    while run.any():  # walk to the end of each plateau (short: a few rows)
-        nxt = end + 1
-        run &= (nxt < hi) & (nxt < height)
-        same = np.zeros_like(run)
-        same[run] = img[nxt[run], cols[run]].astype(np.float64) - bg[run] == f0[run]
-        run = same
-        end = np.where(run, nxt, end)
+    active = np.ones(k.shape, dtype=bool)
+    ahead = np.arange(1, PLATEAU_STEP + 1)[:, None]
+    while active.any():  # walk to the end of each plateau, PLATEAU_STEP rows per gather
+        ia = np.nonzero(active)[0]
+        r = end[ia] + ahead
+        vals = img[np.minimum(r, height - 1), cols[ia]].astype(np.float64) - bg[ia]
+        same = (r < hi[ia]) & (r < height) & (vals == f0[ia])
+        whole = same.all(axis=0)
+        end[ia] += np.where(whole, PLATEAU_STEP, np.argmin(same, axis=0))  # leading equal rows
+        active[ia] = whole
     mid = np.floor((k + end) / 2.0).astype(np.intp)
     span = (end - k) // 2 + half
     offs = np.arange(-int(span.max()), int(span.max()) + 1)[:, None]
