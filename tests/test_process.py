@@ -290,6 +290,36 @@ def test_health_message_reports_a_comcu_reset_until_the_laser_is_resynchronised(
     t.join(3)
 
 
+def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    good = sup.source.pipeline
+    failing = threading.Event()
+
+    def flaky(lit, dark):
+        if failing.is_set():
+            raise RuntimeError("numerical trouble")
+        return good(lit, dark)
+
+    sup.source.pipeline = flaky
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    failing.set()
+    host.pump(0.3)
+    h = host.health()
+    assert m.ErrorCode.PIPELINE_FAULT in h.errors and h.pipeline_errors >= 2 and h.state == m.DeviceState.SCANNING
+    failing.clear()
+    n = len(host.scans)
+    host.pump(0.3)
+    h2 = host.health()
+    assert m.ErrorCode.PIPELINE_FAULT not in h2.errors and len(host.scans) >= n + 3
+    assert h2.pipeline_errors == sup.health().source.pipeline_errors >= h.pipeline_errors
+    stop.set()
+    t.join(3)
+
+
 def test_slow_link_drops_whole_scans_and_counts_them():
     host_end, dev_end = pipe_pair()
     rig = FakeRig(fps=80.0)  # 40 scans/s of ~130 bytes on a 9600-baud link carrying ~7 of them
