@@ -161,7 +161,8 @@ class SyncedLaser:
                 rebooted = self._reboot_seen(self.comcu)
                 if rebooted:
                     raise self._reset(self.comcu, rebooted)
-                controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges])
+                # a cut pulse or a forced (late) fall is not where the schedule put it: not evidence
+                controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges if not e.flags])
                 controller.on_gpio_edges(gpio)
                 info = FrameInfo(frame.seq, frame.sensor_timestamp_ns, frame.exposure_us * 1e-6,
                                  frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6)
@@ -216,7 +217,7 @@ class SyncedLaser:
 
     def _ping(self, controller: SyncController) -> None:
         p = self.comcu.ping()
-        controller.on_ping(p.host_send_ns, p.mcu_ticks, p.host_recv_ns)
+        controller.on_ping(p.host_send_ns, p.mcu_rx_ticks, p.host_recv_ns)  # tick when the PING arrived
         if self._mcu_ticks is not None and p.mcu_ticks < self._mcu_ticks:  # its clock counts from its boot
             self._clock_went_back = f"its clock went back from {self._mcu_ticks} to {p.mcu_ticks} ticks"
         self._mcu_ticks = p.mcu_ticks
