@@ -108,6 +108,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"device health: {health.state.name}, laser {'on' if health.laser_on else 'off'}, "
               f"sync {'locked' if health.sync_locked else 'not locked'}, errors {list(health.errors)}, "
               f"scans sent {health.scans_sent}, dropped {health.scans_dropped}, frames dropped {health.frames_dropped}")
+        if health.camera_restarts is not None:  # protocol minor >= 1
+            print(f"  camera restarts {health.camera_restarts}, co-MCU resets {health.comcu_resets}, "
+                  f"co-MCU lost {health.comcu_lost}, pipeline errors {health.pipeline_errors}, "
+                  f"host bytes discarded {health.host_bytes_discarded}")
     print(f"device process exit code {code}")
     _draw(truth_scene, last, args.png)
     print(f"top view written to {args.png}")
