@@ -26,14 +26,14 @@ import collections
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from protocol import messages as m
 from protocol.framing import PROTOCOL_VERSION, encode_frame
-from protocol.stream import StreamDecoder
+from protocol.stream import LinkStats, StreamDecoder
 
 log = logging.getLogger(__name__)
 
@@ -83,10 +83,17 @@ class SourceScan:
 
 @dataclass(frozen=True)
 class SourceStatus:
+    """What a source reports for HEALTH; counters are totals since it was made (fields of
+    protocol.messages.Health of the same names)."""
+
     laser_on: bool = False
     sync_locked: bool = False
     frames_dropped: int = 0
     errors: tuple[int, ...] = ()  # protocol.messages.ErrorCode values active now
+    camera_restarts: int = 0
+    comcu_resets: int = 0
+    comcu_lost: int = 0
+    pipeline_errors: int = 0
 
 
 class ScanSource(Protocol):
@@ -173,18 +180,30 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
 # --- the server -------------------------------------------------------------------------------
 @dataclass
 class LinkCounters:
+    """Totals of the host link. One LinkServer counts into its own, or into one shared by the
+    successive sessions of a device process (device.process.LinkSupervisor), so that HEALTH
+    reports totals since the process started."""
+
     scans_sent: int = 0
     scans_dropped: int = 0  # whole scans dropped because the outgoing queue was full
     requests: int = 0
     refused: int = 0  # requests answered with NACK
     source_failures: int = 0
+    sessions: int = 0  # link servers that counted here (the host port opened)
+    host: LinkStats = field(default_factory=LinkStats)  # what the decoders made of the host's bytes
+
+    @property
+    def host_frames_rejected(self) -> int:
+        """Frames from the host dropped for a CRC, decode or size error."""
+        return self.host.crc_errors + self.host.decode_errors + self.host.oversize_frames
 
 
 class LinkServer:
     """Serve one host over ``port`` (anything with read(size) -> bytes and write(data), where
-    read returns what arrived, b"" after a short timeout) with scans from ``source``."""
+    read returns what arrived, b"" after a short timeout) with scans from ``source``, counting
+    into ``counters`` (a fresh LinkCounters if None)."""
 
-    def __init__(self, port, source: ScanSource, config: DeviceConfig):
+    def __init__(self, port, source: ScanSource, config: DeviceConfig, counters: LinkCounters | None = None):
         self.port = port
         self.source = source
         self.config = config
@@ -194,8 +213,9 @@ class LinkServer:
         if refusal:
             raise ValueError(f"DeviceConfig.settings refused: {refusal[1]}")
         source.apply(self.settings)
-        self.counters = LinkCounters()
-        self.decoder = StreamDecoder()
+        self.counters = LinkCounters() if counters is None else counters
+        self.counters.sessions += 1
+        self.decoder = StreamDecoder(stats=self.counters.host)
         self._lock = threading.Condition()
         self._control: collections.deque = collections.deque()  # replies and LOG messages
         self._scans: collections.deque[m.ScanMessage] = collections.deque(maxlen=config.queue_scans)
@@ -285,8 +305,12 @@ class LinkServer:
         st = self.source.status()
         errors = st.errors + ((m.ErrorCode.SOURCE_FAILED,) if self._fault else ())
         state = m.DeviceState.FAULT if self._fault else (m.DeviceState.SCANNING if self._scanning else m.DeviceState.IDLE)
-        return m.Health(state, st.laser_on, st.sync_locked, st.frames_dropped, self.counters.scans_dropped,
-                        self.counters.scans_sent, device_clock_us(), tuple(int(e) for e in errors))
+        c = self.counters
+        return m.Health(state, st.laser_on, st.sync_locked, st.frames_dropped, c.scans_dropped, c.scans_sent,
+                        device_clock_us(), tuple(int(e) for e in errors), camera_restarts=st.camera_restarts,
+                        comcu_resets=st.comcu_resets, comcu_lost=st.comcu_lost, pipeline_errors=st.pipeline_errors,
+                        host_bytes_discarded=c.host.bytes_discarded, host_frames_rejected=c.host_frames_rejected,
+                        host_sessions=c.sessions)
 
     def _start(self, frame) -> None:
         with self._lock:

@@ -10,7 +10,8 @@ Composed of narrow interfaces so that the same orchestration runs on a Pi and in
 ``SensorSource`` joins them into the ScanSource the link server (device/link.py) streams from.
 It pairs each lit frame with its neighbouring unlit frame (frame differencing, ERRATA 10) into
 one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
-``status()`` (HEALTH.errors, codes in ``ProcessError``) and ``LinkSupervisor.health()`` instead:
+``status()`` (HEALTH.errors, codes protocol.messages.ErrorCode, and HEALTH's fault counters) and
+``LinkSupervisor.health()`` instead:
 
 * camera error or stall (no frame for ``stall_timeout_s``): laser off, error CAMERA_FAULT,
   camera restarted (counted), the laser re-synchronised on the first new frame;
@@ -22,12 +23,12 @@ one scan, and it never raises out of ``next_scan``: every failure degrades and i
 
 ``LinkSupervisor`` runs the link server over a port and opens it again when the host side fails
 (a USB gadget port that vanishes when the host is unplugged); host garbage and scans dropped on
-a slow link are counted by the link server and collected into ``ProcessHealth``.
+a slow link are counted by the link server into one LinkCounters for all sessions, so HEALTH
+(and ``ProcessHealth``, for logs and ``serve --stats-file``) report totals since the process started.
 """
 
 from __future__ import annotations
 
-import enum
 import logging
 import threading
 import time
@@ -39,7 +40,7 @@ import numpy as np
 from device.analytic_source import median_filter
 from device.camera.base import CaptureTimeout
 from device.camera.frame import Frame
-from device.link import DeviceConfig, LinkServer, ScanGeometry, SourceScan, SourceStatus
+from device.link import DeviceConfig, LinkCounters, LinkServer, ScanGeometry, SourceScan, SourceStatus
 from protocol import messages as m
 
 log = logging.getLogger(__name__)
@@ -71,9 +72,10 @@ class LaserError(RuntimeError):
 class Laser(Protocol):
     locked: bool  # pulses are synchronised to the camera's exposure
 
-    def start(self, frame: Frame) -> None:
+    def start(self, frame: Frame) -> bool | None:
         """Schedule pulses for the frames after ``frame`` (its timestamp gives the camera's
-        phase); raises LaserError."""
+        phase); raises LaserError. Returns True if it found that the co-MCU had rebooted since
+        the last schedule without a LaserError "reset" having said so (e.g. during an outage)."""
 
     def stop(self) -> None:
         """Laser off now; best effort, never raises (the co-MCU also stops by itself when its
@@ -87,15 +89,6 @@ class Laser(Protocol):
 class Pipeline(Protocol):
     def __call__(self, lit: Frame, dark: Frame) -> tuple[np.ndarray, np.ndarray]:
         """Ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry."""
-
-
-class ProcessError(enum.IntEnum):
-    """Error codes of the device process in HEALTH.errors (extends protocol.messages.ErrorCode)."""
-
-    SYNC_LOST = m.ErrorCode.SYNC_LOST
-    LASER_FAULT = m.ErrorCode.LASER_FAULT
-    CAMERA_FAULT = 4  # the camera stalled or failed; it is being restarted
-    PIPELINE_FAULT = 5  # the pipeline raised on the last frame pair
 
 
 # --- health ----------------------------------------------------------------------------------
@@ -130,17 +123,18 @@ class ProcessHealth:
     source: SourceCounters
     scans_sent: int = 0
     scans_dropped: int = 0  # whole scans dropped because the host link was slow
-    host_garbage_bytes: int = 0  # host bytes that were not part of an intact frame
-    host_bad_frames: int = 0  # CRC, decode and oversize errors from the host
+    host_bytes_discarded: int = 0  # host bytes that were not part of an intact frame
+    host_frames_rejected: int = 0  # CRC, decode and oversize errors from the host
     host_sessions: int = 0  # times the link was (re)opened
 
     def line(self) -> str:
         s = self.source
-        errs = ",".join(ProcessError(e).name if e in ProcessError._value2member_map_ else str(e) for e in self.errors)
+        errs = ",".join(m.ErrorCode(e).name if e in m.ErrorCode._value2member_map_ else str(e) for e in self.errors)
         return (f"scanning={self.scanning} laser={'on' if self.laser_on else 'off'} locked={self.sync_locked} "
                 f"errors=[{errs}] frames={s.frames} dropped_frames={s.frames_dropped} scans={s.scans_made} "
                 f"sent={self.scans_sent} dropped_scans={self.scans_dropped} camera_restarts={s.camera_restarts} "
-                f"comcu_lost={s.comcu_lost} comcu_resets={s.comcu_resets} host_garbage_bytes={self.host_garbage_bytes} "
+                f"comcu_lost={s.comcu_lost} comcu_resets={s.comcu_resets} pipeline_errors={s.pipeline_errors} "
+                f"host_bytes_discarded={self.host_bytes_discarded} host_frames_rejected={self.host_frames_rejected} "
                 f"host_sessions={self.host_sessions}")
 
 
@@ -209,8 +203,10 @@ class SensorSource:
         # atomically (set.copy under the GIL); together they may be one frame apart.
         errors = tuple(sorted(self._errors.copy()))
         laser_on = self._laser_on
+        c = self.counters
         return SourceStatus(laser_on=laser_on, sync_locked=laser_on and bool(self.laser.locked),
-                            frames_dropped=self.counters.frames_dropped, errors=errors)
+                            frames_dropped=c.frames_dropped, errors=errors, camera_restarts=c.camera_restarts,
+                            comcu_resets=c.comcu_resets, comcu_lost=c.comcu_lost, pipeline_errors=c.pipeline_errors)
 
     def next_scan(self, timeout_s: float) -> SourceScan | None:
         deadline = self.clock() + timeout_s
@@ -247,7 +243,7 @@ class SensorSource:
                 self._camera_failed(f"no frame for {now - self._last_frame_at:.2f} s")
             return None
         self._last_frame_at = now
-        self._errors.discard(ProcessError.CAMERA_FAULT)
+        self._errors.discard(m.ErrorCode.CAMERA_FAULT)
         self.counters.frames += 1
         if self._last_seq is not None and frame.seq != self._last_seq + 1:
             gap = frame.seq - self._last_seq - 1
@@ -273,28 +269,29 @@ class SensorSource:
             if not self._laser_on:
                 if now < self._next_laser_try:
                     return None
-                self.laser.start(frame)
+                if self.laser.start(frame):
+                    self.counters.comcu_resets += 1
                 self._laser_on = True
                 self.counters.laser_starts += 1
-                self._errors.difference_update((ProcessError.LASER_FAULT, ProcessError.SYNC_LOST))
+                self._errors.difference_update((m.ErrorCode.LASER_FAULT, m.ErrorCode.SYNC_LOST))
                 log.info("laser scheduled on the co-MCU (start %d)", self.counters.laser_starts)
                 return None  # the schedule applies from the next frames on
             lit = self.laser.frame_lit(frame)
         except LaserError as exc:
             if exc.reason == "reset":
                 self.counters.comcu_resets += 1
-            elif exc.reason == "lost" and (self._laser_on or ProcessError.LASER_FAULT not in self._errors):
+            elif exc.reason == "lost" and (self._laser_on or m.ErrorCode.LASER_FAULT not in self._errors):
                 self.counters.comcu_lost += 1
-            if ProcessError.LASER_FAULT not in self._errors:
+            if m.ErrorCode.LASER_FAULT not in self._errors:
                 log.error("%s; laser off, retrying every %.1f s", exc, self.laser_retry_s)
             self._laser_off()
-            self._errors.update((ProcessError.LASER_FAULT, ProcessError.SYNC_LOST))
+            self._errors.update((m.ErrorCode.LASER_FAULT, m.ErrorCode.SYNC_LOST))
             self._next_laser_try = now + self.laser_retry_s
             return None
         if lit is None:
-            self._errors.add(ProcessError.SYNC_LOST)
+            self._errors.add(m.ErrorCode.SYNC_LOST)
         else:
-            self._errors.discard(ProcessError.SYNC_LOST)
+            self._errors.discard(m.ErrorCode.SYNC_LOST)
         return lit
 
     def _scan(self, lit: Frame, dark: Frame) -> SourceScan | None:
@@ -308,12 +305,12 @@ class SensorSource:
                 raise ValueError(f"pipeline returned {ranges.shape} ranges and {quality.shape} qualities for {n} angles")
         except Exception as exc:
             self.counters.pipeline_errors += 1
-            self._errors.add(ProcessError.PIPELINE_FAULT)
+            self._errors.add(m.ErrorCode.PIPELINE_FAULT)
             log.exception("pipeline failed on frames %d/%d: %s", lit.seq, dark.seq, exc)
             return None
         finally:
             self.counters.cpu_pipeline_s += time.thread_time() - cpu
-        self._errors.discard(ProcessError.PIPELINE_FAULT)
+        self._errors.discard(m.ErrorCode.PIPELINE_FAULT)
         s = self._settings
         sl = slice(s.roi_first, s.roi_first + s.roi_count)
         ranges, quality = ranges[sl], quality[sl]
@@ -327,7 +324,7 @@ class SensorSource:
     # failures
     def _camera_failed(self, why: str) -> None:
         log.error("camera fault (%s): laser off, restarting the camera", why)
-        self._errors.add(ProcessError.CAMERA_FAULT)
+        self._errors.add(m.ErrorCode.CAMERA_FAULT)
         self._laser_off()
         self._pending = None
         self._restart_camera()
@@ -344,7 +341,7 @@ class SensorSource:
         except Exception as exc:
             self._camera_ok = False
             self.counters.camera_errors += 1
-            self._errors.add(ProcessError.CAMERA_FAULT)
+            self._errors.add(m.ErrorCode.CAMERA_FAULT)
             log.error("camera start failed (%s); next try in %.1f s", exc, self.stall_timeout_s)
 
     def _laser_off(self) -> None:
@@ -378,23 +375,20 @@ class LinkSupervisor:
         self.on_health = on_health
         self.reopen_backoff_s = reopen_backoff_s
         self.server: LinkServer | None = None
-        self.sessions = 0
-        self._closed_totals = np.zeros(4, dtype=np.int64)  # sent, dropped, garbage bytes, bad frames
+        self.counters = LinkCounters()  # shared by every session: HEALTH reports process totals
+
+    @property
+    def sessions(self) -> int:
+        return self.counters.sessions
 
     def health(self) -> ProcessHealth:
-        totals = self._closed_totals + (self._session_totals(self.server) if self.server else 0)
+        c = self.counters
         st = self.source.status()
         return ProcessHealth(
             scanning=bool(self.server and self.server._scanning), laser_on=st.laser_on, sync_locked=st.sync_locked,
             errors=st.errors, source=SourceCounters(**vars(getattr(self.source, "counters", SourceCounters()))),
-            scans_sent=int(totals[0]), scans_dropped=int(totals[1]), host_garbage_bytes=int(totals[2]),
-            host_bad_frames=int(totals[3]), host_sessions=self.sessions)
-
-    @staticmethod
-    def _session_totals(server: LinkServer) -> np.ndarray:
-        d = server.decoder.stats
-        return np.array([server.counters.scans_sent, server.counters.scans_dropped, d.bytes_discarded,
-                         d.crc_errors + d.decode_errors + d.oversize_frames], dtype=np.int64)
+            scans_sent=c.scans_sent, scans_dropped=c.scans_dropped, host_bytes_discarded=c.host.bytes_discarded,
+            host_frames_rejected=c.host_frames_rejected, host_sessions=c.sessions)
 
     def run(self, stop: threading.Event) -> None:
         backoff = self.reopen_backoff_s[0]
@@ -409,15 +403,13 @@ class LinkSupervisor:
                     backoff = min(2 * backoff, self.reopen_backoff_s[1])
                     continue
                 backoff = self.reopen_backoff_s[0]
-                self.sessions += 1
-                self.server = LinkServer(port, self.source, self.config).start()
+                self.server = LinkServer(port, self.source, self.config, self.counters).start()
                 log.info("host link session %d open", self.sessions)
                 while not stop.wait(0.1) and not self.server.stopped:
                     if time.monotonic() >= next_log:
                         self._report(self.health(), "health")
                         next_log = time.monotonic() + self.health_log_s
                 self.server.close()
-                self._closed_totals += self._session_totals(self.server)
                 self.server = None
                 closer = getattr(port, "close", None)
                 if closer is not None:

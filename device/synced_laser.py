@@ -3,7 +3,9 @@ synchronisation controller (device/sync/control.py), behind device.process.Laser
 
 * ``start(frame)``: opens the co-MCU link if needed, stops any old schedule (stale state from an
   earlier run), pings it a few times for the clock map and hands it to a new SyncController; the
-  controller places the pulse train on the camera's frames as they come.
+  controller places the pulse train on the camera's frames as they come. It returns True when it
+  finds that the co-MCU rebooted while it was not answering (a reset not reported yet: its boot
+  announcement came late, or was garbled and its clock went back).
 * ``frame_lit(frame)``: per frame, feeds the controller the co-MCU's edge reports, the laser
   trigger line's GPIO edges (when wired) and a ping now and then, and returns the controller's
   label (lit / unlit / None while not locked).
@@ -11,8 +13,9 @@ synchronisation controller (device/sync/control.py), behind device.process.Laser
   heartbeats stop) only while frames keep being serviced: if the frame loop hangs, the heartbeats
   stop too and the firmware turns the laser off by itself.
 * Failures become ``LaserError``: "lost" (no answer, port gone), "reset" (the co-MCU announced a
-  new boot or forgot its schedule), "refused" (a NACK, e.g. outside the eye-safety envelope),
-  "fault" (the firmware latched a fault such as a missed heartbeat).
+  new boot, also when a request then went unanswered because it was restarting), "refused" (a
+  NACK, e.g. outside the eye-safety envelope), "fault" (the firmware latched a fault such as a
+  missed heartbeat).
 """
 
 from __future__ import annotations
@@ -83,7 +86,9 @@ class SyncedLaser:
         self.comcu: LockedComcu | None = None
         self.controller: SyncController | None = None
         self._lock = threading.Lock()  # start/stop/frame_lit against each other
-        self._boots = 0
+        self._boots = 0  # boot announcements of the co-MCU accounted for (reported as a reset, or the first)
+        self._mcu_ticks: int | None = None  # co-MCU clock at the last ping
+        self._clock_went_back: str | None = None  # a reboot seen in the pings, not yet accounted for
         self._last_ping = 0.0
         self._serviced = 0.0
         self._failure: LaserError | None = None  # seen by the heartbeat thread
@@ -95,22 +100,30 @@ class SyncedLaser:
         c = self.controller
         return c is not None and c.state is SyncState.LOCKED
 
-    def start(self, frame: Frame) -> None:
+    def start(self, frame: Frame) -> bool:
+        """Schedule the laser from the frames after ``frame``; True if the co-MCU turned out to
+        have rebooted since the last schedule without that having been reported (see above)."""
         self._stop_heartbeat()
         with self._lock:
+            fresh = self.comcu is None
             try:
-                if self.comcu is None:
+                if fresh:
                     self.comcu = LockedComcu(self.open_comcu())
-                    self._boots = len(self.comcu.boot_infos)
                 self.comcu.stop()  # whatever an earlier run left scheduled
                 controller = SyncController(self.sync, CoMcuTrain(self.comcu))
                 for _ in range(self.pings_at_start):
                     self._ping(controller)
                 self.comcu.edges()  # drop reports of an older schedule
             except (CoMcuError, OSError) as exc:
+                failure = _laser_error(exc) if fresh else self._classify(exc)  # a new link: its boot is no reset
                 self._drop_link()
-                raise _laser_error(exc) from exc
-            self._boots = len(self.comcu.boot_infos)
+                raise failure from exc
+            if fresh:
+                self._boots = len(self.comcu.boot_infos)  # a new link: its boot announcement is no reset
+            rebooted = self._reboot_seen(self.comcu)
+            if rebooted:
+                log.warning("the co-MCU rebooted while it did not answer: %s", rebooted)
+            self._account_reboots(self.comcu)
             self.controller = controller
             self._failure = None
             self._serviced = self._now()
@@ -120,6 +133,7 @@ class SyncedLaser:
             self._hb_stop.clear()
             self._hb = threading.Thread(target=self._heartbeat_loop, name="comcu-heartbeat", daemon=True)
             self._hb.start()
+        return rebooted is not None
 
     def stop(self) -> None:
         self._stop_heartbeat()
@@ -144,9 +158,9 @@ class SyncedLaser:
                 if self._now() - self._last_ping >= self.ping_interval_s:
                     self._ping(controller)
                 edges = self.comcu.edges()
-                if len(self.comcu.boot_infos) != self._boots:
-                    self._boots = len(self.comcu.boot_infos)
-                    raise LaserError("reset", f"the co-MCU rebooted (reset cause 0x{self.comcu.boot_infos[-1].reset_cause:02x})")
+                rebooted = self._reboot_seen(self.comcu)
+                if rebooted:
+                    raise self._reset(self.comcu, rebooted)
                 # a cut pulse or a forced (late) fall is not where the schedule put it: not evidence
                 controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges if not e.flags])
                 controller.on_gpio_edges(gpio)
@@ -158,9 +172,10 @@ class SyncedLaser:
             except CoMcuNack as exc:
                 raise self._refusal(exc) from exc
             except (CoMcuError, OSError, ValueError) as exc:
+                failure = self._classify(exc)
                 if isinstance(exc, OSError):
                     self._drop_link()
-                raise _laser_error(exc) from exc
+                raise failure from exc
         return label.lit
 
     def _refusal(self, exc: CoMcuNack) -> LaserError:
@@ -175,9 +190,37 @@ class SyncedLaser:
         return LaserError("refused", str(exc))
 
     # internals
+    def _reboot_seen(self, comcu) -> str | None:
+        """How we know that ``comcu`` rebooted since its reboots were last accounted for, or None."""
+        if len(comcu.boot_infos) != self._boots:
+            return f"it announced a new boot (reset cause 0x{comcu.boot_infos[-1].reset_cause:02x})"
+        return self._clock_went_back
+
+    def _account_reboots(self, comcu) -> None:
+        self._boots = len(comcu.boot_infos)
+        self._clock_went_back = None
+
+    def _reset(self, comcu, why: str) -> LaserError:
+        """The co-MCU rebooted (``why``): a "reset", accounted for so that start() does not count it again."""
+        self._account_reboots(comcu)
+        self._mcu_ticks = None  # pings from here on are of the new boot
+        return LaserError("reset", f"the co-MCU rebooted: {why}")
+
+    def _classify(self, exc: Exception) -> LaserError:
+        """A failed request as a LaserError: "reset" if the co-MCU rebooted meanwhile (the request
+        reached it while it was restarting), otherwise "refused" or "lost"."""
+        comcu = self.comcu
+        rebooted = self._reboot_seen(comcu) if comcu is not None else None
+        if rebooted:
+            return self._reset(comcu, f"{rebooted}, and did not answer ({type(exc).__name__}: {exc})")
+        return _laser_error(exc)
+
     def _ping(self, controller: SyncController) -> None:
         p = self.comcu.ping()
         controller.on_ping(p.host_send_ns, p.mcu_rx_ticks, p.host_recv_ns)  # tick when the PING arrived
+        if self._mcu_ticks is not None and p.mcu_ticks < self._mcu_ticks:  # its clock counts from its boot
+            self._clock_went_back = f"its clock went back from {self._mcu_ticks} to {p.mcu_ticks} ticks"
+        self._mcu_ticks = p.mcu_ticks
         self._last_ping = self._now()
 
     def _drop_link(self) -> None:
@@ -204,12 +247,12 @@ class SyncedLaser:
         try:
             state, fault = comcu.heartbeat()
         except (CoMcuError, OSError) as exc:
-            self._failure = _laser_error(exc)
+            self._failure = self._classify(exc)
             return
         if fault:
             self._failure = LaserError("fault", f"co-MCU latched {fault!r} (state {state.name})")
-        elif len(comcu.boot_infos) != self._boots:
-            self._failure = LaserError("reset", "the co-MCU rebooted")
+        elif rebooted := self._reboot_seen(comcu):
+            self._failure = self._reset(comcu, rebooted)
 
     def _heartbeat_loop(self) -> None:
         while not self._hb_stop.wait(self.heartbeat_s) and self._failure is None:

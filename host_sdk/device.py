@@ -117,7 +117,10 @@ class LaserPi:
         return self._receiver.info
 
     def health(self) -> m.Health:
-        """State, laser, sync lock, dropped frames/scans and active error codes, fresh from the device."""
+        """State, laser, sync lock, dropped frames/scans, active error codes (ErrorCode) and fault
+        counters (camera restarts, co-MCU resets and losses, pipeline errors, host bytes discarded and
+        frames rejected, host link sessions; None from a device of protocol minor 0), fresh from
+        the device. Fields: protocol/SPEC.md "HEALTH"."""
         return self._request(m.GetHealth(), m.Health)
 
     def start(self) -> None:

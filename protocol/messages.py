@@ -22,7 +22,7 @@ import numpy as np
 from protocol.framing import OVERHEAD, PROTOCOL_VERSION
 
 #: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
-PROTOCOL_MINOR = 0
+PROTOCOL_MINOR = 1  # 1: HEALTH fault counters appended (SPEC.md "HEALTH")
 
 
 class MsgType(enum.IntEnum):
@@ -55,11 +55,13 @@ class DeviceState(enum.IntEnum):
 
 
 class ErrorCode(enum.IntEnum):
-    """Codes in HEALTH.errors: conditions that are true now."""
+    """Codes in HEALTH.errors: conditions that are true now (a receiver keeps unknown codes as ints)."""
 
-    SOURCE_FAILED = 1  # the scan source raised; see the LOG messages
-    SYNC_LOST = 2  # camera and laser pulses are not locked
-    LASER_FAULT = 3  # laser driver reports a fault
+    SOURCE_FAILED = 1  # the scan source raised and scanning stopped; see the LOG messages
+    SYNC_LOST = 2  # camera exposures and laser pulses are not locked
+    LASER_FAULT = 3  # the co-MCU driving the laser is lost, was reset or latched a fault: laser off, re-syncing
+    CAMERA_FAULT = 4  # the camera stalled or failed: laser off, camera being restarted
+    PIPELINE_FAULT = 5  # the image pipeline raised on the last frame pair: that scan was skipped
 
 
 class MessageError(ValueError):
@@ -287,10 +289,17 @@ class GetHealth:
 
 @dataclass(frozen=True, slots=True)
 class Health:
-    """Device -> host. Counters are totals since the device process started (u32, wrap)."""
+    """Device -> host. Counters are totals since the device process started (u32, wrap).
+
+    The counters after ``errors`` were appended in protocol minor 1; they are None when the
+    device speaks minor 0 (its payload ends after ``errors``) and encode to nothing when None.
+    """
 
     TYPE = MsgType.HEALTH
     _S = struct.Struct("<BBBxIIIQH")
+    _S1: ClassVar = struct.Struct("<7I")
+    MINOR1_FIELDS: ClassVar = ("camera_restarts", "comcu_resets", "comcu_lost", "pipeline_errors",
+                               "host_bytes_discarded", "host_frames_rejected", "host_sessions")
     state: DeviceState
     laser_on: bool
     sync_locked: bool
@@ -299,23 +308,43 @@ class Health:
     scans_sent: int
     device_time_us: int  # the device clock when the health was sampled
     errors: tuple[int, ...] = ()  # ErrorCode values active now
+    # protocol minor 1
+    camera_restarts: int | None = None  # camera restarted after a stall or an error
+    comcu_resets: int | None = None  # the co-MCU rebooted (it announced a new boot)
+    comcu_lost: int | None = None  # the co-MCU stopped answering
+    pipeline_errors: int | None = None  # frame pairs the image pipeline raised on (scan skipped)
+    host_bytes_discarded: int | None = None  # bytes from the host outside intact frames (garbage, CRC, decode)
+    host_frames_rejected: int | None = None  # frames from the host dropped for CRC, decode or size errors
+    host_sessions: int | None = None  # times the host link was opened (reopened after a port failure)
 
     def encode(self) -> bytes:
-        return self._S.pack(int(self.state), self.laser_on, self.sync_locked, self.frames_dropped & 0xFFFFFFFF,
+        head = self._S.pack(int(self.state), self.laser_on, self.sync_locked, self.frames_dropped & 0xFFFFFFFF,
                             self.scans_dropped & 0xFFFFFFFF, self.scans_sent & 0xFFFFFFFF,
                             self.device_time_us, len(self.errors)) + struct.pack(f"<{len(self.errors)}H", *self.errors)
+        counters = [getattr(self, n) for n in self.MINOR1_FIELDS]
+        if all(v is None for v in counters):
+            return head
+        missing = [n for n, v in zip(self.MINOR1_FIELDS, counters) if v is None]
+        if missing:
+            raise ValueError(f"HEALTH counters of protocol minor 1 are all set or all None; missing {missing}")
+        return head + self._S1.pack(*(v & 0xFFFFFFFF for v in counters))
 
     @classmethod
     def decode(cls, payload: bytes) -> Health:
         _need(payload, cls._S.size, "HEALTH")
         state, laser, sync, fd, sd, ss, t, n = cls._S.unpack_from(payload)
-        _need(payload, cls._S.size + 2 * n, "HEALTH errors")
+        off = cls._S.size + 2 * n
+        _need(payload, off, "HEALTH errors")
         try:
             state = DeviceState(state)
         except ValueError:
             raise MessageError("value", f"unknown device state {state}") from None
         errors = struct.unpack_from(f"<{n}H", payload, cls._S.size)
-        return cls(state, bool(laser), bool(sync), fd, sd, ss, t, tuple(errors))
+        counters = (None,) * len(cls.MINOR1_FIELDS)
+        if len(payload) > off:  # a device of minor >= 1
+            _need(payload, off + cls._S1.size, "HEALTH counters (protocol minor 1)")
+            counters = cls._S1.unpack_from(payload, off)
+        return cls(state, bool(laser), bool(sync), fd, sd, ss, t, tuple(errors), *counters)
 
 
 @dataclass(frozen=True, slots=True)

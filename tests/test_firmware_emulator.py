@@ -35,14 +35,6 @@ TEST_MIN_PERIOD = 600
 
 
 @pytest.fixture(scope="module")
-def emulator():
-    try:
-        return build_emulator()
-    except Exception as exc:  # a missing simavr must fail loudly, not skip
-        pytest.fail(f"simavr harness unavailable: {exc}")
-
-
-@pytest.fixture(scope="module")
 def relaxed_emulator():
     """The test ELF with MIN_PERIOD_TICKS relaxed (its own build dir): only for tests whose point
     is timing at pulse rates the production envelope refuses."""

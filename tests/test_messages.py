@@ -1,6 +1,8 @@
 """Message codecs: golden vectors (both directions), REP 117 codes, refusal of bad payloads."""
 
+import dataclasses
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +112,52 @@ def test_info_with_nan_angle_is_refused():
 def test_trailing_bytes_from_a_newer_minor_revision_are_ignored():
     _, health = VECTORS["health"]
     assert m.Health.decode(health.encode() + b"future") == health
+
+
+def _payload(name: str) -> bytes:
+    return decode_frame((VECTOR_DIR / f"{name}.bin").read_bytes()[:-1]).payload
+
+
+def _decode_health_minor0(payload: bytes) -> tuple:
+    """HEALTH as a receiver of protocol minor 0 reads it (SPEC.md, HEALTH up to errors[e]):
+    the fields it knows, every byte after them ignored."""
+    head = struct.Struct("<BBBxIIIQH")
+    *fields, n = head.unpack_from(payload)
+    return (*fields, struct.unpack_from(f"<{n}H", payload, head.size))
+
+
+def test_health_of_minor_1_reads_the_same_in_a_minor_0_receiver():
+    """New device, old host: the counters are appended, the minor-0 fields and their bytes unchanged."""
+    new, old = _payload("health"), _payload("health_minor0")
+    assert new.startswith(old) and len(new) == len(old) + 4 * len(m.Health.MINOR1_FIELDS)
+    assert _decode_health_minor0(new) == _decode_health_minor0(old)
+    assert _decode_health_minor0(new) == (1, 1, 0, 7, 2, 1000, 123456789, (2,))
+
+
+def test_health_of_minor_0_reads_in_a_minor_1_receiver_with_counters_absent():
+    """Old device, new host: the shorter payload decodes, every minor-1 counter is None."""
+    got = m.Health.decode(_payload("health_minor0"))
+    assert all(getattr(got, f) is None for f in m.Health.MINOR1_FIELDS)
+    assert got == VECTORS["health_minor0"][1]
+    new = m.Health.decode(_payload("health"))
+    assert [getattr(new, f) for f in m.Health.MINOR1_FIELDS] == [1, 2, 3, 4, 70000, 5, 6]
+
+
+def test_health_counters_cut_short_are_refused_and_must_be_all_or_none():
+    new = _payload("health")
+    with pytest.raises(m.MessageError) as exc:
+        m.Health.decode(new[:-1])
+    assert exc.value.reason == "short" and "minor 1" in str(exc.value)
+    _, health = VECTORS["health"]
+    with pytest.raises(ValueError, match="comcu_lost"):
+        dataclasses.replace(health, comcu_lost=None).encode()
+    wrapped = m.Health.decode(dataclasses.replace(health, host_bytes_discarded=2**32 + 9).encode())
+    assert wrapped.host_bytes_discarded == 9  # u32 counters wrap, like the minor-0 ones
+
+
+def test_error_codes_of_the_device_process_are_in_the_protocol():
+    assert {e.name: e.value for e in m.ErrorCode} == {
+        "SOURCE_FAILED": 1, "SYNC_LOST": 2, "LASER_FAULT": 3, "CAMERA_FAULT": 4, "PIPELINE_FAULT": 5}
 
 
 def test_settings_merge_keeps_unset_fields():

@@ -11,7 +11,7 @@ import pytest
 
 from device.link import DeviceConfig
 from device.ports import PacedPort, pipe_pair
-from device.process import LinkSupervisor, ProcessError, SensorSource
+from device.process import LinkSupervisor, SensorSource
 from protocol import messages as m
 from protocol.framing import encode_frame
 from protocol.stream import StreamDecoder
@@ -64,14 +64,14 @@ def test_camera_stall_of_one_second_is_reported_and_the_stream_resumes():
     while time.monotonic() < rig.stall_until:
         src.next_scan(0.05)
         st = src.status()
-        if ProcessError.CAMERA_FAULT in st.errors:
+        if m.ErrorCode.CAMERA_FAULT in st.errors:
             seen_fault = True
             assert not st.laser_on and rig.lit_parity is None, "laser must be off while the camera stalls"
     assert seen_fault
     after = scans_for(src, 0.6)
     assert len(after) >= 5
     assert src.counters.camera_stalls >= 1 and src.counters.camera_restarts >= 1 and cam.starts >= 2
-    assert ProcessError.CAMERA_FAULT not in src.status().errors and src.status().laser_on
+    assert m.ErrorCode.CAMERA_FAULT not in src.status().errors and src.status().laser_on
     src.stop()
 
 
@@ -93,10 +93,10 @@ def test_comcu_reset_mid_stream_turns_laser_off_reports_and_resyncs():
     assert scans_for(src, 0.3)
     rig.mcu_reset_pending = True
     deadline = time.monotonic() + 1.0
-    while ProcessError.LASER_FAULT not in src.status().errors and time.monotonic() < deadline:
+    while m.ErrorCode.LASER_FAULT not in src.status().errors and time.monotonic() < deadline:
         src.next_scan(0.05)
     st = src.status()
-    assert ProcessError.LASER_FAULT in st.errors and ProcessError.SYNC_LOST in st.errors
+    assert m.ErrorCode.LASER_FAULT in st.errors and m.ErrorCode.SYNC_LOST in st.errors
     assert not st.laser_on and not st.sync_locked
     after = scans_for(src, 0.7)
     assert len(after) >= 5 and src.counters.comcu_resets == 1 and laser.starts == 2
@@ -112,7 +112,7 @@ def test_comcu_lost_for_a_while_retries_until_it_answers():
     rig.mcu_down_until = time.monotonic() + 0.7
     during = scans_for(src, 0.6)
     assert len(during) <= 1  # at most a pair completed before the loss was seen
-    assert ProcessError.LASER_FAULT in src.status().errors
+    assert m.ErrorCode.LASER_FAULT in src.status().errors
     after = scans_for(src, 0.8)
     assert len(after) >= 5
     assert src.counters.comcu_lost == 1 and src.status().laser_on
@@ -208,6 +208,8 @@ def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
     host.pump(0.3)
     before = len(host.scans)
     assert before >= 3
+    h0 = host.health()
+    assert h0.host_bytes_discarded == 0 and h0.host_frames_rejected == 0 and h0.host_sessions == 1
     rng = np.random.default_rng(1)
     half = encode_frame(m.MsgType.GET_INFO, 99, m.GetInfo().encode())[:6]
     host_end.write(rng.integers(1, 256, 300, dtype=np.uint8).tobytes() + b"\x00" + half + b"\x00" + half)
@@ -217,7 +219,11 @@ def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
     assert health.state == m.DeviceState.SCANNING and health.laser_on and health.errors == ()
     assert len(host.scans) >= before + 3
     ph = sup.health()
-    assert ph.host_garbage_bytes >= 300 and ph.host_bad_frames >= 2
+    assert ph.host_bytes_discarded >= 300 and ph.host_frames_rejected >= 2
+    # the same counts reach the host in HEALTH: 300 garbage bytes, then two half frames
+    assert health.host_bytes_discarded == ph.host_bytes_discarded >= 300 + 2 * len(half)
+    assert health.host_frames_rejected == ph.host_frames_rejected >= 3
+    assert health.scans_sent > h0.scans_sent and health.host_sessions == 1
     assert all(s.ranges_m.shape == (N_POINTS,) for s in host.scans)
     stop.set()
     t.join(3)
@@ -231,11 +237,13 @@ def test_health_message_reports_a_camera_stall_while_it_lasts():
     host = Host(host_end)
     host.send(m.Start())
     host.pump(0.3)
+    h0 = host.health()
+    assert h0.camera_restarts == 0 and h0.errors == ()
     rig.stall_until = time.monotonic() + 1.0
     seen = None
     while seen is None and time.monotonic() < rig.stall_until:
         h = host.health()
-        if ProcessError.CAMERA_FAULT in h.errors:
+        if m.ErrorCode.CAMERA_FAULT in h.errors:
             seen = h
     assert seen is not None, "HEALTH never reported the stalled camera"
     assert not seen.laser_on
@@ -246,6 +254,68 @@ def test_health_message_reports_a_camera_stall_while_it_lasts():
         h = host.health()
     assert len(host.scans) >= n + 4, "the scan stream did not resume"
     assert h.errors == () and h.laser_on and h.state == m.DeviceState.SCANNING
+    assert h.camera_restarts >= 1 and h.camera_restarts == sup.health().source.camera_restarts
+    assert h.comcu_resets == h.comcu_lost == h.pipeline_errors == 0
+    stop.set()
+    t.join(3)
+
+
+def test_health_message_reports_a_comcu_reset_until_the_laser_is_resynchronised():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    h0 = host.health()
+    assert h0.comcu_resets == 0 and h0.errors == () and h0.laser_on
+    rig.mcu_reset_pending = True
+    seen, deadline = None, time.monotonic() + 2.0
+    while seen is None and time.monotonic() < deadline:
+        h = host.health()
+        if m.ErrorCode.LASER_FAULT in h.errors:
+            seen = h
+    assert seen is not None, "HEALTH never reported the co-MCU reset"
+    assert m.ErrorCode.SYNC_LOST in seen.errors and not seen.laser_on and not seen.sync_locked
+    assert seen.comcu_resets == 1
+    n = len(host.scans)
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline and (len(host.scans) < n + 4 or h.errors or not h.laser_on):
+        host.pump(0.2)
+        h = host.health()
+    assert h.errors == () and h.laser_on and h.sync_locked, "the code did not clear after the re-sync"
+    assert len(host.scans) >= n + 4, "the scan stream did not resume"
+    assert h.comcu_resets == 1 and h.comcu_lost == 0 and h.camera_restarts == 0
+    stop.set()
+    t.join(3)
+
+
+def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    good = sup.source.pipeline
+    failing = threading.Event()
+
+    def flaky(lit, dark):
+        if failing.is_set():
+            raise RuntimeError("numerical trouble")
+        return good(lit, dark)
+
+    sup.source.pipeline = flaky
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    failing.set()
+    host.pump(0.3)
+    h = host.health()
+    assert m.ErrorCode.PIPELINE_FAULT in h.errors and h.pipeline_errors >= 2 and h.state == m.DeviceState.SCANNING
+    failing.clear()
+    n = len(host.scans)
+    host.pump(0.3)
+    h2 = host.health()
+    assert m.ErrorCode.PIPELINE_FAULT not in h2.errors and len(host.scans) >= n + 3
+    assert h2.pipeline_errors == sup.health().source.pipeline_errors >= h.pipeline_errors
     stop.set()
     t.join(3)
 
@@ -257,10 +327,12 @@ def test_slow_link_drops_whole_scans_and_counts_them():
     host = Host(host_end)
     host.send(m.Start())
     host.pump(1.5)
+    h = host.health()  # control replies go ahead of queued scans
     stop.set()
     t.join(3)
     ph = sup.health()
     assert ph.scans_dropped > 10
+    assert 10 < h.scans_dropped <= ph.scans_dropped and h.scans_sent <= ph.scans_sent
     assert all(s.ranges_m.shape == (N_POINTS,) for s in host.scans)
     seqs = [s.scan_seq for s in host.scans]
     assert seqs == sorted(seqs)
@@ -279,6 +351,11 @@ def test_a_failing_port_is_reopened_and_a_new_session_served():
     rig = FakeRig()
     sup, stop, t = run_supervised(open_port, rig)
     time.sleep(0.2)
+    first = Host(opened[0])
+    first.send(m.Start())
+    first.pump(0.3)
+    h1 = first.health()
+    assert h1.scans_sent >= 3 and h1.host_sessions == 1
     opened[0].close()  # host unplugged: the port raises PortClosed
     deadline = time.monotonic() + 3
     while len(opened) < 2 and time.monotonic() < deadline:
@@ -287,7 +364,11 @@ def test_a_failing_port_is_reopened_and_a_new_session_served():
     host = Host(opened[-1])
     host.send(m.Start())
     host.pump(0.4)
-    assert len(host.scans) >= 3
+    received = len(host.scans)
+    assert received >= 3
+    h2 = host.health()  # totals of the process, not of the session: they keep counting
+    assert h2.host_sessions == len(opened) >= 2
+    assert h2.scans_sent >= h1.scans_sent + received
     stop.set()
     t.join(3)
     assert rig.lit_parity is None

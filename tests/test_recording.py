@@ -96,6 +96,10 @@ def test_replay_through_a_pty_serves_the_recording(tmp_path):
         got = []
         with host_sdk.LaserPi(str(link), timeout_s=2.0) as s:
             assert s.info().angles.size == 64
+            # a replay knows no fault counters: it answers with the HEALTH of protocol minor 0,
+            # which the SDK reads with the counters absent
+            h = s.health()
+            assert h.state == m.DeviceState.IDLE and all(getattr(h, f) is None for f in m.Health.MINOR1_FIELDS)
             with pytest.raises(host_sdk.CommandRefused, match="cannot change"):
                 s.configure(scan_rate_hz=5.0)
             with pytest.raises(host_sdk.DisconnectedError):  # the replay ends after the last byte

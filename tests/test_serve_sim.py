@@ -13,6 +13,7 @@ import pytest
 import host_sdk
 from device.scene_truth import scene_truth
 from device.serve_child import start_serve, stop_serve
+from protocol import messages as m
 
 POINTS = 1640  # the configured points per scan: the active image width of the thesis preset
 pytestmark = pytest.mark.slow
@@ -103,26 +104,39 @@ def test_scans_at_the_configured_rate_and_size_with_the_pipelines_accuracy(senso
     assert 100 * np.std(rel) <= 1.2 * offline_error_pct()
 
 
+def wait_health(sensor: host_sdk.LaserPi, done, seconds: float = 8.0):
+    """Poll HEALTH until ``done(health)`` or ``seconds`` pass; the last HEALTH and every error code seen."""
+    seen: set[int] = set()
+    end = time.monotonic() + seconds
+    while True:
+        h = sensor.health()
+        seen.update(h.errors)
+        if done(h) or time.monotonic() >= end:
+            return h, seen
+        time.sleep(0.05)
+
+
 def test_faults_on_the_full_stack_degrade_and_recover(sensor):
     link, proc, log = sensor
+    laser_fault, camera_fault = m.ErrorCode.LASER_FAULT, m.ErrorCode.CAMERA_FAULT
     with host_sdk.LaserPi(str(link), timeout_s=15.0) as s:
         assert collect(s, 0.5)
+        h0 = s.health()
         proc.send_signal(signal.SIGUSR1)  # co-MCU power-cycled mid-stream
-        seen = set()
-        end = time.monotonic() + 8.0
-        while time.monotonic() < end and 3 not in seen:
-            seen.update(s.health().errors)
-            time.sleep(0.05)
-        assert 3 in seen  # LASER_FAULT while the co-MCU is away
+        h, seen = wait_health(s, lambda h: laser_fault in h.errors)
+        assert laser_fault in seen  # LASER_FAULT while the co-MCU is away
         assert resumed(s)  # re-synchronised, scanning again
+        h, _ = wait_health(s, lambda h: not h.errors and h.sync_locked)
+        assert h.errors == () and h.laser_on and h.sync_locked  # the code cleared after the re-sync
+        assert h.comcu_resets == h0.comcu_resets + 1  # one reset, counted once (also when it was away a while)
+        h1 = h
         proc.send_signal(signal.SIGUSR2)  # camera stalls for 1 s
-        seen = set()
-        end = time.monotonic() + 8.0
-        while time.monotonic() < end and 4 not in seen:
-            seen.update(s.health().errors)
-            time.sleep(0.05)
-        assert 4 in seen  # CAMERA_FAULT while it stalls
+        h, seen = wait_health(s, lambda h: camera_fault in h.errors)
+        assert camera_fault in seen  # CAMERA_FAULT while it stalls
         assert resumed(s)
+        h, _ = wait_health(s, lambda h: h.camera_restarts > h1.camera_restarts and not h.errors)
+        assert h.camera_restarts > h1.camera_restarts and h.errors == ()
+        h2 = h
     # host unplugged and plugged in again, with garbage and half a frame on the line first
     with open(link, "wb", buffering=0) as raw:
         raw.write(np.random.default_rng(3).integers(1, 256, 500, dtype=np.uint8).tobytes() + b"\x00\x11\x22")
@@ -130,14 +144,21 @@ def test_faults_on_the_full_stack_degrade_and_recover(sensor):
         assert resumed(s)
         h = s.health()
         assert h.errors == () and h.laser_on
+        # the counters kept counting across the replug
+        assert h.host_bytes_discarded >= h2.host_bytes_discarded + 500 and h.host_frames_rejected > h2.host_frames_rejected
+        assert h.scans_sent > h2.scans_sent and h.camera_restarts >= h2.camera_restarts
+        assert h.comcu_resets >= 1 and h.host_sessions == 1
     assert proc.poll() is None
     assert stop_serve(proc) == 0
     text = Path(log).read_text()
     final = [line for line in text.splitlines() if "device process stopped, laser off" in line][-1]
     counts = dict(kv.split("=") for kv in final.split("; ", 1)[1].split() if "=" in kv)
     assert int(counts["comcu_resets"]) + int(counts["comcu_lost"]) >= 1
-    assert int(counts["camera_restarts"]) >= 1 and int(counts["host_garbage_bytes"]) >= 500
+    assert int(counts["camera_restarts"]) >= 1 and int(counts["host_bytes_discarded"]) >= 500
     assert int(counts["host_sessions"]) == 1  # the pty stayed: nothing to reopen
+    # HEALTH told the host what the log says
+    assert int(counts["comcu_resets"]) == h.comcu_resets and int(counts["comcu_lost"]) == h.comcu_lost
+    assert int(counts["camera_restarts"]) == h.camera_restarts
 
 
 def test_stop_leaves_the_laser_pin_low_on_the_real_firmware():

@@ -108,6 +108,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"device health: {health.state.name}, laser {'on' if health.laser_on else 'off'}, "
               f"sync {'locked' if health.sync_locked else 'not locked'}, errors {list(health.errors)}, "
               f"scans sent {health.scans_sent}, dropped {health.scans_dropped}, frames dropped {health.frames_dropped}")
+        if health.camera_restarts is not None:  # protocol minor >= 1
+            print(f"  camera restarts {health.camera_restarts}, co-MCU resets {health.comcu_resets}, "
+                  f"co-MCU lost {health.comcu_lost}, pipeline errors {health.pipeline_errors}, "
+                  f"host bytes discarded {health.host_bytes_discarded}")
     print(f"device process exit code {code}")
     _draw(truth_scene, last, args.png)
     print(f"top view written to {args.png}")
@@ -133,7 +137,10 @@ def _draw(truth_scene, scan, png: str) -> None:
     ax.plot([0], [0], "k^", ms=8, label="sensor")
     ax.set_xlabel("y (m, left positive)")
     ax.set_ylabel("x (m, forward)")
-    ax.invert_xaxis()  # REP 103: y to the left, seen from above with x up
+    # the field of view and the measured range, not the whole scene; y to the left (REP 103)
+    half = reach * max(abs(math.sin(a.min())), abs(math.sin(a.max())), 0.3) + 0.2
+    ax.set_xlim(half, -half)
+    ax.set_ylim(-0.3, reach + 0.2)
     ax.set_aspect("equal")
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title("LaserPi simulated: scene from above, true surfaces and one measured scan")

@@ -28,7 +28,12 @@ VECTORS: dict[str, tuple[int, object]] = {
                        np.linspace(0.5, -0.5, 8, dtype=np.float32), _SETTINGS, 5.5)),
     "get_health": (3, m.GetHealth()),
     "health": (4, m.Health(m.DeviceState.SCANNING, True, False, 7, 2, 1000, 123456789,
-                           (m.ErrorCode.SYNC_LOST,))),
+                           (m.ErrorCode.SYNC_LOST,), camera_restarts=1,
+                           comcu_resets=2, comcu_lost=3, pipeline_errors=4, host_bytes_discarded=70000,
+                           host_frames_rejected=5, host_sessions=6)),
+    # the same message from a device of protocol minor 0 (no counters): tests the compatibility rule
+    "health_minor0": (4, m.Health(m.DeviceState.SCANNING, True, False, 7, 2, 1000, 123456789,
+                                  (m.ErrorCode.SYNC_LOST,))),
     "start": (5, m.Start()),
     "stop": (6, m.Stop()),
     "set_config": (7, m.SetConfig(m.ScanSettings(scan_rate_hz=5.0, laser_power_mw=2.5))),

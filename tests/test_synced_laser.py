@@ -1,0 +1,116 @@
+"""SyncedLaser tells a co-MCU reset from a lost co-MCU, against a fake co-MCU (the real firmware
+runs in tests/test_serve_sim.py): HEALTH.comcu_resets depends on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from device.camera.frame import Frame
+from device.comcu import CoMcuTimeout, PingResult
+from device.process import LaserError
+from device.sync.control import SyncConfig
+from device.synced_laser import SyncedLaser
+from protocol import mcu
+
+
+class FakeComcu:
+    """Answers pings with its clock (ticks since its boot); ``answering`` False = every request times out."""
+
+    def __init__(self):
+        self.ticks = 1_000_000
+        self.boot_infos: list[mcu.Info] = []
+        self.answering = True
+
+    def _request(self) -> None:
+        if not self.answering:
+            raise CoMcuTimeout("co-MCU did not answer before the port timeout")
+
+    def reboot(self, announced: bool) -> None:
+        """Restart its clock; its boot announcement arrives, or is garbled on the line."""
+        self.ticks = 500
+        if announced:
+            self.boot_infos.append(mcu.Info(1, 0x01, 100, 20000, 100000, 2_000_000, 1000))
+
+    def ping(self) -> PingResult:
+        self._request()
+        self.ticks += 1000
+        return PingResult(self.ticks, 0, 1000, self.ticks - 10)
+
+    def stop(self) -> int:
+        self._request()
+        return 0
+
+    def edges(self) -> list:
+        return []
+
+
+@pytest.fixture
+def laser_and_mcu():
+    fake = FakeComcu()
+    now = {"ns": 0}
+
+    def clock_ns() -> int:
+        now["ns"] += 100_000_000  # every call 0.1 s later: frame_lit always pings
+        return now["ns"]
+
+    laser = SyncedLaser(lambda: fake, SyncConfig(0, 10, 0.05), heartbeat_s=None, clock_ns=clock_ns)
+    return laser, fake
+
+
+FRAME = Frame(np.zeros((2, 2), np.uint8), 0, 0, 1000.0, 50_000.0, 18904.0)
+
+
+def test_a_fresh_link_is_no_reset_even_when_the_mcu_announces_its_boot(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    fake.reboot(announced=True)  # its power-on announcement
+    assert laser.start(FRAME) is False
+    laser.stop()
+    assert laser.start(FRAME) is False
+
+
+def test_a_request_unanswered_after_a_boot_announcement_is_a_reset_not_a_loss(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    fake.reboot(announced=True)
+    fake.answering = False  # the request reached it while it restarted
+    with pytest.raises(LaserError) as exc:
+        laser.frame_lit(FRAME)
+    assert exc.value.reason == "reset" and "announced a new boot" in str(exc.value)
+    fake.answering = True
+    assert laser.start(FRAME) is False  # reported once, not again on the re-sync
+
+
+def test_a_reboot_whose_announcement_was_garbled_is_found_by_its_clock_on_restart(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    fake.answering = False
+    with pytest.raises(LaserError) as exc:
+        laser.frame_lit(FRAME)
+    assert exc.value.reason == "lost"
+    fake.reboot(announced=False)
+    fake.answering = True
+    assert laser.start(FRAME) is True  # its clock went back: it rebooted during the outage
+    laser.stop()
+    assert laser.start(FRAME) is False
+
+
+def test_a_clock_gone_back_while_answering_is_a_reset(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    fake.reboot(announced=False)
+    with pytest.raises(LaserError) as exc:
+        laser.frame_lit(FRAME)
+    assert exc.value.reason == "reset" and "clock went back" in str(exc.value)
+    assert laser.start(FRAME) is False
+
+
+def test_an_outage_without_a_reboot_is_only_a_loss(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    fake.answering = False
+    with pytest.raises(LaserError) as exc:
+        laser.frame_lit(FRAME)
+    assert exc.value.reason == "lost"
+    fake.answering = True
+    assert laser.start(FRAME) is False
