@@ -141,6 +141,7 @@ class FastPipeline:
         self.cols = np.arange(config.width)
         nb = self.rows // BLOCK_ROWS
         self._block_rows = np.arange(BLOCK_ROWS)[None, :]
+        self._in_block_keys = ((BLOCK_ROWS - 1) - np.arange(self.rows) % BLOCK_ROWS).astype(np.uint16)[:, None]
         self._block_index = np.arange(nb)[:, None]
         self._row_keys = (nb - 1 - np.arange(nb, dtype=np.uint16))[:, None]
         self._cols2 = np.concatenate([self.cols, self.cols])
@@ -308,19 +309,31 @@ class FastPipeline:
         smoothed peak can sit a row off the unsmoothed one)."""
         nb = sm.shape[0] // BLOCK_ROWS
         cols = self.cols
-        blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
-        bmax = blocks.max(axis=1)
+        # keys value << 4 | (15 - row in block): one contiguous max per block gives the block's
+        # maximum and the first row holding it (no strided argmax, no per-column gather)
+        key = np.left_shift(sm[: nb * BLOCK_ROWS], 4, dtype=np.uint16)
+        key |= self._in_block_keys[: nb * BLOCK_ROWS]
+        bkey = key.reshape(nb, BLOCK_ROWS, -1).max(axis=1)  # (nb, W)
+        bmax = bkey >> 4
+        first_row = (BLOCK_ROWS - 1) - (bkey & (BLOCK_ROWS - 1)).astype(np.intp)
+        W = cols.size
         b1 = self._first_argmax(bmax)
-        k1 = b1 * BLOCK_ROWS + np.argmax(blocks[b1, :, cols], axis=1)
+        k1 = b1 * BLOCK_ROWS + first_row.ravel().take(b1 * W + cols)
         sep = self.params.half_width + 1
         blk = self._block_index[:nb]
-        bmax[(blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)] = 0
+        near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
+        bmax[near] = 0
         b2 = self._first_argmax(bmax)
-        inner = blocks[b2, :, cols]  # (W, BLOCK_ROWS), a copy
-        inner[np.abs(self._block_rows + (b2 * BLOCK_ROWS - k1)[:, None]) <= sep] = 0
-        k2 = b2 * BLOCK_ROWS + np.argmax(inner, axis=1)
+        k2 = b2 * BLOCK_ROWS + first_row.ravel().take(b2 * W + cols)
+        odd = np.nonzero(near.ravel().take(b2 * W + cols))[0]
+        if odd.size:
+            # every block was near the first peak or empty: the second peak is the largest row
+            # of that block at least sep rows from the first
+            blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
+            inner = blocks[b2[odd], :, odd]  # (n, BLOCK_ROWS), a copy
+            inner[np.abs(self._block_rows + (b2[odd] * BLOCK_ROWS - k1[odd])[:, None]) <= sep] = 0
+            k2[odd] = b2[odd] * BLOCK_ROWS + np.argmax(inner, axis=1)
         # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1)
-        W = cols.size
         k = np.concatenate([k1, k2])
         km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, d.shape[0] - 1)
         flat = d.ravel()  # contiguous: flat takes are cheaper than 2-D fancy indexing
