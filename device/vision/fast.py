@@ -511,15 +511,16 @@ def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half
     run_end = np.minimum.accumulate(np.where(end, idx, W - 1)[::-1])[::-1]
     lo = np.maximum(idx - half, run_start)
     hi = np.minimum(idx + half, run_end) + 1
-    def wsum(v):
-        c = np.concatenate([[0.0], np.cumsum(v)])
-        return c[hi] - c[lo]
-
-    s0 = wsum(w)
-    sx = wsum(w * x) - x * s0  # sums of (x - x_c) with x_c the column itself
-    sxx = wsum(w * x * x) - 2 * x * wsum(w * x) + x * x * s0
-    sy = wsum(w * y)
-    sxy = wsum(w * x * y) - x * sy
+    # the five windowed sums from one cumulative sum over a (5, W) stack
+    wx = w * x
+    terms = np.zeros((5, W + 1))
+    np.cumsum(np.stack([w, wx, wx * x, w * y, wx * y]), axis=1, out=terms[:, 1:])
+    sw, swx, swxx, swy, swxy = terms[:, hi] - terms[:, lo]
+    s0 = sw
+    sx = swx - x * s0  # sums of (x - x_c) with x_c the column itself
+    sxx = swxx - 2 * x * swx + x * x * s0
+    sy = swy
+    sxy = swxy - x * sy
     det = s0 * sxx - sx * sx
     with np.errstate(invalid="ignore", divide="ignore"):
         intercept = np.where(det > 1e-9, (sxx * sy - sx * sxy) / det, sy / s0)
