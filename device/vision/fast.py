@@ -31,10 +31,11 @@ Per frame pair:
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
-the previous frame's line +- ``track_margin`` (one rectangle of whole blocks over all columns),
-with the last full search's per-column noise as a floor. If ``track_lost_run`` adjacent columns
-that had a line lose it (a depth jump, an object stepping in front of the tracked surface, the
-line gone), the same frame is searched again over the whole region of interest; and every
+the previous frame's detections (line and second candidates, e.g. a floor's mirror image) +-
+``track_margin`` (one rectangle of whole blocks over all columns). If ``track_lost_run``
+adjacent columns that had a line lose it (a depth jump, an object stepping in front of the
+tracked surface, the line gone), or a detection touches the band's edge, the same frame is
+searched again over the whole region of interest; and every
 ``track_full_every``-th frame is a full search, so an object appearing outside the band in
 columns that had no line is found within ``track_full_every`` - 1 frames (0.4 s at 10 Hz with
 the default 5). Steps 6-7 are unchanged.
@@ -101,8 +102,8 @@ class _Track:
     """What a tracking fast pipeline keeps from the previous frame pair."""
 
     found: np.ndarray  # (W,) columns that had a line
-    rows: np.ndarray  # (W,) its image rows
-    noise: np.ndarray  # (W,) noise of the last full search (floor for the narrow band's)
+    first_row: int  # band rows [first_row, last_row] held a detected candidate (line or ghost)
+    last_row: int
     since_full: int  # frames since the last full search
 
 
@@ -166,19 +167,23 @@ class FastPipeline:
         p = self.params
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
         else:
-            found, row, peak, status, noise = self._search(lum_lit, lum_unlit, *band, self._track.noise)
+            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, *band)
             lost = self._track.found & ~found
-            if np.any(_run_length(_runs(lost)) >= p.track_lost_run):
+            edge = p.half_width + 1
+            if (np.any(_run_length(_runs(lost)) >= p.track_lost_run)
+                    or (band[0] > 0 and seen[0] < band[0] + edge) or (band[1] < self.rows and seen[1] >= band[1] - edge)):
                 # the line left the band in some columns (a depth jump, a new object in front of
-                # the tracked surface, a lost line): search the whole region of interest now
-                found, row, peak, status, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+                # the tracked surface, a lost line), or a candidate touches the band's edge (it
+                # may continue outside): search the whole region of interest now
+                found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
         if p.track_margin:
-            self._update_track(found, row, noise, full=band is None)
+            tr = self._track
+            self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
         W = self.cols.size
         empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
         if self.near_bottom > self.near_top and empty.size >= p.min_run:
@@ -209,21 +214,15 @@ class FastPipeline:
         p, tr = self.params, self._track
         if not p.track_margin or tr is None or tr.since_full + 1 >= p.track_full_every or not tr.found.any():
             return None
-        rows = tr.rows[tr.found] - self.top
-        t0 = max(int(math.floor(rows.min())) - p.track_margin, 0) // BLOCK_ROWS * BLOCK_ROWS
-        t1 = min(-(-(int(math.ceil(rows.max())) + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
+        t0 = max(tr.first_row - p.track_margin, 0) // BLOCK_ROWS * BLOCK_ROWS
+        t1 = min(-(-(tr.last_row + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
         return None if t1 - t0 >= self.rows else (t0, t1)
 
-    def _update_track(self, found: np.ndarray, row: np.ndarray, noise: np.ndarray, full: bool) -> None:
-        tr = self._track
-        self._track = _Track(found.copy(), row.copy(), noise if full or tr is None else tr.noise,
-                             0 if full else tr.since_full + 1)
-
-    def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int, noise_floor=None):
+    def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int):
         """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
-        docstring. ``noise_floor``: per-column noise not to go below (a tracked band sees fewer
-        rows than the whole band, so it keeps the last full search's noise as a floor).
-        Returns (found, row, peak, status, noise), rows in image coordinates."""
+        docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
+        the first and last band row holding a detected candidate (line or ghost; (t1, -1) if
+        none), from which tracking sizes the next frame's band."""
         import cv2
 
         a = lum_lit[self.top + t0 : self.top + t1]
@@ -255,8 +254,6 @@ class FastPipeline:
         # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
         # the band's rows are as noisy as the column's own interval, and it saves a pass)
         noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
-        if noise_floor is not None:
-            noise = np.maximum(noise, noise_floor)
         k1, k2 = self._candidates(sm, d)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
@@ -274,6 +271,8 @@ class FastPipeline:
                               p.pedestal, 255)
             det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
+        cand = np.concatenate([k1[det1], k2[det2]])
+        seen = (int(cand.min()) + t0, int(cand.max()) + t0) if cand.size else (t1, -1)
         pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
         row = np.where(pick2, r2, r1)
         peak = np.where(pick2, v2, c1.peak)
@@ -301,7 +300,7 @@ class FastPipeline:
             found &= ~outlier
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
-        return found, row, peak, status, noise
+        return found, row, peak, status, seen
 
     def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column of
