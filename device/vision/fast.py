@@ -31,10 +31,11 @@ Per frame pair:
    window (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
-the previous frame's detections (line and second candidates, e.g. a floor's mirror image) +-
-``track_margin`` (one rectangle of whole blocks over all columns). If ``track_lost_run``
+the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
+``track_margin`` (one rectangle of whole blocks over all columns; the noise level is still taken
+over the whole band, so thresholds do not change). If ``track_lost_run``
 adjacent columns that had a line lose it (a depth jump, an object stepping in front of the
-tracked surface, the line gone), or a detection touches the band's edge, the same frame is
+tracked surface, the line gone), or the line or a ghost touches the band's edge, the same frame is
 searched again over the whole region of interest; and every
 ``track_full_every``-th frame is a full search, so an object appearing outside the band in
 columns that had no line is found within ``track_full_every`` - 1 frames (0.4 s at 10 Hz with
@@ -221,8 +222,8 @@ class FastPipeline:
     def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int):
         """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
         docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
-        the first and last band row holding a detected candidate (line or ghost; (t1, -1) if
-        none), from which tracking sizes the next frame's band."""
+        the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
+        if none), from which tracking sizes the next frame's band."""
         import cv2
 
         a = lum_lit[self.top + t0 : self.top + t1]
@@ -251,9 +252,11 @@ class FastPipeline:
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
         sm = cv2.blur(d, DETECT_KERNEL)
-        # noise: the largest smoothed negative difference over the band (the ROI mask is left out:
-        # the band's rows are as noisy as the column's own interval, and it saves a pass)
-        noise = cv2.blur(cv2.subtract(b, a), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        # noise: the largest smoothed negative difference over the whole band, also when tracking
+        # (a maximum over fewer rows would be lower: more, and dimmer, detections). The ROI mask is
+        # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
+        fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
+        noise = cv2.blur(cv2.subtract(fb, fa), DETECT_KERNEL).max(axis=0).astype(np.float64)
         k1, k2 = self._candidates(sm, d)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
@@ -271,8 +274,6 @@ class FastPipeline:
                               p.pedestal, 255)
             det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
-        cand = np.concatenate([k1[det1], k2[det2]])
-        seen = (int(cand.min()) + t0, int(cand.max()) + t0) if cand.size else (t1, -1)
         pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
         row = np.where(pick2, r2, r1)
         peak = np.where(pick2, v2, c1.peak)
@@ -300,6 +301,11 @@ class FastPipeline:
             found &= ~outlier
         # the pulse lit the "unlit" frame in this column (out of sync)
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
+        # rows of the line and of runs of second candidates (a mirror image runs alongside the
+        # line; a lone second candidate is noise)
+        ghost = det2 & (_run_length(_runs(det2)) >= p.min_run)
+        cand = np.concatenate([row[found] - self.top, (k2 + t0)[ghost]])
+        seen = (int(math.floor(cand.min())), int(math.ceil(cand.max()))) if cand.size else (t1, -1)
         return found, row, peak, status, seen
 
     def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
