@@ -122,3 +122,23 @@ def test_an_object_where_there_was_no_return_is_found_within_the_full_search_per
 def test_bad_tracking_parameters_are_named(bad):
     with pytest.raises(ValueError, match="track_"):
         FastParams(**bad)
+
+
+def test_a_mirror_image_appearing_at_the_band_edge_is_resolved_as_by_a_full_search(pipes):
+    rows = depth_rows(np.full(W, 2.0))
+    frames = [frame_pair(CFG, rows, amplitude=90.0, speckle=0.3, seed=s) for s in range(2)]
+    # a glossy floor's mirror image: farther from the horizon, running alongside the line, and
+    # reaching past the tracked band (which ends track_margin rows below the line)
+    ghost = (rows + 22.0, 60.0)
+    frames += [frame_pair(CFG, rows, amplitude=90.0, speckle=0.3, seed=5 + s, extra_lines=(ghost,)) for s in range(3)]
+    res = run_both(pipes, frames)
+    roi = res[0][2]
+    assert res[1][2] != roi  # tracked before the ghost appears
+    assert res[2][2] == roi  # the ghost touches the band's edge: the whole ROI is searched
+    assert res[3][2] != roi and res[3][2][1] > np.nanmax(rows) + 22  # then the band covers line and ghost
+    for mf, mt, _ in res[2:]:
+        np.testing.assert_array_equal(mt.status, mf.status)
+        np.testing.assert_allclose(mt.range, mf.range, rtol=1e-12)
+        ok = mt.valid
+        assert ok.mean() > 0.9
+        assert np.max(np.abs(mt.row[ok] - rows[ok])) < 1.5  # the line, never the ghost
