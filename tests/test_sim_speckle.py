@@ -13,36 +13,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from device.bench.sim import centroid_scatter_px, dorsch_config
 from device.config import load_preset
-from device.sim.render import (COHERENT_ANCHORED, FrameTiming, RenderOptions, SceneRenderer,
-                               coherent_line_profiles, speckle_pattern_weights)
-from device.sim.scene import wall_scene
+from device.sim.render import COHERENT_ANCHORED, RenderOptions, coherent_line_profiles, speckle_pattern_weights
 
 CFG = load_preset("thesis-calibrated")
 LAMBDA, PITCH = CFG.laser.wavelength_m, CFG.optics.pixel_pitch_m
-PULSE = FrameTiming(10**9, 40000.0, 18904.0, ((10**9 - 40_000_000, 10**9 + 40_000_000),))
 QUIET = replace(COHERENT_ANCHORED, noise=False, ambient=False, texture=False, ray_samples=8192)
-
-
-def centroid_errors(cfg, options, seeds, distance=2.0, half=10):
-    """Per column: centroid of the noise-free line over truth.row +- half rows, minus truth.row."""
-    out = []
-    for seed in seeds:
-        r = SceneRenderer(cfg, wall_scene(distance), options=options, seed=seed)
-        e = r.expected_electrons(PULSE)[0].astype(np.float64)
-        row = r.truth_template.row
-        cols = np.nonzero(np.isfinite(row))[0]
-        win = np.floor(row[cols]).astype(int)[None, :] + np.arange(-half, half + 2)[:, None]
-        vals = e[win, cols[None, :]]
-        out.append((vals * win).sum(0) / vals.sum(0) - row[cols])
-    return np.concatenate(out)
-
-
-def dorsch_setup(f_number, distance=2.0):
-    """f/N, the line's image at the resolution limit (1/e^2 height = Airy diameter 2.44 lambda N)."""
-    sigma_px = 0.61 * LAMBDA * f_number / PITCH
-    laser = replace(CFG.laser, line_height_m=4 * sigma_px * distance / CFG.camera.intrinsics.fy)
-    return replace(CFG, optics=replace(CFG.optics, f_number=f_number), laser=laser)
 
 
 @pytest.mark.parametrize("contrast", [1.0, 0.6])
@@ -50,7 +27,7 @@ def test_focused_centroid_scatter_follows_dorsch_and_scales_with_the_f_number(co
     opts = replace(QUIET, speckle_contrast=contrast, defocus_sigma_px=0.0)
     std = {}
     for n in (1.4, 2.0, 2.8):
-        err = centroid_errors(dorsch_setup(n), opts, seeds=(1, 2))
+        err = centroid_scatter_px(dorsch_config(CFG, n), opts, seeds=(1, 2))
         dorsch_px = contrast * LAMBDA * n / math.pi / PITCH
         assert err.std() == pytest.approx(dorsch_px, rel=0.25), f"f/{n}"
         assert abs(err.mean()) < 0.01  # unbiased: the truth is the line's mean centroid
@@ -60,12 +37,12 @@ def test_focused_centroid_scatter_follows_dorsch_and_scales_with_the_f_number(co
 
 def test_speckle_off_or_no_contrast_leaves_no_scatter():
     for opts in (QUIET.without("speckle"), replace(QUIET, speckle_contrast=0.0)):
-        assert np.abs(centroid_errors(CFG, opts, seeds=(1,))).max() < 0.01
+        assert np.abs(centroid_scatter_px(CFG, opts, seeds=(1,))).max() < 0.01
 
 
 def test_defocus_makes_larger_grains_and_more_scatter_than_focus():
-    focused = centroid_errors(CFG, replace(QUIET, defocus_sigma_px=0.0), seeds=(1,)).std()
-    defocused = centroid_errors(CFG, QUIET, seeds=(1,)).std()  # the anchored 1.2 px defocus
+    focused = centroid_scatter_px(CFG, replace(QUIET, defocus_sigma_px=0.0), seeds=(1,)).std()
+    defocused = centroid_scatter_px(CFG, QUIET, seeds=(1,)).std()  # the anchored 1.2 px defocus
     assert defocused > 2 * focused
 
 
@@ -74,8 +51,8 @@ def test_focused_coherent_speckle_scatters_less_than_the_multiplicative_model():
     mult = replace(QUIET, speckle_model="multiplicative", defocus_sigma_px=0.0, blur_sigma_px=1.1)
     coherent = replace(QUIET, defocus_sigma_px=0.0, blur_sigma_px=1.1)
     dorsch_px = LAMBDA * 2.0 / math.pi / PITCH
-    assert centroid_errors(CFG, mult, seeds=(1,)).std() > 1.6 * dorsch_px
-    assert centroid_errors(CFG, coherent, seeds=(1,)).std() < dorsch_px
+    assert centroid_scatter_px(CFG, mult, seeds=(1,)).std() > 1.6 * dorsch_px
+    assert centroid_scatter_px(CFG, coherent, seeds=(1,)).std() < dorsch_px
 
 
 def test_coherent_profiles_are_unbiased_and_keep_the_energy():

@@ -161,6 +161,18 @@ def centroid_scatter_px(cfg, options, seeds=(1, 2), distance_m: float = 2.0, hal
     return np.concatenate(out)
 
 
+def dorsch_config(cfg, f_number: float, distance_m: float = 2.0, resolution_limited: bool = True):
+    """``cfg`` at f/``f_number``; with ``resolution_limited`` the line's 1/e^2 height is set so that
+    its image on a wall at ``distance_m`` is the Airy diameter 2.44 lambda N (Dorsch's setting)."""
+    from dataclasses import replace
+
+    laser = cfg.laser
+    if resolution_limited:
+        sigma_px = 0.61 * laser.wavelength_m * f_number / cfg.optics.pixel_pitch_m
+        laser = replace(laser, line_height_m=4 * sigma_px * distance_m / cfg.camera.intrinsics.fy)
+    return replace(cfg, optics=replace(cfg.optics, f_number=f_number), laser=laser)
+
+
 def dorsch() -> list[dict]:
     """Centroid scatter of the noise-free line against Dorsch et al. (1994): C lambda N / pi.
 
@@ -182,10 +194,7 @@ def dorsch() -> list[dict]:
     out = []
     for line in ("resolution-limited line", "thesis line"):
         for n in (1.4, 2.0, 2.8):
-            laser = cfg0.laser
-            if line != "thesis line":
-                laser = replace(laser, line_height_m=4 * 0.61 * lam * n / pitch * 2.0 / cfg0.camera.intrinsics.fy)
-            cfg = replace(cfg0, optics=replace(cfg0.optics, f_number=n), laser=laser)
+            cfg = dorsch_config(cfg0, n, resolution_limited=line != "thesis line")
             for c in (1.0, 0.6):
                 for name, opts in models.items():
                     err = centroid_scatter_px(cfg, replace(opts, speckle_contrast=c))
