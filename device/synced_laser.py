@@ -147,7 +147,8 @@ class SyncedLaser:
                 if len(self.comcu.boot_infos) != self._boots:
                     self._boots = len(self.comcu.boot_infos)
                     raise LaserError("reset", f"the co-MCU rebooted (reset cause 0x{self.comcu.boot_infos[-1].reset_cause:02x})")
-                controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges])
+                # a cut pulse or a forced (late) fall is not where the schedule put it: not evidence
+                controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges if not e.flags])
                 controller.on_gpio_edges(gpio)
                 info = FrameInfo(frame.seq, frame.sensor_timestamp_ns, frame.exposure_us * 1e-6,
                                  frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6)
@@ -176,7 +177,7 @@ class SyncedLaser:
     # internals
     def _ping(self, controller: SyncController) -> None:
         p = self.comcu.ping()
-        controller.on_ping(p.host_send_ns, p.mcu_ticks, p.host_recv_ns)
+        controller.on_ping(p.host_send_ns, p.mcu_rx_ticks, p.host_recv_ns)  # tick when the PING arrived
         self._last_ping = self._now()
 
     def _drop_link(self) -> None:

@@ -4,7 +4,6 @@ The compiled-in defaults are read from firmware_pwm/Makefile (their one source o
 """
 import math
 import random
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,21 +13,15 @@ import pytest
 from device.config import load_preset, save_config
 from device.model import safety
 from device.model.envelope import (EnvelopeError, FirmwareEnvelope, LineLaserOptics, compute_envelope,
-                                   period_candidates_s, shortest_class1_period_s, verify_envelope)
+                                   parse_makefile_envelope, period_candidates_s, shortest_class1_period_s,
+                                   verify_envelope)
 
 ROOT = Path(__file__).resolve().parents[1]
 EYE_M = 0.010  # thesis 4.1.4: no eye closer than 1 cm
 
 
-def _make_default(name):
-    m = re.search(rf"^{name} \?= (\d+)$", (ROOT / "firmware_pwm" / "Makefile").read_text(), re.M)
-    assert m, f"{name} default not in firmware_pwm/Makefile"
-    return int(m.group(1))
-
-
 def _defaults():
-    return FirmwareEnvelope(_make_default("MAX_PULSE_TICKS"), _make_default("MAX_DUTY_PPM"),
-                            _make_default("MIN_PERIOD_TICKS"))
+    return parse_makefile_envelope((ROOT / "firmware_pwm" / "Makefile").read_text())
 
 
 @pytest.fixture(scope="module")
@@ -127,6 +120,8 @@ def test_bad_inputs_are_named():
         FirmwareEnvelope(70_000, 200_000, 180_000)
     with pytest.raises(EnvelopeError, match="max_duty_ppm"):
         FirmwareEnvelope(34_800, 1_000_000, 180_000)
+    with pytest.raises(EnvelopeError, match="MIN_PERIOD_TICKS"):
+        parse_makefile_envelope("MAX_PULSE_TICKS := 34800\nMAX_DUTY_PPM := 200000\n")
     with pytest.raises(EnvelopeError, match="power"):
         verify_envelope(LineLaserOptics(808, 2.0, 4e-3, 1e-3), float("nan"), EYE_M, _defaults())
 

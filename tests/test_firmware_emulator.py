@@ -15,7 +15,6 @@ MIN_PERIOD_TICKS relaxed to the placement minimum; the production build is never
 """
 import math
 import random
-import re
 from pathlib import Path
 
 import pytest
@@ -23,24 +22,16 @@ import serial
 
 from device.comcu import CoMcu, CoMcuNack
 from device.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
-from device.model.envelope import FirmwareEnvelope, LineLaserOptics, verify_envelope
+from device.model.envelope import FirmwareEnvelope, LineLaserOptics, parse_makefile_envelope, verify_envelope
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
 
 MS = 2000  # ticks per millisecond
-MAKEFILE = (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()
 #: the production envelope's rate limit, from its one source of truth
-MIN_PERIOD = int(re.search(r"^MIN_PERIOD_TICKS \?= (\d+)$", MAKEFILE, re.M).group(1))
+MIN_PERIOD = parse_makefile_envelope(
+    (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()).min_period_ticks
 #: the relaxed rate of the timing-test ELF: the firmware's own placement minimum (100 us + 200 us)
 TEST_MIN_PERIOD = 600
-
-
-@pytest.fixture(scope="module")
-def emulator():
-    try:
-        return build_emulator()
-    except Exception as exc:  # a missing simavr must fail loudly, not skip
-        pytest.fail(f"simavr harness unavailable: {exc}")
 
 
 @pytest.fixture(scope="module")

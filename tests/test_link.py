@@ -1,6 +1,5 @@
 """Device end of the link: settings checks, request handling, bounded scan queue, source faults."""
 
-import threading
 import time
 
 import numpy as np

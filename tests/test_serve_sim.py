@@ -165,3 +165,12 @@ def test_stop_leaves_the_laser_pin_low_on_the_real_firmware():
     finally:
         for close in built.closers:
             close()
+
+
+def test_laser_limit_can_only_be_lowered(tmp_path, capsys):
+    from device.cli import main
+
+    code = main(["serve", "--simulate", "--laser-limit-mw", "1000", "--link", str(tmp_path / "laserpi")])
+    out = capsys.readouterr().out
+    assert code == 2 and "above the Class 1 limit" in out and "it can only lower the limit" in out
+    assert not (tmp_path / "laserpi").exists()

@@ -2,21 +2,12 @@
 controller's LaserScheduler on device.comcu: the same commands give the same pulse ticks."""
 
 import numpy as np
-import pytest
 
 from device.comcu import CoMcu, CoMcuTrain
-from device.comcu_emulator import SteppedMcuPort, build_emulator
+from device.comcu_emulator import SteppedMcuPort
 from device.sim.mcu import McuConfig, SimulatedMcu
 
 MS = 2000
-
-
-@pytest.fixture(scope="module")
-def emulator():
-    try:
-        return build_emulator()
-    except Exception as exc:  # a missing simavr must fail loudly, not skip
-        pytest.fail(f"simavr harness unavailable: {exc}")
 
 
 def _run(port, comcu, seconds):

@@ -104,14 +104,14 @@ def test_mcu_refuses_out_of_envelope_and_past_requests():
     with pytest.raises(ScheduleRefused, match="duty"):
         mcu.schedule(100_000, 40_000, 9_000, [True])
     with pytest.raises(ScheduleRefused, match="past"):
-        mcu.schedule(10, 100_000, 5_000, [True])
+        mcu.schedule(10, 100_000, 5_000, [True, False])
     with pytest.raises(ScheduleRefused, match="no pulse train"):
         mcu.trim(1, 100_000)
 
 
 def test_mcu_reset_restarts_the_counter_and_stops_the_laser():
     mcu = _mcu(gpio_connected=False)
-    mcu.schedule(100_000, 100_000, 20_000, [True])
+    mcu.schedule(100_000, 100_000, 20_000, [True, False])  # 10 pulses/s, within the firmware's rate
     mcu.reset_at(0.5)
     mcu.advance_to(2.0)
     assert max(mcu.pulses.rise_s) < 0.5
@@ -120,7 +120,7 @@ def test_mcu_reset_restarts_the_counter_and_stops_the_laser():
 
 def test_gpio_edges_are_late_by_the_latency_model():
     mcu = _mcu(gpio_jitter_s=20e-6, gpio_latency_min_s=3e-6, gpio_outlier_prob=0.0)
-    mcu.schedule(100_000, 100_000, 20_000, [True])
+    mcu.schedule(100_000, 100_000, 20_000, [True, False])  # 10 pulses/s, within the firmware's rate
     mcu.advance_to(60.0)
     ev = mcu.take_gpio_events(61.0)
     truth = np.sort(np.r_[mcu.pulses.rise_s, mcu.pulses.fall_s])
@@ -163,3 +163,12 @@ def test_simulated_camera_on_the_imx219_clock_lit_by_the_simulated_mcu():
     overlap = row_overlap_s(timing, cfg.height)
     full = overlap >= f1.exposure_s - 1e-6  # within the tick rounding
     assert np.flatnonzero(full).tolist() == list(range(200, 401))
+
+
+def test_simulated_mcu_refuses_trains_faster_than_the_firmware_min_period():
+    mcu = SimulatedMcu(McuConfig(), np.random.default_rng(0))
+    with pytest.raises(ScheduleRefused, match="envelope_rate"):
+        mcu.schedule(10**6, 50_000, 2_000, [True])  # 25 ms between rises: 40 pulses/s
+    with pytest.raises(ScheduleRefused, match="envelope_rate"):
+        mcu.schedule(10**6, 80_000, 2_000, [True, False, True, False, False])  # lit slots 2 apart: 80 ms
+    mcu.schedule(10**6, 100_000, 10_000, [True, False])  # 200 ms between lit rises: accepted

@@ -1,7 +1,6 @@
 """Per-column geometry (ROI, ray table) and the post-calibration of eq. 6.5 (ERRATA 8)."""
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest

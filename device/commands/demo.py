@@ -133,7 +133,10 @@ def _draw(truth_scene, scan, png: str) -> None:
     ax.plot([0], [0], "k^", ms=8, label="sensor")
     ax.set_xlabel("y (m, left positive)")
     ax.set_ylabel("x (m, forward)")
-    ax.invert_xaxis()  # REP 103: y to the left, seen from above with x up
+    # the field of view and the measured range, not the whole scene; y to the left (REP 103)
+    half = reach * max(abs(math.sin(a.min())), abs(math.sin(a.max())), 0.3) + 0.2
+    ax.set_xlim(half, -half)
+    ax.set_ylim(-0.3, reach + 0.2)
     ax.set_aspect("equal")
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title("LaserPi simulated: scene from above, true surfaces and one measured scan")

@@ -11,30 +11,19 @@ import argparse
 import json
 import math
 
+from .argtypes import positive_floats
+
 DEFAULT_SUBPIXELS = "0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0"
 DEFAULT_DISTANCES_MM = "2000,2500,3500"
-
-
-def _positive_list(text: str) -> list[float]:
-    values = []
-    for part in text.split(","):
-        try:
-            v = float(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {part.strip()!r}") from None
-        if not math.isfinite(v) or v <= 0:
-            raise argparse.ArgumentTypeError(f"values must be finite and positive, got {part.strip()!r}")
-        values.append(v)
-    return values
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--preset", metavar="NAME", help="a built-in configuration (thesis-design, thesis-calibrated)")
     src.add_argument("--config", metavar="FILE", help="a sensor configuration file (TOML)")
-    parser.add_argument("--subpixel", type=_positive_list, default=_positive_list(DEFAULT_SUBPIXELS),
+    parser.add_argument("--subpixel", type=positive_floats, default=positive_floats(DEFAULT_SUBPIXELS),
                         help=f"sub-pixel accuracies in px, comma-separated (default {DEFAULT_SUBPIXELS})")
-    parser.add_argument("--distances-mm", type=_positive_list, default=_positive_list(DEFAULT_DISTANCES_MM),
+    parser.add_argument("--distances-mm", type=positive_floats, default=positive_floats(DEFAULT_DISTANCES_MM),
                         help=f"distances for the resolution table, comma-separated (default {DEFAULT_DISTANCES_MM})")
     parser.add_argument("--json", action="store_true", help="print q_min_mm, q_max_mm and resolution_pct as JSON")
     parser.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")

@@ -11,28 +11,20 @@ import argparse
 import json
 import math
 
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text!r}")
-    return value
+from .argtypes import positive_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--wavelength-nm", type=_positive, required=True, help="600-1050 nm")
-    parser.add_argument("--pulse-ms", type=_positive, required=True, help="pulse duration, 0.005-250 ms")
-    parser.add_argument("--rate-hz", type=_positive, required=True, help="pulse repetition rate")
-    parser.add_argument("--fan-deg", type=_positive, required=True, help="horizontal fan angle of the line")
-    parser.add_argument("--line-height-mm", type=_positive, required=True, help="height of the projected line")
-    parser.add_argument("--source-mm", type=_positive, required=True, help="diameter of the apparent source")
+    parser.add_argument("--wavelength-nm", type=positive_float, required=True, help="600-1050 nm")
+    parser.add_argument("--pulse-ms", type=positive_float, required=True, help="pulse duration, 0.005-250 ms")
+    parser.add_argument("--rate-hz", type=positive_float, required=True, help="pulse repetition rate")
+    parser.add_argument("--fan-deg", type=positive_float, required=True, help="horizontal fan angle of the line")
+    parser.add_argument("--line-height-mm", type=positive_float, required=True, help="height of the projected line")
+    parser.add_argument("--source-mm", type=positive_float, required=True, help="diameter of the apparent source")
     which = parser.add_mutually_exclusive_group(required=True)
-    which.add_argument("--nohd-mm", type=_positive, help="required NOHD: print the largest allowed power")
-    which.add_argument("--power-mw", type=_positive, help="laser peak power: print its NOHD")
-    parser.add_argument("--closest-eye-mm", type=_positive, default=10.0,
+    which.add_argument("--nohd-mm", type=positive_float, help="required NOHD: print the largest allowed power")
+    which.add_argument("--power-mw", type=positive_float, help="laser peak power: print its NOHD")
+    parser.add_argument("--closest-eye-mm", type=positive_float, default=10.0,
                         help="closest distance an eye can reach, for --power-mw (default 10)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(_parser=parser)

@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
     parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
     parser.add_argument("--laser-limit-mw", type=float, default=None,
-                        help="Class 1 limit on laser power the device enforces (default: from the safety model "
+                        help="Class 1 limit on laser power the device enforces (default and maximum: from the safety model "
                              "for the sensor's laser and pulse; 5 mW for --mock)")
 
 
@@ -141,7 +141,13 @@ def run(args: argparse.Namespace) -> int:
             built = build_sensor(args)
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware
-            limit_mw = built.laser_limit_mw if args.laser_limit_mw is None else args.laser_limit_mw
+            limit_mw = built.laser_limit_mw
+            if args.laser_limit_mw is not None:
+                if args.laser_limit_mw > built.laser_limit_mw:
+                    raise ValueError(f"--laser-limit-mw {args.laser_limit_mw:g} is above the Class 1 limit of "
+                                     f"{built.laser_limit_mw:.2f} mW the safety model gives for this laser and pulse; "
+                                     "it can only lower the limit")
+                limit_mw = args.laser_limit_mw
         config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
     except (ValueError, OSError, RuntimeError) as exc:
         for close in reversed(closers):

@@ -15,17 +15,9 @@ import json
 import math
 from pathlib import Path
 
+from .argtypes import positive_float
+
 EFFECTS = ("noise", "speckle", "ambient", "gloss", "texture", "rolling_shutter")
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,13 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="sensor configuration .toml (default: preset thesis-calibrated)")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--png", action="store_true", help="also draw the scene from above with the laser hits")
-    parser.add_argument("--exposure-us", type=_positive, default=40000.0)
-    parser.add_argument("--frame-duration-us", type=_positive, default=50000.0)
-    parser.add_argument("--pulse-us", type=_positive, help="laser pulse (default: the configuration's [laser] pulse_s)")
+    parser.add_argument("--exposure-us", type=positive_float, default=40000.0)
+    parser.add_argument("--frame-duration-us", type=positive_float, default=50000.0)
+    parser.add_argument("--pulse-us", type=positive_float, help="laser pulse (default: the configuration's [laser] pulse_s)")
     parser.add_argument("--every", type=int, default=2, help="fire the laser on every N-th frame (default 2)")
     parser.add_argument("--jitter-us", type=float, default=0.0, help="mean SensorTimestamp latency (default 0)")
     parser.add_argument("--drop", type=float, default=0.0, help="probability that a frame is dropped (default 0)")
-    parser.add_argument("--analog-gain", type=_positive, default=None, help="sensor analog gain (default: simulator's)")
+    parser.add_argument("--analog-gain", type=positive_float, default=None, help="sensor analog gain (default: simulator's)")
     parser.add_argument("--isp-denoise", type=float, default=0.0, help="ISP denoise strength 0..1 (default off)")
     parser.add_argument("--isp-sharpen", type=float, default=0.0, help="ISP sharpening amount 0..2 (default off)")
     parser.add_argument("--off", action="append", default=[], choices=EFFECTS, help="switch an effect off (repeatable)")

@@ -12,44 +12,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+
+from .argtypes import nonnegative_float, positive_float
 
 KEYS = ("lock_frames", "p99_error_us", "p99_error_us_settled", "max_error_us", "median_error_us", "pulse_us",
         "frames_lit_after_lock", "frames_partly_unlit_after_lock", "frames_leaked_after_lock",
         "frames_unknown_after_lock", "frames_in_error_state", "final_state")
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text!r}")
-    return value
-
-
-def _nonneg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seconds", type=_positive, default=60.0, help="simulated time (default 60)")
+    parser.add_argument("--seconds", type=positive_float, default=60.0, help="simulated time (default 60)")
     parser.add_argument("--drift-ppm", type=float, default=100.0, help="MCU clock error against the Pi's (default 100)")
-    parser.add_argument("--wander-ppm", type=_nonneg, default=0.0, help="amplitude of a 600 s sinusoidal drift wander")
-    parser.add_argument("--gpio-jitter-us", type=_nonneg, default=20.0,
+    parser.add_argument("--wander-ppm", type=nonnegative_float, default=0.0, help="amplitude of a 600 s sinusoidal drift wander")
+    parser.add_argument("--gpio-jitter-us", type=nonnegative_float, default=20.0,
                         help="mean GPIO interrupt latency excess, exponential (default 20)")
     parser.add_argument("--no-gpio", action="store_true", help="no GPIO wire: the clock map falls back to PING")
-    parser.add_argument("--camera-jitter-us", type=_nonneg, default=10.0, help="mean SensorTimestamp latency (default 10)")
-    parser.add_argument("--drop-prob", type=_nonneg, default=1e-3, help="probability of a dropped frame (default 0.001)")
-    parser.add_argument("--fps", type=_positive, default=20.0, help="camera frame rate (default 20: 10 Hz scans, every other frame lit)")
-    parser.add_argument("--exposure-us", type=_positive, default=5000.0, help="exposure (default 5000)")
+    parser.add_argument("--camera-jitter-us", type=nonnegative_float, default=10.0, help="mean SensorTimestamp latency (default 10)")
+    parser.add_argument("--drop-prob", type=nonnegative_float, default=1e-3, help="probability of a dropped frame (default 0.001)")
+    parser.add_argument("--fps", type=positive_float, default=20.0, help="camera frame rate (default 20: 10 Hz scans, every other frame lit)")
+    parser.add_argument("--exposure-us", type=positive_float, default=5000.0, help="exposure (default 5000)")
     parser.add_argument("--roi-rows", type=int, nargs=2, default=(300, 700), metavar=("MIN", "MAX"),
                         help="rows the laser can land on (default 300 700)")
     parser.add_argument("--seed", type=int, default=0)

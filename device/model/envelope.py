@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import functools
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,6 +105,17 @@ class FirmwareEnvelope:
         """The firmware build line with these limits (firmware_pwm/Makefile variables)."""
         return (f"make -C firmware_pwm MAX_PULSE_TICKS={self.max_pulse_ticks} MAX_DUTY_PPM={self.max_duty_ppm} "
                 f"MIN_PERIOD_TICKS={self.min_period_ticks}")
+
+
+def parse_makefile_envelope(makefile_text: str) -> FirmwareEnvelope:
+    """The compiled-in defaults from the text of firmware_pwm/Makefile (their one source of truth)."""
+    values = {}
+    for name in ("MAX_PULSE_TICKS", "MAX_DUTY_PPM", "MIN_PERIOD_TICKS"):
+        m = re.search(rf"^{name} :?= *(\d+) *$", makefile_text, re.M)
+        if m is None:
+            raise EnvelopeError(f"no `{name} := <integer>` line in the firmware Makefile")
+        values[name.lower()] = int(m.group(1))
+    return FirmwareEnvelope(**values)
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,7 @@ class McuConfig:
     gpio_spurious_hz: float = 0.0
     max_width_ticks: int = 34_800  # 17.4 ms, firmware_pwm/src/config.h MAX_PULSE_TICKS
     max_duty: float = 0.2  # the firmware's compiled-in 200 000 ppm
+    min_period_ticks: int = 180_000  # 90 ms between lit rises, firmware_pwm/Makefile MIN_PERIOD_TICKS
 
 
 @dataclass
@@ -130,6 +131,11 @@ class SimulatedMcu:
         duty = width * sum(bool(p) for p in pattern) / (period * len(pattern))
         if duty > self.cfg.max_duty:
             raise ScheduleRefused(f"duty {duty:.3f} exceeds the envelope's {self.cfg.max_duty}")
+        lit = [i for i, p in enumerate(pattern) if p]
+        spacing = min((lit[(k + 1) % len(lit)] - i) % len(pattern) or len(pattern) for k, i in enumerate(lit))
+        if spacing * period < self.cfg.min_period_ticks:
+            raise ScheduleRefused(f"lit pulses every {spacing * period} ticks: faster than the envelope's "
+                                  f"minimum period of {self.cfg.min_period_ticks} ticks (envelope_rate)")
 
     def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> None:
         if not pattern or not any(pattern):
