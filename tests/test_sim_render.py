@@ -156,9 +156,9 @@ def test_sunlight_saturates_the_background_at_a_long_exposure():
     assert np.mean(img[rows, cols] == 255) > 0.9  # the wall is white: nothing left to see the laser in
 
 
-def test_speckle_is_static_and_has_the_configured_contrast():
-    opts = QUIET.without("texture")
-    opts = RenderOptions(noise=False, ambient=False, texture=False, speckle=True, speckle_contrast=0.5)
+def test_multiplicative_speckle_is_static_and_has_the_configured_contrast():
+    opts = RenderOptions(noise=False, ambient=False, texture=False, speckle=True, speckle_contrast=0.5,
+                         speckle_model="multiplicative")
     r = SceneRenderer(CFG, wall_scene(1.0), options=opts)
     flat = SceneRenderer(CFG, wall_scene(1.0), options=opts.without("speckle"))
     e, _ = r.expected_electrons(full_pulse())
@@ -238,11 +238,27 @@ def test_builtin_scenes_do_what_their_names_say():
     assert np.nanmin(near.range_m[np.isfinite(near.row)]) < 0.05
 
 
-def test_speckle_follows_the_scene_not_the_frame():
-    opts = RenderOptions(noise=False, ambient=False, texture=False)
-    a = SceneRenderer(CFG, wall_scene(1.0), options=opts, seed=5)._splat[1]
-    b = SceneRenderer(CFG, wall_scene(1.0), options=opts, seed=5)._splat[1]
-    moved = SceneRenderer(CFG, wall_scene(1.0005), options=opts, seed=5)._splat[1]  # same line rows, new scene
+def _centroid_offsets(renderer):
+    """Per column: noise-free line centroid (+-10 rows) minus the true row."""
+    e, _ = renderer.expected_electrons(full_pulse())
+    row = renderer.truth_template.row
+    cols = np.nonzero(np.isfinite(row))[0]
+    win = np.floor(row[cols]).astype(int)[None, :] + np.arange(-10, 12)[:, None]
+    vals = e[win, cols[None, :]].astype(np.float64)
+    return (vals * win).sum(0) / vals.sum(0) - row[cols]
+
+
+@pytest.mark.parametrize("model", ["coherent", "multiplicative"])
+def test_speckle_follows_the_scene_not_the_frame(model):
+    opts = RenderOptions(noise=False, ambient=False, texture=False, speckle_model=model)
+    r = SceneRenderer(CFG, wall_scene(1.0), options=opts, seed=5)
+    e1, _ = r.expected_electrons(full_pulse())
+    e2, _ = r.expected_electrons(full_pulse(t=2 * 10**9))
+    assert np.array_equal(e1, e2)  # static from frame to frame
+    a = _centroid_offsets(r)
+    b = _centroid_offsets(SceneRenderer(CFG, wall_scene(1.0), options=opts, seed=5))
+    moved = _centroid_offsets(SceneRenderer(CFG, wall_scene(1.0005), options=opts, seed=5))  # same rows, new scene
     assert np.array_equal(a, b)
+    assert a.std() > 0.1
     n = min(a.size, moved.size)
     assert abs(np.corrcoef(a[:n], moved[:n])[0, 1]) < 0.5

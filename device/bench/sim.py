@@ -24,6 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the photometric budget (signal vs noise electrons on 90 %% / 10 %% walls) instead")
     parser.add_argument("--anchor", action="store_true",
                         help="print the thesis anchoring table (reference pipeline on simulated walls) instead")
+    parser.add_argument("--coherent", action="store_true",
+                        help="with --anchor: the coherent speckle model's anchored set (render.COHERENT_ANCHORED)")
+    parser.add_argument("--dorsch", action="store_true",
+                        help="print the noise-free line's centroid scatter against Dorsch et al.'s C lambda N / pi instead")
     parser.add_argument("--json", action="store_true")
 
 
@@ -135,24 +139,103 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
     return (m.range[ok] - true[ok]) / true[ok], int(ok.sum())
 
 
-def anchor() -> list[dict]:
+def centroid_scatter_px(cfg, options, seeds=(1, 2), distance_m: float = 2.0, half: int = 10):
+    """Per column of a noise-free wall facing the sensor: the line's centroid over truth.row +-
+    ``half`` rows minus truth.row (the ideal estimator: speckle is the only error left)."""
+    import numpy as np
+
+    from device.sim.render import FrameTiming, SceneRenderer
+    from device.sim.scene import wall_scene
+
+    t = 10**9  # a pulse over every row's whole exposure: no rolling-shutter weighting of the rows
+    lit = FrameTiming(t, 40000.0, 18904.0, ((t - 40_000_000, t + 40_000_000),))
+    out = []
+    for seed in seeds:
+        r = SceneRenderer(cfg, wall_scene(distance_m), options=options, seed=seed)
+        e = r.expected_electrons(lit)[0].astype(np.float64)
+        row = r.truth_template.row
+        cols = np.nonzero(np.isfinite(row) & (row > half) & (row < r.active_height - half - 2))[0]
+        win = np.floor(row[cols]).astype(int)[None, :] + np.arange(-half, half + 2)[:, None]
+        vals = e[win, cols[None, :]]
+        out.append((vals * win).sum(0) / vals.sum(0) - row[cols])
+    return np.concatenate(out)
+
+
+def dorsch_config(cfg, f_number: float, distance_m: float = 2.0, resolution_limited: bool = True):
+    """``cfg`` at f/``f_number``; with ``resolution_limited`` the line's 1/e^2 height is set so that
+    its image on a wall at ``distance_m`` is the Airy diameter 2.44 lambda N (Dorsch's setting)."""
+    from dataclasses import replace
+
+    laser = cfg.laser
+    if resolution_limited:
+        sigma_px = 0.61 * laser.wavelength_m * f_number / cfg.optics.pixel_pitch_m
+        laser = replace(laser, line_height_m=4 * sigma_px * distance_m / cfg.camera.intrinsics.fy)
+    return replace(cfg, optics=replace(cfg.optics, f_number=f_number), laser=laser)
+
+
+def dorsch() -> list[dict]:
+    """Centroid scatter of the noise-free line against Dorsch et al. (1994): C lambda N / pi.
+
+    'resolution-limited line': the line's 1/e^2 height set so that its image is the Airy
+    diameter 2.44 lambda N (Dorsch's setting); 'thesis line': the 4 mm line at 2 m (0.3 px sigma).
+    """
+    import math
+    from dataclasses import replace
+
+    from device.config import load_preset
+    from device.sim.render import COHERENT_ANCHORED, RenderOptions
+
+    cfg0 = load_preset("thesis-calibrated")
+    lam, pitch = cfg0.laser.wavelength_m, cfg0.optics.pixel_pitch_m
+    quiet = dict(noise=False, ambient=False, texture=False, ray_samples=8192, background_step=4)
+    models = {"multiplicative": RenderOptions(**quiet),
+              "coherent, focused": replace(COHERENT_ANCHORED, defocus_sigma_px=0.0, blur_sigma_px=1.1, **quiet),
+              "coherent, 1.2 px defocus": replace(COHERENT_ANCHORED, **quiet)}
+    out = []
+    for line in ("resolution-limited line", "thesis line"):
+        for n in (1.4, 2.0, 2.8):
+            cfg = dorsch_config(cfg0, n, resolution_limited=line != "thesis line")
+            for c in (1.0, 0.6):
+                for name, opts in models.items():
+                    err = centroid_scatter_px(cfg, replace(opts, speckle_contrast=c))
+                    limit = c * lam * n / math.pi / pitch
+                    out.append({"line": line, "f_number": n, "contrast": c, "model": name, "std_px": float(err.std()),
+                                "mean_px": float(err.mean()), "dorsch_px": limit, "ratio": float(err.std() / limit)})
+    return out
+
+
+def anchor(options=None) -> list[dict]:
     cases = [(0.9, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0)] + [(0.1, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0, 3.5)]
     cases.append((0.9, 1.5, "sunlight"))
     out = []
     for rho, d, amb in cases:
-        err, n = measure_wall(rho, d, amb)
+        err, n = measure_wall(rho, d, amb, options=options)
         out.append({"reflectivity": rho, "distance_m": d, "ambient": amb, "columns": n,
                     "mean_pct": float(100 * err.mean()) if n else None, "std_pct": float(100 * err.std()) if n else None})
     return out
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.anchor:
-        rows = anchor()
+    if args.dorsch:
+        rows = dorsch()
         if args.json:
             print(json.dumps(rows, indent=1))
             return 0
-        print("reference pipeline (thesis Algorithm 2) on simulated walls, thesis timing, 4 pairs, seed 0")
+        print("noise-free 90 % wall at 2 m, ideal centroid (truth row +-10), 2 seeds x ~1640 columns; Dorsch: C lambda N / pi")
+        print("line                      f/N    C  model                       std px  Dorsch px  ratio  mean px")
+        for a in rows:
+            print(f"{a['line']:<25} {a['f_number']:4.1f} {a['contrast']:4.1f}  {a['model']:<26} {a['std_px']:6.3f}  "
+                  f"{a['dorsch_px']:8.3f}  {a['ratio']:5.2f}  {a['mean_px']:+.4f}")
+        return 0
+    if args.anchor:
+        from device.sim.render import COHERENT_ANCHORED
+
+        rows = anchor(COHERENT_ANCHORED if args.coherent else None)
+        if args.json:
+            print(json.dumps(rows, indent=1))
+            return 0
+        model = "coherent speckle, COHERENT_ANCHORED" if args.coherent else "default renderer options"
+        print(f"reference pipeline (thesis Algorithm 2) on simulated walls, thesis timing, 4 pairs, seed 0; {model}")
         print("wall  ambient   d (m)  columns  mean err  std err")
         for a in rows:
             m = "     -" if a["mean_pct"] is None else f"{a['mean_pct']:6.2f} %"
@@ -176,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{b['diff_noise_e']:8.1f} {b['peak_snr']:9.1f}{sat}")
         return 0
     from device.config import load_preset
-    from device.sim.render import RenderOptions, SceneRenderer
+    from device.sim.render import COHERENT_ANCHORED, RenderOptions, SceneRenderer
     from device.sim.scene import get_scene
 
     cfg = load_preset("thesis-calibrated")
@@ -192,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
     scene = get_scene(args.effects_scene)
     variants = [("all effects", RenderOptions())] + [(f"{e} off", RenderOptions().without(e)) for e in EFFECTS]
     variants.append(("fresh noise draws (no table)", RenderOptions(noise_table=False)))
+    variants.append(("coherent speckle (anchored set)", COHERENT_ANCHORED))
     effect_rows = []
     for label, opts in variants:
         best, med = _ms_per_pair(SceneRenderer(cfg, scene, options=opts), args.pairs)

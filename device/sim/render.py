@@ -18,15 +18,24 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    ``T pitch^2 rho P cos(i) f_y / (4 N^2 phi r z)`` watts, times QE * lambda / (h c) electrons/J.
    Off-axis factors (cos^4 falloff, the pixel's footprint growing off axis and with the wall's
    tilt to the ray, distortion's local scale) are left out; the anchoring absorbs their mean.
-3. *Line profile.* A Gaussian in the row direction of sigma^2 = blur^2 + (f_y h / 4 / z)^2
-   (h = [laser] line_height_m as the 1/e^2 full height, plus lens defocus blur), integrated
-   over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
-4. *Speckle* (Dorsch, Haeusler & Herrmann, Appl. Opt. 33, 1994): a static, spatially correlated,
-   multiplicative pattern over the line: complex Gaussian noise low-passed by the lens's
-   coherent cutoff (pupil radius pitch / (2 g lambda N) cycles per pixel, i.e. grains of about
-   g lambda N at the image; g = 2.44 by default, the Airy diameter), intensity |.|^2, rescaled to
-   the configured contrast (default 1: fully developed speckle of a rough wall). Seeded by the
-   renderer's seed and the scene and pose: static while they are, not redrawn per frame.
+3. *Line profile.* The illuminated line is a Gaussian in the row direction of sigma
+   f_y h / 4 / z (h = [laser] line_height_m as the 1/e^2 full height). Without speckle (or with
+   the multiplicative model) it is blurred by a Gaussian of sigma^2 = blur^2 + defocus^2 and
+   integrated over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
+4. *Speckle* (Dorsch, Haeusler & Herrmann, "Laser triangulation: fundamental uncertainty in
+   distance measurement", Appl. Opt. 33, 1994; Goodman, Speckle Phenomena in Optics).
+   ``speckle_model="coherent"`` (coherent_line_profiles; anchored set: COHERENT_ANCHORED): per column, the line's complex field
+   (amplitude sqrt of the profile, a random phase per surface sample, static per scene, pose and
+   seed) is imaged through the lens's coherent pupil (|f| <= 1 / (2 lambda N), with the defocus as
+   a quadratic pupil phase), intensity |field|^2, then the incoherent blur and the pixel rows.
+   Contrast C < 1 (laser linewidth, surface depth) sums independent patterns. Speckle and line
+   are one field, so the centroid's scatter is what the optics allows: for a focused lens and a
+   line image at the resolution limit, C lambda N / pi (Dorsch; tests/test_sim_speckle.py).
+   ``"multiplicative"`` (the default, which the pipeline's tests are tuned to) multiplies the
+   profile by a separate static pattern: complex Gaussian noise low-passed to grains of g lambda N
+   (g = speckle_grain_factor, 2.44: the Airy diameter), intensity, rescaled to the contrast. It is
+   not bounded by the line's own field: in focus it gives a single column 0.47 px of centroid
+   scatter at f/2, twice Dorsch's 0.23 px (BENCHMARKS.md "Simulator").
 5. *Gloss.* A glossy flat surface (floor or wall, ``gloss`` > 0) mirrors the lit points: the
    camera sees their mirror images (virtual points) where the reflection point lies on the
    mirror, with ``gloss`` times the radiance: a ghost line. Occlusion of the mirrored path is
@@ -45,14 +54,22 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse) costs nothing.
 
-Anchoring. The free numbers (speckle contrast 1.0 and grain 2.44 lambda N, defocus blur sigma
-1.1 px, analogue gain 10 (sensor.SIMULATOR_DEFAULT), indoor ambient 0.5 % of in-band sunlight)
-were chosen so that the thesis's reference pipeline (device.vision.reference) on this simulator,
-at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure), reproduces the
-thesis's measurements (section 6.4): range error std ~1.9 % at 2 m and ~2.3 % at 2.5 m on the
-90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return shrinking with range
-(two thirds left at 2.5 m, half at 3 m), and no output in sunlight. `laserpi bench sim --anchor`
-prints the table, BENCHMARKS.md "Simulator" has it with the photometric budget.
+Anchoring. Two anchored sets, each reproducing the thesis's measurements (section 6.4) through
+the thesis's reference pipeline (device.vision.reference) at the thesis geometry
+(thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure): range error std ~1.8-1.9 % at 2 m and
+~2.4 % at 2.5 m on the 90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return
+shrinking with range, no output in sunlight; with analogue gain 10 (sensor.SIMULATOR_DEFAULT)
+and indoor ambient 0.5 % of in-band sunlight in both.
+- Default (multiplicative speckle): contrast 1, grain 2.44 lambda N, blur sigma 1.1 px.
+- COHERENT_ANCHORED: contrast 1 (a rough wall; a multimode diode's coherence length still
+  exceeds the wall's roughness), lens defocus sigma 1.2 px (coherent, so it sets the grain: an
+  ASSUMPTION, the thesis does not report its line width; an M12 lens focused by eye in visible
+  light is out of focus at 808 nm; the thesis (4.2.1) blames its focal-length estimate on the
+  added bandpass filter or the focus distance),
+  incoherent blur 0.5 px (2x2 binning, demosaic, crosstalk). In focus (defocus 0, blur 1.1 px)
+  the coherent model gives the reference only ~0.9 % at 2 m and ~1.1 % at 2.5 m, half the
+  thesis: without the defocus, the thesis's error needs sources not modelled here.
+`laserpi bench sim --anchor [--coherent]` prints the table; BENCHMARKS.md "Simulator" has it.
 """
 
 from __future__ import annotations
@@ -77,6 +94,7 @@ from .truth import FrameTruth
 PLANCK_J_S = 6.62607015e-34
 LIGHT_M_S = 299792458.0
 BACKDROP_REFLECTIVITY = 0.2
+SPECKLE_MODELS = ("coherent", "multiplicative")
 
 
 @dataclass(frozen=True)
@@ -90,8 +108,11 @@ class RenderOptions:
     texture: bool = True  # procedural reflectivity texture
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
     speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
-    speckle_grain_factor: float = 2.44  # grain = factor x lambda x N at the image (2.44: Airy diameter)
-    blur_sigma_px: float = 1.1  # lens defocus blur (Gaussian sigma) of the line, pixels
+    speckle_model: str = "multiplicative"  # or "coherent": the line's own field through the pupil
+    speckle_grain_factor: float = 2.44  # multiplicative model only: grain = factor x lambda x N (2.44: Airy)
+    speckle_subsamples: int = 8  # coherent model: field samples per pixel row
+    blur_sigma_px: float = 1.1  # incoherent blur (Gaussian sigma) of the line, px (all of it when defocus is 0)
+    defocus_sigma_px: float = 0.0  # lens defocus: sigma of its geometric blur, px (a pupil phase when coherent)
     optics_transmission: float = 0.8  # lens x bandpass filter at the laser wavelength (ASSUMPTION)
     ray_samples: int = 16384  # laser rays across the fan
     background_step: int = 2  # background rays every N pixels (texture detail, paid once)
@@ -102,9 +123,15 @@ class RenderOptions:
     def __post_init__(self) -> None:
         if not 0 <= self.speckle_contrast <= 1:
             raise ValueError(f"render: speckle_contrast must be in [0, 1], got {self.speckle_contrast}")
+        if self.speckle_model not in SPECKLE_MODELS:
+            raise ValueError(f"render: speckle_model must be one of {SPECKLE_MODELS}, got {self.speckle_model!r}")
+        if not 4 <= self.speckle_subsamples <= 32:
+            raise ValueError(f"render: speckle_subsamples must be in [4, 32], got {self.speckle_subsamples}")
         for name in ("speckle_grain_factor", "optics_transmission"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"render: {name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.defocus_sigma_px <= 5:
+            raise ValueError(f"render: defocus_sigma_px must be in [0, 5] px, got {self.defocus_sigma_px}")
         if self.blur_sigma_px < 0.3:
             raise ValueError(f"render: blur_sigma_px must be >= 0.3 px (a lens is never sharper), got {self.blur_sigma_px}")
         if not 0 <= self.isp_denoise <= 1 or not 0 <= self.isp_sharpen <= 2:
@@ -116,6 +143,11 @@ class RenderOptions:
     def without(self, *effects: str) -> "RenderOptions":
         """These options with the named effects switched off, e.g. ``without('noise', 'speckle')``."""
         return replace(self, **{e: False for e in effects})
+
+
+# The coherent speckle model with its own anchoring to the thesis (module docstring, "Anchoring"):
+# fully developed speckle, the lens defocused by a 1.2 px (sigma) geometric blur, 0.5 px incoherent.
+COHERENT_ANCHORED = RenderOptions(speckle_model="coherent", defocus_sigma_px=1.2, blur_sigma_px=0.5)
 
 
 @dataclass(frozen=True)
@@ -312,13 +344,16 @@ class SceneRenderer:
         rng_m = np.where(np.isfinite(row), rng_m, np.inf)
         return FrameTruth(row, rng_m, angle, points, surface, np.zeros(self.height, dtype=bool))
 
-    def _speckle(self) -> np.ndarray:
-        """Static (H, W) multiplicative speckle field, mean 1, std = contrast."""
-        h, w = self.height, self.width
-        # the pattern belongs to this scene seen from this pose: another scene or laser plane
-        # (sensor moved) gives an independent pattern, the same ones give the same pattern
+    def _speckle_rng(self, tag: int) -> np.random.Generator:
+        """The speckle's random numbers belong to this scene seen from this pose: another scene or
+        laser plane (sensor moved) gives an independent pattern, the same ones the same pattern."""
         geometry_key = zlib.crc32(repr((self.scene, self.cfg.plane, self.cfg.camera)).encode())
-        rng = np.random.default_rng([self.seed, geometry_key, 0x5BEC])
+        return np.random.default_rng([self.seed, geometry_key, tag])
+
+    def _speckle(self) -> np.ndarray:
+        """Multiplicative model: static (H, W) speckle field, mean 1, std = contrast."""
+        h, w = self.height, self.width
+        rng = self._speckle_rng(0x5BEC)
         field = rng.standard_normal((h, w)) + 1j * rng.standard_normal((h, w))
         fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
         o = self.cfg.optics
@@ -336,20 +371,28 @@ class SceneRenderer:
         depth = np.concatenate([c.depth for c in curves])
         if cols.size == 0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.int64)
-        fyp = self.cfg.camera.intrinsics.fy
-        sigma = np.sqrt(self.options.blur_sigma_px**2 + (fyp * self.cfg.laser.line_height_m / 4 / depth) ** 2)
+        opt = self.options
+        line_sigma = self.cfg.camera.intrinsics.fy * self.cfg.laser.line_height_m / 4 / depth
+        sigma = np.sqrt(opt.blur_sigma_px**2 + opt.defocus_sigma_px**2 + line_sigma**2)
         half = int(math.ceil(4 * sigma.max())) + 1
-        off = np.arange(-half, half + 1)
-        r = np.floor(rows)[:, None] + off[None, :]
-        s2 = math.sqrt(2) * sigma[:, None]
-        edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2)
-        frac = 0.5 * np.diff(edges, axis=1)  # each pixel's share: erf at its two edges
+        coherent = opt.speckle and opt.speckle_model == "coherent" and opt.speckle_contrast > 0
+        if coherent:
+            half += int(math.ceil(3 * opt.defocus_sigma_px)) + 2  # the coherent PSF's tails
+            o = self.cfg.optics
+            r, frac = coherent_line_profiles(
+                rows, line_sigma, opt.blur_sigma_px, o.pixel_pitch_m / (2 * self.cfg.laser.wavelength_m * o.f_number),
+                opt.speckle_contrast, half, opt.speckle_subsamples, self._speckle_rng(0xC0E7), opt.defocus_sigma_px)
+        else:
+            r = np.floor(rows)[:, None] + np.arange(-half, half + 1)[None, :]
+            s2 = math.sqrt(2) * sigma[:, None]
+            edges = erf((r[:, :1] - 0.5 + np.arange(r.shape[1] + 1)[None, :] - rows[:, None]) / s2)
+            frac = 0.5 * np.diff(edges, axis=1)  # each pixel's share: erf at its two edges
         val = rate[:, None] * frac
         r = r.astype(np.int64)
         c = np.broadcast_to(cols[:, None], r.shape)
         keep = (r >= 0) & (r < self.active_height) & (val > 0)
         r, c, val = r[keep], c[keep], val[keep]
-        if self.options.speckle:
+        if opt.speckle and opt.speckle_model == "multiplicative":
             val = val * self._speckle()[r, c]
         flat = r * self.width + c
         uniq, inv = np.unique(flat, return_inverse=True)
@@ -406,6 +449,85 @@ class SceneRenderer:
         if self.options.isp_denoise or self.options.isp_sharpen:
             image = isp_filter(image, self.options.isp_denoise, self.options.isp_sharpen)
         return image, replace(self.truth_template, lit_rows=overlap > 0)
+
+
+def speckle_pattern_weights(contrast: float) -> np.ndarray:
+    """Weights of K = ceil(1 / C^2) independent fully developed speckle patterns whose incoherent
+    sum (weights summing to 1) has contrast C = sqrt(sum w^2): K - 1 equal weights and one larger.
+    For C = 1 / sqrt(K) all K are equal (Goodman, Speckle Phenomena in Optics, 3.4: a sum of K
+    uncorrelated patterns); other C in (0, 1] are the documented equivalent between two such K."""
+    if not 0 < contrast <= 1:
+        raise ValueError(f"speckle contrast must be in (0, 1], got {contrast}")
+    k = max(1, math.ceil(1 / contrast**2 - 1e-9))
+    big = (1 + math.sqrt(max((k - 1) * (k * contrast**2 - 1), 0.0))) / k
+    return np.array([big] + [(1 - big) / (k - 1)] * (k - 1)) if k > 1 else np.ones(1)
+
+
+def coherent_line_profiles(rows: np.ndarray, line_sigma_px: np.ndarray, blur_sigma_px: float,
+                           pupil_cutoff_cyc_px: float, contrast: float, half: int, subsamples: int,
+                           rng: np.random.Generator, defocus_sigma_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Coherent speckle on the line, column by column (Dorsch, Haeusler & Herrmann 1994; Goodman).
+
+    rows (M,): true line rows (sub-pixel); line_sigma_px (M,): the illuminated line's Gaussian
+    intensity sigma on the sensor (geometric image, no blur). Per column: the object field is the
+    line's amplitude profile sqrt(I0(y)) times circular complex Gaussian noise (a rough surface:
+    random phase per sample, ``subsamples`` per pixel), imaged through a 1-D coherent pupil
+    |f| <= ``pupil_cutoff_cyc_px`` (sin u' / lambda = 1 / (2 lambda N), in cycles per pixel), intensity
+    |field|^2; contrast < 1 sums the intensities of independent patterns (speckle_pattern_weights).
+    Then the lens's defocus blur (Gaussian, intensity), and integration over each pixel row.
+    The sample grid is symmetric about the true row, so the expected profile (I0 convolved with the
+    intensity line spread function and the blur) is centred on it. Columns are independent (a 1-D
+    model): in focus the grain across columns (~lambda N, 0.7 px at f/2) is below a pixel. A 2-D
+    check (circular pupil, the field over 4 sub-columns per pixel, not used here for cost) gives
+    at f/2 in focus 0.14 px per column (0.17 px here) and, with 1.2 px defocus, 0.37 px per column
+    (0.57 px here) with neighbouring columns correlated 0.3, so that a 13-column mean scatters
+    0.14 px (0.16 px here): the 1-D model is conservative for single and combined columns.
+
+    Returns (r, frac), both (M, 2 half + 1): pixel rows round(row) - half .. + half and the
+    fraction of the column's expected electrons in each (sums to ~1 in expectation).
+    """
+    rows = np.asarray(rows, dtype=np.float64)
+    line_sigma_px = np.asarray(line_sigma_px, dtype=np.float64)
+    if rows.ndim != 1 or line_sigma_px.shape != rows.shape:
+        raise ValueError(f"coherent_line_profiles: rows and line_sigma_px must be (M,), got {rows.shape}, {line_sigma_px.shape}")
+    s = subsamples
+    if not 0 < pupil_cutoff_cyc_px < s / 4:
+        raise ValueError(f"coherent_line_profiles: pupil cutoff {pupil_cutoff_cyc_px} cycles/px needs "
+                         f"0 < cutoff < subsamples / 4 = {s / 4} (intensity bandwidth below Nyquist)")
+    weights = speckle_pattern_weights(contrast)
+    n_grid = 2 * (half + 1) * s  # samples over row +- (half + 1) px, every pixel edge of the band inside
+    y = (np.arange(n_grid) - (n_grid - 1) / 2) / s  # sample centres relative to the true row
+    f = np.fft.fftfreq(n_grid, 1 / s)
+    pupil = np.abs(f) <= pupil_cutoff_cyc_px
+    if defocus_sigma_px > 0:
+        # defocus as the pupil's quadratic phase: the ray through pupil coordinate f / f_c lands
+        # at R f / f_c (transverse aberration -phi'(f) / 2 pi), a uniform geometric blur over
+        # [-R, R] of sigma R / sqrt(3)
+        reach = math.sqrt(3) * defocus_sigma_px
+        pupil = pupil * np.exp(-1j * math.pi * reach * f**2 / pupil_cutoff_cyc_px)
+    gain = math.sqrt(n_grid / np.abs(pupil).sum())  # sum |h|^2 = 1: the expected energy is kept
+    blur_tf = np.exp(-2 * (math.pi * blur_sigma_px * f) ** 2)
+    centre = np.round(rows)
+    r = centre[:, None] + np.arange(-half, half + 1)[None, :]
+    # pixel edges in sample-box units from the grid's first box edge at row - n_grid / (2 s)
+    t = (r[:, :1] - 0.5 + np.arange(2 * half + 2)[None, :] - rows[:, None]) * s + n_grid / 2
+    frac = np.empty(r.shape)
+    chunk = max(1, 2_000_000 // (weights.size * n_grid))
+    for a in range(0, rows.size, chunk):
+        b = min(a + chunk, rows.size)
+        i0 = np.exp(-0.5 * (y[None, :] / np.maximum(line_sigma_px[a:b, None], 1e-3)) ** 2)
+        amp = np.sqrt(i0 / i0.sum(axis=1, keepdims=True))
+        noise = (rng.standard_normal((b - a, weights.size, n_grid))
+                 + 1j * rng.standard_normal((b - a, weights.size, n_grid))) / math.sqrt(2)
+        field = np.fft.ifft(np.fft.fft(amp[:, None, :] * noise, axis=-1) * pupil, axis=-1) * gain
+        inten = np.einsum("k,mkn->mn", weights, field.real**2 + field.imag**2)
+        inten = np.clip(np.fft.ifft(np.fft.fft(inten, axis=-1) * blur_tf, axis=-1).real, 0.0, None)
+        cum = np.concatenate([np.zeros((b - a, 1)), np.cumsum(inten, axis=1)], axis=1)
+        tt = np.clip(t[a:b], 0, n_grid)
+        i = np.minimum(np.floor(tt).astype(int), n_grid - 1)
+        at_edge = np.take_along_axis(cum, i, axis=1) + (tt - i) * np.take_along_axis(inten, i, axis=1)
+        frac[a:b] = np.diff(at_edge, axis=1)
+    return r, frac
 
 
 def isp_filter(image: np.ndarray, denoise: float, sharpen: float) -> np.ndarray:
