@@ -7,7 +7,7 @@ import argparse
 import math
 
 
-def _number(text: str) -> float:
+def finite_float(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -18,14 +18,14 @@ def _number(text: str) -> float:
 
 
 def positive_float(text: str) -> float:
-    value = _number(text)
+    value = finite_float(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text.strip()!r}")
     return value
 
 
 def nonnegative_float(text: str) -> float:
-    value = _number(text)
+    value = finite_float(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text.strip()!r}")
     return value

@@ -12,31 +12,23 @@ import math
 import sys
 import warnings
 
-
-def _finite(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-    return v
+from .argtypes import finite_float
 
 
 def _three(text: str) -> tuple[float, float, float]:
     parts = text.split(",")
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"expected A,B,C (three numbers), got {text!r}")
-    return tuple(_finite(p) for p in parts)  # type: ignore[return-value]
+    return tuple(finite_float(p) for p in parts)  # type: ignore[return-value]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plane", type=_three, metavar="A,B,C",
                         help="plane z = A x + B y + C in the OpenCV camera frame, C in mm (write --plane=A,B,C when A is negative)")
-    parser.add_argument("--beta-deg", type=_finite, default=90.0, help="laser rotation w.r.t. s (default 90)")
-    parser.add_argument("--alpha-deg", type=_finite, help="camera rotation w.r.t. s")
-    parser.add_argument("--psi-deg", type=_finite, help="laser roll (90 = line along the image rows)")
-    parser.add_argument("--s-mm", type=_finite, help="baseline s")
+    parser.add_argument("--beta-deg", type=finite_float, default=90.0, help="laser rotation w.r.t. s (default 90)")
+    parser.add_argument("--alpha-deg", type=finite_float, help="camera rotation w.r.t. s")
+    parser.add_argument("--psi-deg", type=finite_float, help="laser roll (90 = line along the image rows)")
+    parser.add_argument("--s-mm", type=finite_float, help="baseline s")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(_parser=parser)
 
