@@ -15,11 +15,11 @@ import pytest
 
 from device.bench.sim import centroid_scatter_px, dorsch_config
 from device.config import load_preset
-from device.sim.render import COHERENT_ANCHORED, RenderOptions, coherent_line_profiles, speckle_pattern_weights
+from device.sim.render import COHERENT_DEFOCUSED, RenderOptions, coherent_line_profiles, speckle_pattern_weights
 
 CFG = load_preset("thesis-calibrated")
 LAMBDA, PITCH = CFG.laser.wavelength_m, CFG.optics.pixel_pitch_m
-QUIET = replace(COHERENT_ANCHORED, noise=False, ambient=False, texture=False, ray_samples=8192)
+QUIET = replace(COHERENT_DEFOCUSED, noise=False, ambient=False, texture=False, ray_samples=8192)
 
 
 @pytest.mark.parametrize("contrast", [1.0, 0.6])

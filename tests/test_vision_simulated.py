@@ -1,10 +1,10 @@
-"""Accuracy on simulated frames (device.sim renderer with its anchored defaults: fully developed
-speckle C = 1, grain 2.44 lambda N, blur 1.2 px, gain 8, 40 ms, indoor 0.5 %, rolling shutter;
-thesis-calibrated geometry, 1664x928). The simulator is anchored so that the thesis's reference
-pipeline reproduces the thesis's ~1.9 % at 2 m; at that speckle the issue's absolute targets
-(0.1 px, 0.5 % at 2 m) are out of reach within 1 deg (see BENCHMARKS.md), so these tests hold
-the fast pipeline to beating the reference on the same frames, and to the hard cases.
-Few frame pairs each to stay fast; the benchmark and `laserpi evaluate` use more."""
+"""Accuracy on simulated frames against the issue's targets (device.sim renderer defaults:
+coherent, fully developed speckle (C = 1) through the focused f/2 lens, blur 1.1 px, gain 8,
+40 ms exposure, indoor 0.5 %, rolling shutter; thesis-calibrated geometry, 1664x928):
+90 % wall sub-pixel RMS <= 0.1 px, range error (1 sigma) <= 0.5 % at 2 m and <= 1 % at 3 m,
+equal or lower than the reference on the same frames; 10 % wall >= 90 % valid out to 2.5 m;
+no false returns in the empty and sunlight scenes; the hard cases. Few frame pairs each to stay
+fast; the benchmark and `laserpi evaluate` use more (BENCHMARKS.md "Pipeline")."""
 
 import numpy as np
 import pytest
@@ -26,27 +26,32 @@ def reference():
     return make_pipeline("reference", CFG)
 
 
-def test_90pc_wall_at_2m_beats_the_reference(fast, reference):
+def test_90pc_wall_at_2m_meets_the_targets_and_beats_the_reference(fast, reference):
     pairs = simulated_pairs(CFG, "wall:distance=2,reflectivity=0.9", 2, seed=11)
     s = run_pipeline(fast, pairs)
     ref = run_pipeline(reference, pairs)
     summary = s.summary()
     mean, std = s.range_error_near(2.0)
-    assert summary["subpixel_rms_px"] < 0.9 * ref.summary()["subpixel_rms_px"]
-    assert std < 0.9 * ref.range_error_near(2.0)[1] and std < 1.8
-    assert abs(mean) < 0.3
-    assert summary["valid_fraction"] > 0.8
+    assert summary["subpixel_rms_px"] <= 0.1  # issue target (the whole wall: 2-3.6 m)
+    assert std <= 0.5  # issue target: 1 sigma <= 0.5 % at 2 m
+    assert summary["subpixel_rms_px"] < 0.7 * ref.summary()["subpixel_rms_px"]
+    assert std < 0.7 * ref.range_error_near(2.0)[1]
+    assert abs(mean) < 0.1
+    assert summary["valid_fraction"] > 0.98
 
 
-def test_90pc_wall_at_3m_no_worse_than_the_reference(fast, reference):
+def test_90pc_wall_at_3m_meets_the_target(fast, reference):
     pairs = simulated_pairs(CFG, "wall:distance=3,reflectivity=0.9", 2, seed=12)
     s = run_pipeline(fast, pairs)
     mean, std = s.range_error_near(3.0)
-    assert std <= run_pipeline(reference, pairs).range_error_near(3.0)[1] and abs(mean) < 0.5
+    assert std <= 1.0 and abs(mean) < 0.2  # issue target: 1 sigma <= 1 % at 3 m
+    assert std <= run_pipeline(reference, pairs).range_error_near(3.0)[1]
+    assert s.summary()["valid_fraction"] > 0.95
 
 
-def test_10pc_wall_valid_columns(fast):
-    s = run_pipeline(fast, simulated_pairs(CFG, "wall:distance=1.5,reflectivity=0.1", 1, seed=13))
+@pytest.mark.parametrize("distance", [1.5, 2.0])
+def test_10pc_wall_valid_columns(fast, distance):
+    s = run_pipeline(fast, simulated_pairs(CFG, f"wall:distance={distance},reflectivity=0.1", 1, seed=13))
     assert s.valid_fraction_within(2.5) >= 0.9  # issue target: >= 90 % of columns out to 2.5 m
 
 

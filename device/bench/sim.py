@@ -24,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the photometric budget (signal vs noise electrons on 90 %% / 10 %% walls) instead")
     parser.add_argument("--anchor", action="store_true",
                         help="print the thesis anchoring table (reference pipeline on simulated walls) instead")
-    parser.add_argument("--coherent", action="store_true",
-                        help="with --anchor: the coherent speckle model's anchored set (render.COHERENT_ANCHORED)")
+    parser.add_argument("--defocused", action="store_true",
+                        help="with --anchor: the lens defocused (render.COHERENT_DEFOCUSED) instead of the defaults")
     parser.add_argument("--dorsch", action="store_true",
                         help="print the noise-free line's centroid scatter against Dorsch et al.'s C lambda N / pi instead")
     parser.add_argument("--json", action="store_true")
@@ -114,14 +114,17 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
                  options=None):
     """The thesis's reference pipeline on a simulated wall facing the sensor, thesis timing.
 
-    Returns (relative range errors of the valid columns of the last pair, their count). The
-    running blend (step 4) sees ``pairs`` consecutive lit/unlit pairs.
+    Returns (relative range errors of the valid columns of the last pair, their count, and each
+    of those columns' relative range change per row: device.sim.anchoring). The running blend
+    (step 4) sees ``pairs`` consecutive lit/unlit pairs.
     """
     import numpy as np
 
     from device.config import load_preset
     from device.sim.render import RenderOptions, SceneRenderer
     from device.sim.scene import wall_scene
+    from device.sim.anchoring import relative_range_per_row
+    from device.vision.geometry import column_geometry
     from device.vision.reference import ReferencePipeline
 
     cfg = load_preset("thesis-calibrated")
@@ -136,7 +139,8 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
         m = pipe.process(lit, unlit)
     true = truth.range_m[m.column]
     ok = m.valid & np.isfinite(true)
-    return (m.range[ok] - true[ok]) / true[ok], int(ok.sum())
+    iz, slope = column_geometry(cfg).inverse_depth(m.row[ok], m.column[ok])
+    return (m.range[ok] - true[ok]) / true[ok], int(ok.sum()), relative_range_per_row(iz, slope)
 
 
 def centroid_scatter_px(cfg, options, seeds=(1, 2), distance_m: float = 2.0, half: int = 10):
@@ -183,14 +187,14 @@ def dorsch() -> list[dict]:
     from dataclasses import replace
 
     from device.config import load_preset
-    from device.sim.render import COHERENT_ANCHORED, RenderOptions
+    from device.sim.render import COHERENT_DEFOCUSED, RenderOptions
 
     cfg0 = load_preset("thesis-calibrated")
     lam, pitch = cfg0.laser.wavelength_m, cfg0.optics.pixel_pitch_m
     quiet = dict(noise=False, ambient=False, texture=False, ray_samples=8192, background_step=4)
-    models = {"multiplicative": RenderOptions(**quiet),
-              "coherent, focused": replace(COHERENT_ANCHORED, defocus_sigma_px=0.0, blur_sigma_px=1.1, **quiet),
-              "coherent, 1.2 px defocus": replace(COHERENT_ANCHORED, **quiet)}
+    models = {"multiplicative": RenderOptions(speckle_model="multiplicative", **quiet),
+              "coherent, focused": RenderOptions(**quiet),
+              "coherent, 1.2 px defocus": replace(COHERENT_DEFOCUSED, **quiet)}
     out = []
     for line in ("resolution-limited line", "thesis line"):
         for n in (1.4, 2.0, 2.8):
@@ -205,13 +209,19 @@ def dorsch() -> list[dict]:
 
 
 def anchor(options=None) -> list[dict]:
+    """The reference pipeline on simulated walls: per wall the simulated error, and with the thesis
+    prototype's calibration residual added (device.sim.anchoring)."""
+    from device.sim.anchoring import THESIS_RESIDUAL_PX, with_thesis_residual
+
     cases = [(0.9, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0)] + [(0.1, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0, 3.5)]
     cases.append((0.9, 1.5, "sunlight"))
     out = []
     for rho, d, amb in cases:
-        err, n = measure_wall(rho, d, amb, options=options)
+        err, n, sens = measure_wall(rho, d, amb, options=options)
         out.append({"reflectivity": rho, "distance_m": d, "ambient": amb, "columns": n,
-                    "mean_pct": float(100 * err.mean()) if n else None, "std_pct": float(100 * err.std()) if n else None})
+                    "mean_pct": float(100 * err.mean()) if n else None, "std_pct": float(100 * err.std()) if n else None,
+                    "with_residual_std_pct": 100 * with_thesis_residual(err, sens) if n > 1 else None,
+                    "residual_px": THESIS_RESIDUAL_PX})
     return out
 
 
@@ -228,19 +238,22 @@ def run(args: argparse.Namespace) -> int:
                   f"{a['dorsch_px']:8.3f}  {a['ratio']:5.2f}  {a['mean_px']:+.4f}")
         return 0
     if args.anchor:
-        from device.sim.render import COHERENT_ANCHORED
+        from device.sim.render import COHERENT_DEFOCUSED
 
-        rows = anchor(COHERENT_ANCHORED if args.coherent else None)
+        rows = anchor(COHERENT_DEFOCUSED if args.defocused else None)
         if args.json:
             print(json.dumps(rows, indent=1))
             return 0
-        model = "coherent speckle, COHERENT_ANCHORED" if args.coherent else "default renderer options"
+        model = "lens defocused (COHERENT_DEFOCUSED)" if args.defocused else "default renderer options (lens in focus)"
         print(f"reference pipeline (thesis Algorithm 2) on simulated walls, thesis timing, 4 pairs, seed 0; {model}")
-        print("wall  ambient   d (m)  columns  mean err  std err")
+        print(f"'+ residual': with the thesis prototype's calibration residual, {rows[0]['residual_px']} px per column "
+              "(device.sim.anchoring)")
+        print("wall  ambient   d (m)  columns  mean err  std err  + residual")
         for a in rows:
             m = "     -" if a["mean_pct"] is None else f"{a['mean_pct']:6.2f} %"
             sd = "     -" if a["std_pct"] is None else f"{a['std_pct']:6.2f} %"
-            print(f"{a['reflectivity'] * 100:3.0f} %  {a['ambient']:<8} {a['distance_m']:5.1f}  {a['columns']:6d}  {m}  {sd}")
+            wr = "     -" if a["with_residual_std_pct"] is None else f"{a['with_residual_std_pct']:6.2f} %"
+            print(f"{a['reflectivity'] * 100:3.0f} %  {a['ambient']:<8} {a['distance_m']:5.1f}  {a['columns']:6d}  {m}  {sd}  {wr}")
         return 0
     if args.budget:
         rows = budget()
@@ -259,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{b['diff_noise_e']:8.1f} {b['peak_snr']:9.1f}{sat}")
         return 0
     from device.config import load_preset
-    from device.sim.render import COHERENT_ANCHORED, RenderOptions, SceneRenderer
+    from device.sim.render import COHERENT_DEFOCUSED, RenderOptions, SceneRenderer
     from device.sim.scene import get_scene
 
     cfg = load_preset("thesis-calibrated")
@@ -275,7 +288,8 @@ def run(args: argparse.Namespace) -> int:
     scene = get_scene(args.effects_scene)
     variants = [("all effects", RenderOptions())] + [(f"{e} off", RenderOptions().without(e)) for e in EFFECTS]
     variants.append(("fresh noise draws (no table)", RenderOptions(noise_table=False)))
-    variants.append(("coherent speckle (anchored set)", COHERENT_ANCHORED))
+    variants.append(("multiplicative speckle", RenderOptions(speckle_model="multiplicative")))
+    variants.append(("lens defocused (COHERENT_DEFOCUSED)", COHERENT_DEFOCUSED))
     effect_rows = []
     for label, opts in variants:
         best, med = _ms_per_pair(SceneRenderer(cfg, scene, options=opts), args.pairs)

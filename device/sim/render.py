@@ -24,14 +24,14 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    integrated over each pixel (erf differences) in a band of +-4 sigma rows around the true row.
 4. *Speckle* (Dorsch, Haeusler & Herrmann, "Laser triangulation: fundamental uncertainty in
    distance measurement", Appl. Opt. 33, 1994; Goodman, Speckle Phenomena in Optics).
-   ``speckle_model="coherent"`` (coherent_line_profiles; anchored set: COHERENT_ANCHORED): per column, the line's complex field
-   (amplitude sqrt of the profile, a random phase per surface sample, static per scene, pose and
-   seed) is imaged through the lens's coherent pupil (|f| <= 1 / (2 lambda N), with the defocus as
-   a quadratic pupil phase), intensity |field|^2, then the incoherent blur and the pixel rows.
-   Contrast C < 1 (laser linewidth, surface depth) sums independent patterns. Speckle and line
-   are one field, so the centroid's scatter is what the optics allows: for a focused lens and a
-   line image at the resolution limit, C lambda N / pi (Dorsch; tests/test_sim_speckle.py).
-   ``"multiplicative"`` (the default, which the pipeline's tests are tuned to) multiplies the
+   ``speckle_model="coherent"`` (the default, coherent_line_profiles): per column, the line's
+   complex field (amplitude sqrt of the profile, a random phase per surface sample, static per
+   scene, pose and seed) is imaged through the lens's coherent pupil (|f| <= 1 / (2 lambda N),
+   with a defocus as a quadratic pupil phase), intensity |field|^2, then the incoherent blur and
+   the pixel rows. Contrast C < 1 (laser linewidth, surface depth) sums independent patterns.
+   Speckle and line are one field, so the centroid's scatter is what the optics allows: for a
+   focused lens and a line image at the resolution limit, C lambda N / pi (Dorsch; checked within
+   12 % by tests/test_sim_speckle.py). ``"multiplicative"`` (kept for comparison) multiplies the
    profile by a separate static pattern: complex Gaussian noise low-passed to grains of g lambda N
    (g = speckle_grain_factor, 2.44: the Airy diameter), intensity, rescaled to the contrast. It is
    not bounded by the line's own field: in focus it gives a single column 0.47 px of centroid
@@ -54,22 +54,24 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse) costs nothing.
 
-Anchoring. Two anchored sets, each reproducing the thesis's measurements (section 6.4) through
-the thesis's reference pipeline (device.vision.reference) at the thesis geometry
-(thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms exposure): range error std ~1.8-1.9 % at 2 m and
-~2.4 % at 2.5 m on the 90 % wall (thesis ~1.8 % and ~2.4 %), the 10 % wall's columns with a return
-shrinking with range, no output in sunlight; with analogue gain 10 (sensor.SIMULATOR_DEFAULT)
-and indoor ambient 0.5 % of in-band sunlight in both.
-- Default (multiplicative speckle): contrast 1, grain 2.44 lambda N, blur sigma 1.1 px.
-- COHERENT_ANCHORED: contrast 1 (a rough wall; a multimode diode's coherence length still
-  exceeds the wall's roughness), lens defocus sigma 1.2 px (coherent, so it sets the grain: an
-  ASSUMPTION, the thesis does not report its line width; an M12 lens focused by eye in visible
-  light is out of focus at 808 nm; the thesis (4.2.1) blames its focal-length estimate on the
-  added bandpass filter or the focus distance),
-  incoherent blur 0.5 px (2x2 binning, demosaic, crosstalk). In focus (defocus 0, blur 1.1 px)
-  the coherent model gives the reference only ~0.9 % at 2 m and ~1.1 % at 2.5 m, half the
-  thesis: without the defocus, the thesis's error needs sources not modelled here.
-`laserpi bench sim --anchor [--coherent]` prints the table; BENCHMARKS.md "Simulator" has it.
+Anchoring (device.sim.anchoring; BENCHMARKS.md "Simulator"). The thesis's reference pipeline
+(device.vision.reference) at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms
+exposure) on the defaults gives ~0.9 % at 2 m and ~1.1 % at 2.5 m on the 90 % wall: the image's
+share of the thesis's ~1.8 % and ~2.4 % (section 6.4.3). The rest is its prototype's
+calibration residual (a fixed per-column row error, device.sim.anchoring.THESIS_RESIDUAL_PX,
+fitted at 2 m; 2.5 m is then a prediction), which a pipeline scored here with an exact
+calibration does not see. The photometry is anchored on its own: with analogue gain 10
+(sensor.SIMULATOR_DEFAULT) and indoor ambient 0.5 % of in-band sunlight, the 10 % wall's columns
+with a return shrink with range and sunlight gives no output.
+- Defaults: coherent speckle, contrast 1 (a rough wall; a multimode diode's coherence length
+  still exceeds the wall's roughness), the lens in focus (defocus 0), incoherent blur 1.1 px.
+- COHERENT_DEFOCUSED: the other explanation of the thesis's error, without a calibration residual:
+  the lens defocused by a 1.2 px (sigma) geometric blur (coherent, so it sets the grain: an M12
+  lens focused by eye in visible light is out of focus at 808 nm; the thesis does not report its
+  line width), incoherent blur 0.5 px. Its reference error alone is the thesis's. A sensor built
+  from this project is focused at 808 nm (README), so the defaults assume focus; the pipeline
+  benchmark also reports the defocused set.
+`laserpi bench sim --anchor [--defocused]` prints the table; BENCHMARKS.md "Simulator" has it.
 """
 
 from __future__ import annotations
@@ -108,7 +110,7 @@ class RenderOptions:
     texture: bool = True  # procedural reflectivity texture
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
     speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
-    speckle_model: str = "multiplicative"  # or "coherent": the line's own field through the pupil
+    speckle_model: str = "coherent"  # the line's own field through the pupil, or "multiplicative"
     speckle_grain_factor: float = 2.44  # multiplicative model only: grain = factor x lambda x N (2.44: Airy)
     speckle_subsamples: int = 8  # coherent model: field samples per pixel row
     blur_sigma_px: float = 1.1  # incoherent blur (Gaussian sigma) of the line, px (all of it when defocus is 0)
@@ -145,9 +147,9 @@ class RenderOptions:
         return replace(self, **{e: False for e in effects})
 
 
-# The coherent speckle model with its own anchoring to the thesis (module docstring, "Anchoring"):
-# fully developed speckle, the lens defocused by a 1.2 px (sigma) geometric blur, 0.5 px incoherent.
-COHERENT_ANCHORED = RenderOptions(speckle_model="coherent", defocus_sigma_px=1.2, blur_sigma_px=0.5)
+# The lens defocused (module docstring, "Anchoring"): fully developed coherent speckle, a 1.2 px
+# (sigma) geometric blur as a pupil phase, 0.5 px incoherent; reproduces the thesis's error alone.
+COHERENT_DEFOCUSED = RenderOptions(defocus_sigma_px=1.2, blur_sigma_px=0.5)
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,13 @@ Per frame pair:
    point is ever pulled towards another surface. A column far from its median (an outlier) is
    left out of the fit and reports the fit; gaps of up to ``max_gap`` columns without a
    measurement inside a run (dark speckle grains) are filled between their neighbours (quality
-   0). A line seen but not measurable is REJECTED (NaN), never "no return". The effective angular resolution is the fit
-   window (:attr:`FastPipeline.resolution_deg`).
+   0). The fit weights each column by its line's amplitude (dark speckle grains scatter most).
+   A column whose own peak is dim next to its smoothed one (a dark grain: down to
+   ``dim_peak_fraction``) counts only between bright columns of the same run (at least
+   ``own_peak_fraction``), never at a run's end, where the smoothed detector also sees the line
+   of the neighbours past a depth jump. A line seen but not measurable is REJECTED (NaN), never
+   "no return". The effective angular resolution is the fit window
+   (:attr:`FastPipeline.resolution_deg`).
 6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
@@ -79,6 +84,8 @@ class FastParams:
     jump_factor: float = 3.0  # adjacent raw rows may differ by this x the jump step (speckle)
     support_half: int = 4  # neighbour columns consulted to pick among candidates
     max_gap: int = 3  # columns without a measurement filled inside a continuous run (line fit on)
+    own_peak_fraction: float = 0.5  # a column's own peak must reach this x its smoothed peak to end a run (depth jumps)
+    dim_peak_fraction: float = 0.1  # ... and this inside a run, between columns that reach own_peak_fraction (dark speckle grains)
     track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
@@ -96,6 +103,9 @@ class FastParams:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
         if not (0 < self.jump_rel < 1 and self.min_peak > 0):
             raise ValueError(f"need 0 < jump_rel < 1 and min_peak > 0, got {self.jump_rel}, {self.min_peak}")
+        if not 0 < self.dim_peak_fraction <= self.own_peak_fraction <= 1:
+            raise ValueError(f"need 0 < dim_peak_fraction <= own_peak_fraction <= 1, got "
+                             f"{self.dim_peak_fraction}, {self.own_peak_fraction}")
 
 
 @dataclass(frozen=True)
@@ -264,7 +274,7 @@ class FastPipeline:
         # detection is decided before the estimator's own validity, so that a line whose sub-pixel
         # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
-        det1 = (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
+        det1 = (s1 >= thr) & (c1.peak >= p.dim_peak_fraction * s1) & (c1.spread <= p.max_spread_px)
         r1 = np.where(c1.valid, c1.row, k1)
         # second candidates: refined only where they are strong enough to matter (few columns)
         det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
@@ -272,7 +282,7 @@ class FastPipeline:
         if idx.size:
             c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, lo[idx], hi[idx], 1.0, 0.0, p.half_width,
                               p.pedestal, 255)
-            det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
+            det2[idx] = (c2.peak >= p.dim_peak_fraction * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
         pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
         row = np.where(pick2, r2, r1)
@@ -283,6 +293,11 @@ class FastPipeline:
         found &= measured
         row = row + (self.top + t0)
         segment, outlier = self._segments(row, found)
+        # a dim column (a dark speckle grain: its own peak below own_peak_fraction of the smoothed
+        # one) counts only between bright columns of its run, never at a run's end: past the end
+        # of a surface (a depth jump) the smoothed detector still sees the neighbours' line
+        bright = found & (peak >= p.own_peak_fraction * np.where(pick2, s2, s1))
+        found &= _inside_bright(segment, bright)
         found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
         segment = np.where(found, segment, -1)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
@@ -291,7 +306,7 @@ class FastPipeline:
         status[~found & ((s1 >= thr) | failed)] = ColumnStatus.REJECTED
         if p.smooth_half:
             # outliers take the line fit of their run (the fit is what every column reports)
-            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
+            row = _local_line_fit(row, np.where(found & ~outlier, np.maximum(peak, 1.0), 0.0), segment, p.smooth_half)
             row, filled = _fill_gaps(row, found, p.max_gap, status != ColumnStatus.NO_RETURN)
             status[filled] = ColumnStatus.OK
             peak = np.where(filled, 0.0, peak)
@@ -433,6 +448,18 @@ class FastPipeline:
         return status
 
 
+def _inside_bright(label: np.ndarray, bright: np.ndarray) -> np.ndarray:
+    """Columns of a run (same label >= 0; runs are contiguous) with a bright column of the same
+    run at or before them and at or after them."""
+    W = label.size
+    idx = np.arange(W)
+    last = np.maximum.accumulate(np.where(bright, idx, -1))  # last bright column at or before
+    nxt = np.minimum.accumulate(np.where(bright, idx, W)[::-1])[::-1]  # next bright at or after
+    ok = (label >= 0) & (last >= 0) & (nxt < W)
+    ok[ok] &= (label[np.clip(last, 0, W - 1)] == label)[ok] & (label[np.clip(nxt, 0, W - 1)] == label)[ok]
+    return ok
+
+
 def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Fill runs of at most ``max_gap`` columns without a measurement (a dark speckle grain)
     between two measured columns of the same surface: linear in the row between them. Only
@@ -495,9 +522,11 @@ def _run_length(label: np.ndarray, member_of: np.ndarray | None = None) -> np.nd
 def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
     """Weighted least-squares line through the rows of the columns within +-half of each column
     that belong to the same run (same label >= 0), evaluated at the column. Windowed sums by
-    cumsum; every column of a run gets a value, weighted or not. (Weighting by the line's
-    amplitude was tried and is worse on the simulator: bright speckle grains are no more
-    accurate than dim ones.)"""
+    cumsum; every column of a run gets a value, weighted or not. The caller weights by the
+    line's amplitude: under coherent speckle a dark column sits near a dark grain, where the
+    field's phase varies fastest and the centroid scatters most (on the simulator's 90 % walls
+    weighting by amplitude lowers the range error at 3 m from ~0.85 % to ~0.65 % against equal
+    weights)."""
     W = row.size
     x = np.arange(W, dtype=np.float64)
     inrun = label >= 0
