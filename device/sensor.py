@@ -44,7 +44,7 @@ FRAME_DURATION_S = 0.5 / SCAN_RATE_HZ  # a lit and an unlit frame per scan
 EXPOSURE_US = 9200.0
 RANGE_M = (0.4, 3.2)
 PIPELINE = "fast-com-track"
-ANALOG_GAIN = 1.0  # simulated sensor gain (device/sim/sensor.py); 2 and 4 gave the same range error here
+ANALOG_GAIN = 4.0  # analogue gain, on a Pi and simulated (device/sim/sensor.py): at 1 the 3 m line is a few 8-bit levels (1.0 % at 3 m); 4 and 8 give 0.4 %
 COMCU_BAUDRATE = 250_000
 COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
 
@@ -411,7 +411,7 @@ def build_sensor(args) -> BuiltSensor:
                                "use --simulate to run the simulated sensor here")
         from device.comcu import CoMcu
 
-        camera = Picamera2Camera(exposure_us=EXPOSURE_US, frame_duration_us=FRAME_DURATION_S * 1e6)
+        camera = Picamera2Camera(exposure_us=EXPOSURE_US, frame_duration_us=FRAME_DURATION_S * 1e6, analogue_gain=ANALOG_GAIN)
 
         def open_comcu():
             try:
