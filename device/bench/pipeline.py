@@ -23,6 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-range", type=float, default=0.1, help="fast pipeline depth limits, m (default 0.1)")
     parser.add_argument("--max-range", type=float, default=10.0, help="(default 10)")
     parser.add_argument("--variants", default="all", help="comma-separated variants (default all)")
+    parser.add_argument("--defocused", action="store_true",
+                        help="render with the lens defocused (device.sim.render.COHERENT_DEFOCUSED) instead of in focus")
     parser.add_argument("--png", help="write a plot of time against error to this PNG")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
 
@@ -32,6 +34,7 @@ def measure(args) -> list[dict]:
     import numpy as np
 
     from ..config import load_preset
+    from ..sim.render import COHERENT_DEFOCUSED
     from ..vision.evaluation import run_pipeline, simulated_pairs
     from ..vision.pipelines import VARIANTS, make_pipeline
 
@@ -41,7 +44,8 @@ def measure(args) -> list[dict]:
     if "reference" not in names:
         names.insert(0, "reference")
     pipes = {n: make_pipeline(n, cfg, args.min_range, args.max_range) for n in names}
-    walls = {d: simulated_pairs(cfg, f"wall:distance={d},reflectivity=0.9", args.frames, args.seed + i)
+    options = COHERENT_DEFOCUSED if args.defocused else None
+    walls = {d: simulated_pairs(cfg, f"wall:distance={d},reflectivity=0.9", args.frames, args.seed + i, options=options)
              for i, d in enumerate((2, 3))}
     timing_pair = walls[2][0]
     rows = []
