@@ -6,14 +6,16 @@ Simulated (``laserpi serve --simulate``): the same SensorSource, SyncedLaser and
   IMX219 timing simulation (device/sim/timing.py: line-quantised frame length, timestamp
   latency, dropped frames) -- ``SimCamera``;
 * the co-MCU: the shipped firmware ELF in the simavr harness, stepped cycle-exactly, whose cycle
-  count is also the simulated Pi's clock (``SimulatedHardware``); CoMcu talks to its UART byte
-  stream. The laser pin's edges become the pulses that light the rendered rows and, with a
-  simulated kernel latency, the GPIO edge events of the laser trigger line for the clock map.
+  count is also the simulated Pi's clock (``SimulatedHardware``); its UART is a pty that CoMcu
+  opens through pyserial, as it opens /dev/serial0 on a Pi. The laser pin's edges become the
+  pulses that light the rendered rows and, with a simulated kernel latency, the GPIO edge events
+  of the laser trigger line for the clock map.
 
-Why stepped and not the harness's free-running pty mode: on this shared 2-core machine the
-free-running emulator lagged the wall clock by 10-180 ms, so its MCU clock wandered by
-thousands of ppm and heartbeats arrived late; in simulated time nothing depends on how busy the
-machine is (it only runs slower than real time then).
+Why the emulator is stepped by the simulated clock and not free-running (the harness's own pty
+mode, paced to the wall clock): on this shared 2-core machine the free-running emulator lagged
+the wall clock by 10-180 ms, so its MCU clock wandered by thousands of ppm and heartbeats
+arrived late; in simulated time nothing depends on how busy the machine is (it only runs slower
+than real time then). The pty between the two is the same either way.
 
 Operating point (both): 20 frames/s, every other frame lit (ERRATA 10), so 10 scans/s; exposure
 ``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
@@ -24,6 +26,8 @@ from __future__ import annotations
 
 import collections
 import logging
+import os
+import select
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -82,7 +86,7 @@ class ScanPipeline:
 # --- the simulated hardware: the Pi's clock and the co-MCU (real firmware in the emulator) ------
 class SimulatedHardware:
     """The simulated Pi's CLOCK_MONOTONIC and its co-MCU: the shipped firmware ELF running in the
-    simavr harness (device/comcu_emulator.SteppedMcuPort), cycle-exact.
+    simavr harness (device/comcu_emulator.SteppedMcuPort), cycle-exact, behind a pty.
 
     Time: simulated CLOCK_MONOTONIC = ``t_base + emulator cycles / CPU_HZ``; a clock thread keeps
     it at the wall clock (it advances the emulator, never ahead of the wall clock) but not past
@@ -90,25 +94,32 @@ class SimulatedHardware:
     this machine is too busy for the device process to keep up in real time, the simulated world
     waits for it instead of running away (it runs slower than real time, and consistently: no
     heartbeat or frame is missed because the host machine was descheduled). Whether a Pi keeps
-    up is judged from the measured CPU cost instead (laserpi bench process).
-    Every ``tick_s`` of simulated time the ``tickers`` run (SyncedLaser.heartbeat).
+    up is judged from the measured CPU cost instead (laserpi bench process). While requests
+    from the Pi wait for the co-MCU's answers (counted by frame delimiters), the clock may pass
+    ``limit_ns`` (by at most ``answer_window_s`` after the last request), as the MCU's time would. Every ``tick_s`` of simulated time the
+    ``tickers`` run on their own thread (SyncedLaser.heartbeat).
 
-    The co-MCU's UART is the harness's byte stream (``port()``: pyserial-like, what CoMcu talks
-    to); the laser pin's edges (CPU cycles, exact) become the laser's on-windows that light the
+    The co-MCU's UART is a pty (``tty_path``), opened by CoMcu through pyserial exactly as the
+    real one's UART is on a Pi (``open_comcu``); the clock thread moves its bytes to and from the
+    emulator at every step (at most ``step_s`` of simulated time, and at once when the Pi writes).
+    The laser pin's edges (CPU cycles, exact) become the laser's on-windows that light the
     rendered rows (``windows``, a device.sim.pulses.PulseSource) and, plus a simulated kernel
     latency (3 us + exponential, mean ``gpio_latency_s``), the GPIO edge events of the trigger
     line that the clock map uses (``gpio_edges``).
     """
 
     def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = 0.01,
-                 history_s: float = 2.0):
+                 history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
+        import tty
+
         from device.comcu_emulator import CPU_HZ, ELF, HARNESS, build_emulator
 
         if not (HARNESS.exists() and ELF.exists()):
             build_emulator()
         self.harness, self.elf, self.cpu_hz = HARNESS, ELF, CPU_HZ
         self.gpio_latency_s = gpio_latency_s
-        self.tick_ns = int(tick_s * 1e9)
+        self.tick_ns, self.step_ns = int(tick_s * 1e9), int(step_s * 1e9)
+        self.answer_window_ns = int(answer_window_s * 1e9)
         self.tickers: list = []
         self._rng = np.random.default_rng([seed, 0x6910])
         self._lock = threading.RLock()  # the emulator: one command at a time
@@ -119,13 +130,22 @@ class SimulatedHardware:
         self.mcu = None
         self.clock_cpu_s = 0.0
         self.limit_ns: int | None = None  # the clock does not pass this (the camera's consumer lags)
+        self._answer_until_ns = 0  # requests are in flight: the MCU's time may pass limit_ns until then
+        self._requests_in_flight = 0  # frames (0x00 delimiters) the Pi sent that the MCU has not answered
         self.resets = -1
+        # the UART: the Pi's end is the pty's slave (raw, like a serial port), the MCU's the master
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.tty_path = os.ttyname(self._slave)
+        self._to_pi = bytearray()
         self._t_base_ns = time.monotonic_ns()
         self.reset_mcu()
-        self._next_tick_ns = self.now_ns() + self.tick_ns
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run_clock, name="sim-clock", daemon=True)
-        self._thread.start()
+        self._threads = [threading.Thread(target=self._run_clock, name="sim-clock", daemon=True),
+                         threading.Thread(target=self._run_tickers, name="sim-ticker", daemon=True)]
+        for t in self._threads:
+            t.start()
 
     # the clock
     def now_ns(self) -> int:
@@ -134,23 +154,59 @@ class SimulatedHardware:
     def _run_clock(self) -> None:
         while not self._stop.is_set():
             self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
+            self._from_pi()
+            now = self.now_ns()
             target = time.monotonic_ns()
             limit = self.limit_ns
             if limit is not None:
-                target = min(target, limit)
-            now = self.now_ns()
+                target = min(target, max(limit, self._answer_until_ns))
             if now >= target:
-                time.sleep(min(0.002, (now - target) * 1e-9 + 0.0005))
+                # wait for the wall clock, or at once for bytes from the Pi
+                select.select([self._master], [], [], min(0.002, (now - target) * 1e-9 + 0.0005))
                 continue
-            step_end = min(target, self._next_tick_ns, now + 2_000_000)
+            step_end = min(target, now + self.step_ns)
             with self._lock:
-                self.mcu.run_cycles(max(1, (step_end - self.now_ns()) * self.cpu_hz // 1_000_000_000))
+                self.mcu.run_cycles(max(1, (step_end - now) * self.cpu_hz // 1_000_000_000))
                 self._collect()
+                self._to_pi_write()
                 self._advanced.notify_all()
-            if self.now_ns() >= self._next_tick_ns:
-                self._next_tick_ns += self.tick_ns
-                for tick in list(self.tickers):
-                    tick()
+
+    def _from_pi(self) -> None:
+        """Bytes the Pi wrote to its end of the UART go into the MCU's receiver now."""
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):  # nothing written (or no reader attached yet)
+            return
+        if data:
+            with self._lock:
+                self.mcu.write(data)
+                self._requests_in_flight += data.count(0)
+                self._answer_until_ns = self.now_ns() + self.answer_window_ns
+
+    def _to_pi_write(self) -> None:
+        """What the MCU sent goes to the Pi's end of the UART (kept while the pty is full)."""
+        n = self.mcu.in_waiting
+        if n:
+            out = self.mcu.read(n)
+            self._to_pi += out
+            # every request frame gets one answer frame
+            self._requests_in_flight = max(0, self._requests_in_flight - out.count(0))
+            if not self._requests_in_flight:
+                self._answer_until_ns = 0
+        if self._to_pi:
+            try:
+                del self._to_pi[: os.write(self._master, self._to_pi)]
+            except (BlockingIOError, OSError):
+                pass
+
+    def _run_tickers(self) -> None:
+        next_tick = self.now_ns() + self.tick_ns
+        while not self._stop.is_set():
+            if not self.wait_until(next_tick, 0.1):
+                continue
+            next_tick += self.tick_ns
+            for tick in list(self.tickers):
+                tick()
 
     def wait_until(self, t_ns: int, timeout_s: float) -> bool:
         """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
@@ -166,7 +222,7 @@ class SimulatedHardware:
     # the co-MCU
     def reset_mcu(self) -> None:
         """Power-cycle the co-MCU: a new emulator boots the firmware again (reset cause: power-on);
-        simulated time goes on."""
+        simulated time goes on. The UART (the pty) stays; bytes in flight are lost."""
         from device.comcu_emulator import SteppedMcuPort
 
         with self._lock:
@@ -179,14 +235,17 @@ class SimulatedHardware:
         if old is not None:
             old.close()
 
-    def port(self) -> "_McuPort":
-        return _McuPort(self)
-
     def open_comcu(self):
-        """A CoMcu on the co-MCU's UART with the simulated clock (what SyncedLaser opens)."""
+        """A CoMcu on the co-MCU's UART (the pty, through pyserial as on a Pi) with the simulated
+        clock: what SyncedLaser opens."""
+        import serial
+
         from device.comcu import CoMcu
 
-        return CoMcu(self.port(), clock_ns=self.now_ns)
+        try:
+            return CoMcu(serial.Serial(self.tty_path, COMCU_BAUDRATE, timeout=0.05), clock_ns=self.now_ns)
+        except serial.SerialException as exc:
+            raise OSError(str(exc)) from exc
 
     # the laser pin
     def _collect(self) -> None:
@@ -230,40 +289,12 @@ class SimulatedHardware:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        for t in self._threads:
+            t.join(timeout=2.0)
         with self._lock:
             self.mcu.close()
-
-
-class _McuPort:
-    """pyserial-like port onto the current emulator (survives reset_mcu, like a UART does).
-
-    ``read`` waits for bytes by running the emulator (simulated time passes while the MCU
-    answers), at most ``timeout`` of simulated time."""
-
-    timeout = 0.05
-
-    def __init__(self, hw: SimulatedHardware):
-        self.hw = hw
-
-    def write(self, data: bytes) -> int:
-        with self.hw._lock:
-            return self.hw.mcu.write(data)
-
-    @property
-    def in_waiting(self) -> int:
-        with self.hw._lock:
-            return self.hw.mcu.in_waiting
-
-    def read(self, size: int = 1) -> bytes:
-        with self.hw._lock:
-            data = self.hw.mcu.read(size)
-            self.hw._collect()
-            self.hw._advanced.notify_all()
-            return data
-
-    def close(self) -> None:
-        pass
+        os.close(self._master)
+        os.close(self._slave)
 
 
 # --- the simulated camera, in real time -------------------------------------------------------
