@@ -245,3 +245,22 @@ def test_small_gaps_in_a_surface_are_filled_large_ones_are_not(wall2m, pipes):
     assert not np.isfinite(m.range[1000:1012]).any()  # hole edges: NaN (line only in the neighbours)
     raw = pipes["fast-com-raw"].process(lit, unlit)
     assert not raw.valid[600:602].any()  # without the line fit nothing is filled
+
+
+def test_dim_columns_count_inside_a_surface_never_past_its_end(wall2m, pipes):
+    """A dark speckle grain (three columns at 15 % of their neighbours' amplitude) inside a
+    surface is measured, not gap-filled; past the end of a surface, where the smoothed detector
+    still sees the neighbours' line over noise, nothing is reported (seed 44 reports two
+    phantom columns there if dim columns may end a run)."""
+    rows, rng = wall2m
+    amp = np.full(CFG.width, 120.0)
+    amp[600:603] = 18.0
+    ended = rows.copy()
+    ended[1200:] = np.nan  # the surface ends at column 1199
+    for seed in range(41, 46):
+        lit, unlit = frame_pair(CFG, ended, amplitude=amp, noise=2.0, seed=seed)
+        m = pipes["fast-com"].process(lit, unlit)
+        assert np.all(m.valid[600:603]) and np.all(m.quality[600:603] > 0)  # measured, not filled
+        np.testing.assert_allclose(m.range[600:603], rng[600:603], rtol=0.003)
+        assert m.valid[1190:1200].all()
+        assert not np.isfinite(m.range[1200:1215]).any(), f"seed {seed}: a range past the surface's end"
