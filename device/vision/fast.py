@@ -56,7 +56,7 @@ import numpy as np
 from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
-from .peaks import ESTIMATORS, clamp, refine_peaks
+from .peaks import ESTIMATORS, clamp, refine_com_padded, refine_peaks
 
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
@@ -147,6 +147,8 @@ class FastPipeline:
         self._block_index = np.arange(nb)[:, None]
         self._row_keys = (nb - 1 - np.arange(nb, dtype=np.uint16))[:, None]
         self._cols2 = np.concatenate([self.cols, self.cols])
+        self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
+        self._buffers: dict[int, np.ndarray] = {}
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -231,11 +233,15 @@ class FastPipeline:
         p = self.params
         W = self.cols.size
         lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
+        # the difference goes into a buffer with zero rows above and below (sub-pixel windows
+        # at the band's edges need no clamping)
+        padded = self._padded(t1 - t0)
+        pad = self._pad
         # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
         # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
-        d = cv2.subtract(a, b)
+        d = cv2.subtract(a, b, dst=padded[pad : pad + t1 - t0])
         if a.max() == 255:
             # only the rows that hold a saturated pixel (usually a few: the line's)
             full = np.nonzero(a.max(axis=1) == 255)[0]
@@ -248,7 +254,7 @@ class FastPipeline:
                 sat[1:] = pair
                 sat[:-1] |= pair
                 d[r0:r1] = cv2.max(d_s, sat)
-        d = cv2.bitwise_and(d, self.mask[t0:t1])
+        cv2.bitwise_and(d, self.mask[t0:t1], dst=d)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
         sm = cv2.blur(d, DETECT_KERNEL)
@@ -260,7 +266,7 @@ class FastPipeline:
         k1, k2 = self._candidates(sm, d)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, lo, hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
+        c1 = self._refine(padded, k1, self.cols, lo, hi)
         # detection is decided before the estimator's own validity, so that a line whose sub-pixel
         # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
@@ -270,8 +276,7 @@ class FastPipeline:
         det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
-            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, lo[idx], hi[idx], 1.0, 0.0, p.half_width,
-                              p.pedestal, 255)
+            c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx])
             det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
         pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
@@ -307,6 +312,23 @@ class FastPipeline:
         cand = np.concatenate([row[found] - self.top, (k2 + t0)[ghost]])
         seen = (int(math.floor(cand.min())), int(math.ceil(cand.max()))) if cand.size else (t1, -1)
         return found, row, peak, status, seen
+
+    def _padded(self, n: int) -> np.ndarray:
+        """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero (kept per n)."""
+        buf = self._buffers.get(n)
+        if buf is None:
+            buf = self._buffers[n] = np.zeros((n + 2 * self._pad, self.cols.size), np.uint8)
+        return buf
+
+    def _refine(self, padded: np.ndarray, k: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+        """Sub-pixel rows of candidates ``k`` in columns ``cols`` of the difference stored in
+        ``padded`` (:meth:`_padded`), by the configured estimator."""
+        p = self.params
+        if p.estimator == "com" and p.pedestal == 0:
+            return refine_com_padded(padded, self._pad, k, cols, lo, hi, p.half_width)
+        d = padded[self._pad : padded.shape[0] - self._pad]
+        return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
+                            p.pedestal, 255)
 
     def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column of
