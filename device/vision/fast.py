@@ -144,8 +144,9 @@ class FastPipeline:
         nb = self.rows // BLOCK_ROWS
         self._block_rows = np.arange(BLOCK_ROWS)[None, :]
         self._in_block_keys = ((BLOCK_ROWS - 1) - np.arange(self.rows) % BLOCK_ROWS).astype(np.uint16)[:, None]
-        self._block_index = np.arange(nb)[:, None]
-        self._row_keys = (nb - 1 - np.arange(nb, dtype=np.uint16))[:, None]
+        block_key = np.arange(1 << 12, dtype=np.uint32)  # value << 4 | (15 - row in block)
+        self._global_keys = ((block_key >> 4) << 16) | (block_key & (BLOCK_ROWS - 1))
+        self._block_keys = (0xFFF0 - BLOCK_ROWS * np.arange(nb, dtype=np.uint32))[:, None]
         self._cols2 = np.concatenate([self.cols, self.cols])
         self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
         self._buffers: dict[int, np.ndarray] = {}
@@ -263,7 +264,7 @@ class FastPipeline:
         # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
         fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
         noise = cv2.blur(cv2.subtract(fb, fa), DETECT_KERNEL).max(axis=0).astype(np.float64)
-        k1, k2 = self._candidates(sm, d)
+        k1, k2 = self._candidates(sm, padded)
         s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = self._refine(padded, k1, self.cols, lo, hi)
@@ -330,52 +331,51 @@ class FastPipeline:
         return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
                             p.pedestal, 255)
 
-    def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _candidates(self, sm: np.ndarray, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (band coordinates) of the largest and the second, separated, peak per column of
-        the smoothed difference ``sm``, each moved to the largest of ``d`` at k-1, k, k+1 (the
-        smoothed peak can sit a row off the unsmoothed one)."""
+        the smoothed difference ``sm``: the largest outside the 16-row blocks within
+        ``half_width + 1`` rows of the first, or, if those are all zero, in the first block (at
+        least that far from the first). Each is moved to the largest of the difference (stored in
+        ``padded``, :meth:`_padded`) at k-1, k, k+1 (the smoothed peak can sit a row off the
+        unsmoothed one)."""
         nb = sm.shape[0] // BLOCK_ROWS
-        cols = self.cols
+        W = self.cols.size
         # keys value << 4 | (15 - row in block): one contiguous max per block gives the block's
-        # maximum and the first row holding it (no strided argmax, no per-column gather)
+        # maximum and the first row holding it (no strided argmax, no per-column gather); then as
+        # keys value << 16 | (0xFFFF - row) (a table lookup), one max over blocks gives the first
+        # row of the column's maximum
         key = np.left_shift(sm[: nb * BLOCK_ROWS], 4, dtype=np.uint16)
         key |= self._in_block_keys[: nb * BLOCK_ROWS]
-        bkey = key.reshape(nb, BLOCK_ROWS, -1).max(axis=1)  # (nb, W)
-        bmax = bkey >> 4
-        first_row = (BLOCK_ROWS - 1) - (bkey & (BLOCK_ROWS - 1)).astype(np.intp)
-        W = cols.size
-        b1 = self._first_argmax(bmax)
-        k1 = b1 * BLOCK_ROWS + first_row.ravel().take(b1 * W + cols)
+        g = self._global_keys.take(key.reshape(nb, BLOCK_ROWS, -1).max(axis=1))  # (nb, W)
+        g += self._block_keys[:nb]
+        k1 = 0xFFFF - (g.max(axis=0) & 0xFFFF).astype(np.intp)
+        # blocks within sep rows of the first peak (at most two: 2 sep + 1 <= BLOCK_ROWS) drop out
         sep = self.params.half_width + 1
-        blk = self._block_index[:nb]
-        near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
-        bmax[near] = 0
-        b2 = self._first_argmax(bmax)
-        k2 = b2 * BLOCK_ROWS + first_row.ravel().take(b2 * W + cols)
-        odd = np.nonzero(near.ravel().take(b2 * W + cols))[0]
-        if odd.size:
-            # every block was near the first peak or empty: the second peak is the largest row
-            # of that block at least sep rows from the first
-            blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
-            inner = blocks[b2[odd], :, odd]  # (n, BLOCK_ROWS), a copy
-            inner[np.abs(self._block_rows + (b2[odd] * BLOCK_ROWS - k1[odd])[:, None]) <= sep] = 0
-            k2[odd] = b2[odd] * BLOCK_ROWS + np.argmax(inner, axis=1)
-        # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1)
+        b_lo = np.maximum((k1 - sep) // BLOCK_ROWS, 0)
+        b_hi = np.minimum((k1 + sep) // BLOCK_ROWS, nb - 1)
+        flat = g.reshape(-1)
+        flat[b_lo * W + self.cols] = 0
+        flat[b_hi * W + self.cols] = 0
+        m2 = g.max(axis=0)
+        k2 = 0xFFFF - (m2 & 0xFFFF).astype(np.intp)
+        zero = np.nonzero(m2 <= 0xFFFF)[0]
+        if zero.size:
+            # nothing but zeros left: the first block, at least sep rows from the first peak
+            k2[zero] = 0
+            odd = zero[b_lo[zero] == 0]
+            if odd.size:
+                inner = sm[:BLOCK_ROWS, odd].T.copy()  # (n, BLOCK_ROWS)
+                inner[np.abs(self._block_rows - k1[odd][:, None]) <= sep] = 0
+                k2[odd] = np.argmax(inner, axis=1)
+        # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1); the
+        # zero rows around the band stand in for clamping (a zero row above row 0 can only win
+        # when row 0 ties it, and then row 0 is the answer)
         k = np.concatenate([k1, k2])
-        km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, d.shape[0] - 1)
-        flat = d.ravel()  # contiguous: flat takes are cheaper than 2-D fancy indexing
-        vm, v0, vp = (flat.take(r * W + self._cols2) for r in (km, k, kp))
-        k = np.where((vm >= v0) & (vm >= vp), km, np.where(v0 >= vp, k, kp))
+        base = (k + self._pad) * W + self._cols2
+        d = padded.reshape(-1)
+        vm, v0, vp = d.take(base - W), d.take(base), d.take(base + W)
+        k = np.maximum(np.where((vm >= v0) & (vm >= vp), k - 1, np.where(v0 >= vp, k, k + 1)), 0)
         return k[:W], k[W:]
-
-    def _first_argmax(self, x: np.ndarray) -> np.ndarray:
-        """np.argmax(x, axis=0) for a small uint8 (n <= blocks in the band, W) array, as one contiguous max over keys
-        ``value << bits | (n - 1 - row)`` (a strided argmax is several times slower)."""
-        n = x.shape[0]
-        bits = max(n - 1, 1).bit_length()
-        key = x.astype(np.uint16) << bits
-        key |= self._row_keys[self._row_keys.size - n :]
-        return (n - 1) - (key.max(axis=0) & ((1 << bits) - 1)).astype(np.intp)
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
         """Where to take the second candidate, for columns with two detected lines.
@@ -442,6 +442,8 @@ class FastPipeline:
         H = self.config.height
         if lit_rows.shape != (H,):
             raise ValueError(f"lit_rows must have shape ({H},), got {lit_rows.shape}")
+        if lit_rows.all():
+            return status  # the usual case: the pulse lit every row
         dark = np.concatenate([[0], np.cumsum(~lit_rows)])
         lo, hi = self.lo + self.top, self.hi + self.top
         roi_dark = dark[hi] - dark[lo] > 0
