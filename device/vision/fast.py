@@ -176,7 +176,7 @@ class FastPipeline:
             found, row, peak, status, seen = self._search(lum_lit, lum_unlit, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
-            if (np.any(_run_length(_runs(lost)) >= p.track_lost_run)
+            if (np.any(_run_length(lost) >= p.track_lost_run)
                     or (band[0] > 0 and seen[0] < band[0] + edge) or (band[1] < self.rows and seen[1] >= band[1] - edge)):
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
@@ -189,11 +189,13 @@ class FastPipeline:
             tr = self._track
             self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
         W = self.cols.size
-        empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
-        if self.near_bottom > self.near_top and empty.size >= p.min_run:
-            # only over the columns without a return (none: a wall fills every column); every
-            # other row: a line is at least two rows high
-            c0, c1 = int(empty[0]), int(empty[-1]) + 1
+        # too close: only columns in runs of >= min_run without a return can become a run of
+        # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
+        empty = _run_length(status == ColumnStatus.NO_RETURN) >= p.min_run
+        cols = np.nonzero(empty)[0]
+        if self.near_bottom > self.near_top and cols.size:
+            # every other row: a line is at least two rows high
+            c0, c1 = int(cols[0]), int(cols[-1]) + 1
             la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
             ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
             mask = self.near_mask[:, c0:c1]
@@ -202,8 +204,8 @@ class FastPipeline:
             # stricter than in range (twice the noise ratio): a false "too close" stops a robot
             close = np.zeros(W, bool)
             close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
-            close &= status == ColumnStatus.NO_RETURN
-            status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
+            close &= empty
+            status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == ColumnStatus.OK
@@ -289,15 +291,15 @@ class FastPipeline:
         found &= measured
         row = row + (self.top + t0)
         segment, outlier = self._segments(row, found)
-        found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
-        segment = np.where(found, segment, -1)
+        # a run needs min_run columns that agree with it (outliers do not count)
+        found &= np.bincount(segment, weights=found & ~outlier).take(segment) >= p.min_run
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
         # a line seen by the smoothed detector but not measurable in the column (too wide, a
         # failed estimate, only in the neighbours): invalid, never "no return"
         status[~found & ((s1 >= thr) | failed)] = ColumnStatus.REJECTED
         if p.smooth_half:
             # outliers take the line fit of their run (the fit is what every column reports)
-            row = _local_line_fit(row, (found & ~outlier).astype(np.float64), segment, p.smooth_half)
+            row = _local_line_fit(row, found & ~outlier, found, segment, p.smooth_half)
             row, filled = _fill_gaps(row, found, p.max_gap, status != ColumnStatus.NO_RETURN)
             status[filled] = ColumnStatus.OK
             peak = np.where(filled, 0.0, peak)
@@ -309,7 +311,7 @@ class FastPipeline:
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         # rows of the line and of runs of second candidates (a mirror image runs alongside the
         # line; a lone second candidate is noise)
-        ghost = det2 & (_run_length(_runs(det2)) >= p.min_run)
+        ghost = _run_length(det2) >= p.min_run
         cand = np.concatenate([row[found] - self.top, (k2 + t0)[ghost]])
         seen = (int(math.floor(cand.min())), int(math.ceil(cand.max()))) if cand.size else (t1, -1)
         return found, row, peak, status, seen
@@ -415,8 +417,8 @@ class FastPipeline:
         return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Label of the continuous surface run of each column (-1 where not found), and the
-        columns that disagree with their run (speckle outliers).
+        """Label of the continuous surface run of each column (a column without a line is a run
+        of its own), and the columns that disagree with their run (speckle outliers).
 
         Continuity is judged on a 5-column running median, which keeps depth jumps sharp but
         ignores single-column outliers: adjacent medians must differ by less than the row step of
@@ -434,9 +436,10 @@ class FastPipeline:
             outlier = found & ~(np.abs(row - med) <= step)
             near = (np.abs(np.diff(row)) <= p.jump_factor * lim) | outlier[1:] | outlier[:-1]
             cont = found[1:] & found[:-1] & (np.abs(np.diff(med)) <= lim) & near
-        start = np.concatenate([[True], ~cont])
-        label = np.cumsum(start) - 1
-        return np.where(found, label, -1), outlier
+        start = np.empty(row.size, bool)
+        start[0] = True
+        np.logical_not(cont, out=start[1:])
+        return np.cumsum(start), outlier
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height
@@ -498,36 +501,23 @@ def _running_median(x: np.ndarray, half: int) -> np.ndarray:
     return np.where(np.isfinite(x), 0.5 * (lower + upper), np.nan)
 
 
-def _runs(mask: np.ndarray) -> np.ndarray:
-    """Label of each run of consecutive True elements (-1 for False)."""
-    start = np.concatenate([[True], ~(mask[1:] & mask[:-1])])
-    return np.where(mask, np.cumsum(start) - 1, -1)
+def _run_length(mask: np.ndarray) -> np.ndarray:
+    """Length of the run of consecutive True elements that each element belongs to (0 if False)."""
+    start = np.empty(mask.size, bool)
+    start[0] = True
+    np.logical_not(mask[1:] & mask[:-1], out=start[1:])
+    label = np.cumsum(start)  # a False element is a run of its own, of weight 0
+    return np.bincount(label, weights=mask).take(label)
 
 
-def _run_length(label: np.ndarray, member_of: np.ndarray | None = None) -> np.ndarray:
-    """Number of elements with each non-negative label, given to every element of ``member_of``
-    (default ``label``) with that label; 0 for -1."""
-    member_of = label if member_of is None else member_of
-    out = np.zeros(label.shape, dtype=np.intp)
-    ok = member_of >= 0
-    if ok.any():
-        counts = np.bincount(label[label >= 0], minlength=member_of.max() + 1)
-        out[ok] = counts[member_of[ok]]
-    return out
-
-
-def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
-    """Weighted least-squares line through the rows of the columns within +-half of each column
-    that belong to the same run (same label >= 0), evaluated at the column. Windowed sums by
-    cumsum; every column of a run gets a value, weighted or not. (Weighting by the line's
-    amplitude was tried and is worse on the simulator: bright speckle grains are no more
+def _local_line_fit(row: np.ndarray, use: np.ndarray, inrun: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
+    """Least-squares line through the (finite) rows of the ``use`` columns within +-half of each ``inrun``
+    column that belong to the same run (equal consecutive labels), evaluated at the column.
+    Windowed sums by cumsum; every column of a run gets a value, used or not. (Weighting by the
+    line's amplitude was tried and is worse on the simulator: bright speckle grains are no more
     accurate than dim ones.)"""
     W = row.size
     x = np.arange(W, dtype=np.float64)
-    inrun = label >= 0
-    ok = (weight > 0) & inrun
-    y = np.where(ok, row, 0.0)
-    w = np.where(ok, weight, 0.0)
     # window limits clipped to the run: runs are contiguous column ranges
     idx = np.arange(W)
     new = np.empty(W, bool)  # first column of a run
@@ -540,10 +530,13 @@ def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half
     run_end = np.minimum.accumulate(np.where(end, idx, W - 1)[::-1])[::-1]
     lo = np.maximum(idx - half, run_start)
     hi = np.minimum(idx + half, run_end) + 1
-    # the five windowed sums from one cumulative sum over a (5, W) stack
-    wx = w * x
+    # the five windowed sums (weights 0 or 1) from one cumulative sum over a (5, W) array
     terms = np.zeros((5, W + 1))
-    np.cumsum(np.stack([w, wx, wx * x, w * y, wx * y]), axis=1, out=terms[:, 1:])
+    t = terms[:, 1:]
+    t[0], t[1], t[2], t[3] = 1.0, x, x * x, row
+    np.multiply(x, row, out=t[4])
+    np.multiply(t, use, out=t)
+    np.cumsum(t, axis=1, out=t)
     sw, swx, swxx, swy, swxy = terms[:, hi] - terms[:, lo]
     s0 = sw
     sx = swx - x * s0  # sums of (x - x_c) with x_c the column itself
