@@ -245,18 +245,15 @@ class FastPipeline:
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
         d = cv2.subtract(a, b, dst=padded[pad : pad + t1 - t0])
-        if a.max() == 255:
-            # only the rows that hold a saturated pixel (usually a few: the line's)
-            full = np.nonzero(a.max(axis=1) == 255)[0]
+        # only the rows that hold a saturated pixel (usually a few: the line's)
+        full = np.nonzero(a.max(axis=1) == 255)[0]
+        if full.size >= 2:
             r0, r1 = int(full[0]), int(full[-1]) + 1
-            if r1 - r0 >= 2:
-                a_s, d_s = a[r0:r1], d[r0:r1]
-                sat = cv2.bitwise_and(cv2.compare(a_s, 255, cv2.CMP_EQ), cv2.compare(d_s, SATURATED_LINE_MIN, cv2.CMP_GE))
-                pair = cv2.bitwise_and(sat[1:], sat[:-1])
-                sat = np.zeros_like(sat)
-                sat[1:] = pair
-                sat[:-1] |= pair
-                d[r0:r1] = cv2.max(d_s, sat)
+            d_s = d[r0:r1]
+            sat = cv2.bitwise_and(cv2.compare(a[r0:r1], 255, cv2.CMP_EQ), cv2.compare(d_s, SATURATED_LINE_MIN, cv2.CMP_GE))
+            pair = cv2.bitwise_and(sat[1:], sat[:-1])  # both rows of a vertical pair, in place
+            cv2.max(d_s[1:], pair, dst=d_s[1:])
+            cv2.max(d_s[:-1], pair, dst=d_s[:-1])
         cv2.bitwise_and(d, self.mask[t0:t1], dst=d)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
@@ -266,8 +263,9 @@ class FastPipeline:
         # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
         fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
         noise = cv2.blur(cv2.subtract(fb, fa), DETECT_KERNEL).max(axis=0).astype(np.float64)
-        k1, k2 = self._candidates(sm, padded)
-        s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
+        k = self._candidates(sm, padded)  # (2W,): first candidates, then second ones
+        s = sm.reshape(-1).take(k * W + self._cols2).astype(np.float64)
+        k1, k2, s1, s2 = k[:W], k[W:], s[:W], s[W:]
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = self._refine(padded, k1, self.cols, lo, hi)
         # detection is decided before the estimator's own validity, so that a line whose sub-pixel
@@ -293,7 +291,7 @@ class FastPipeline:
         segment, outlier = self._segments(row, found)
         # a run needs min_run columns that agree with it (outliers do not count)
         found &= np.bincount(segment, weights=found & ~outlier).take(segment) >= p.min_run
-        status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
+        status = np.where(found, np.uint8(ColumnStatus.OK), np.uint8(ColumnStatus.NO_RETURN))
         # a line seen by the smoothed detector but not measurable in the column (too wide, a
         # failed estimate, only in the neighbours): invalid, never "no return"
         status[~found & ((s1 >= thr) | failed)] = ColumnStatus.REJECTED
@@ -333,8 +331,9 @@ class FastPipeline:
         return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
                             p.pedestal, 255)
 
-    def _candidates(self, sm: np.ndarray, padded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (band coordinates) of the largest and the second, separated, peak per column of
+    def _candidates(self, sm: np.ndarray, padded: np.ndarray) -> np.ndarray:
+        """Rows (band coordinates, (2W,): first candidates, then second ones) of the largest and
+        the second, separated, peak per column of
         the smoothed difference ``sm``: the largest outside the 16-row blocks within
         ``half_width + 1`` rows of the first, or, if those are all zero, in the first block (at
         least that far from the first). Each is moved to the largest of the difference (stored in
@@ -376,8 +375,7 @@ class FastPipeline:
         base = (k + self._pad) * W + self._cols2
         d = padded.reshape(-1)
         vm, v0, vp = d.take(base - W), d.take(base), d.take(base + W)
-        k = np.maximum(np.where((vm >= v0) & (vm >= vp), k - 1, np.where(v0 >= vp, k, k + 1)), 0)
-        return k[:W], k[W:]
+        return np.maximum(np.where((vm >= v0) & (vm >= vp), k - 1, np.where(v0 >= vp, k, k + 1)), 0)
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
         """Where to take the second candidate, for columns with two detected lines.
