@@ -245,3 +245,14 @@ def test_small_gaps_in_a_surface_are_filled_large_ones_are_not(wall2m, pipes):
     assert not np.isfinite(m.range[1000:1012]).any()  # hole edges: NaN (line only in the neighbours)
     raw = pipes["fast-com-raw"].process(lit, unlit)
     assert not raw.valid[600:602].any()  # without the line fit nothing is filled
+
+
+def test_running_median_is_the_median_of_the_found_neighbours():
+    from device.vision.fast import _running_median
+
+    rng = np.random.default_rng(4)
+    x = rng.integers(0, 6, 400).astype(float) + rng.random(400) * 0.1 * (rng.random(400) < 0.5)  # ties too
+    found = rng.random(400) < 0.7
+    pad_x, pad_f = np.pad(x, 2), np.pad(found, 2)
+    want = np.array([np.median(pad_x[i : i + 5][pad_f[i : i + 5]]) if found[i] else np.nan for i in range(400)])
+    np.testing.assert_array_equal(_running_median(x, found), want)

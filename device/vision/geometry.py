@@ -103,13 +103,13 @@ class ColumnGeometry:
         rows = np.asarray(rows, dtype=np.float64)
         r = rows - self.top
         n = self.bottom - self.top
-        inside = np.isfinite(r) & (r >= 0) & (r <= n - 1)
+        inside = (r >= 0) & (r <= n - 1)  # False for NaN
         r = np.where(inside, r, 0.0)
         r0 = np.minimum(r.astype(np.intp), max(n - 2, 0))
         cols = np.arange(self.width) if columns is None else np.asarray(columns)
         flat = self.inv_depth.reshape(-1)
         i0 = r0 * self.width + cols
-        a, b = flat.take(i0), flat.take(i0 + np.where(r0 + 1 < n, self.width, 0))
+        a, b = flat.take(i0), flat.take(i0 + self.width if n > 1 else i0)
         t = r - r0
         return np.where(inside, a + (b - a) * t, np.nan), np.where(inside, b - a, np.nan)
 
