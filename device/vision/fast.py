@@ -468,15 +468,18 @@ def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarra
     idx = np.arange(W)
     left = np.maximum.accumulate(np.where(found, idx, -1))
     right = np.minimum.accumulate(np.where(found, idx, W)[::-1])[::-1]
-    span = right - left
-    ok = ~found & (left >= 0) & (right < W) & (span - 1 <= max_gap)
-    li, ri = clamp(left, 0, W - 1), clamp(right, 0, W - 1)
-    rl, rr = row[li], row[ri]
-    with np.errstate(invalid="ignore"):
-        ok &= np.abs(rr - rl) <= 1.0 + 0.5 * span
-    ok &= seen | (span == 2)
-    t = np.where(ok, (idx - left) / np.maximum(span, 1), 0.0)
-    return np.where(ok, rl + (rr - rl) * t, row), ok
+    gap = np.nonzero(~found & (left >= 0) & (right < W) & (right - left <= max_gap + 1))[0]
+    filled = np.zeros(W, bool)
+    if not gap.size:
+        return row, filled
+    lg, rg = left[gap], right[gap]
+    span = rg - lg
+    rl, rr = row[lg], row[rg]
+    ok = (np.abs(rr - rl) <= 1.0 + 0.5 * span) & (seen[gap] | (span == 2))
+    row = row.copy()
+    row[gap[ok]] = rl[ok] + (rr[ok] - rl[ok]) * ((gap[ok] - lg[ok]) / span[ok])
+    filled[gap[ok]] = True
+    return row, filled
 
 
 def _running_median(x: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -531,14 +534,15 @@ def _local_line_fit(row: np.ndarray, use: np.ndarray, inrun: np.ndarray, label: 
     run_end = np.minimum.accumulate(np.where(end, idx, W - 1)[::-1])[::-1]
     lo = np.maximum(idx - half, run_start)
     hi = np.minimum(idx + half, run_end) + 1
-    # the five windowed sums (weights 0 or 1) from one cumulative sum over a (5, W) array
-    terms = np.zeros((5, W + 1))
-    t = terms[:, 1:]
-    t[0], t[1], t[2], t[3] = 1.0, x, x * x, row
-    np.multiply(x, row, out=t[4])
-    np.multiply(t, use, out=t)
-    np.cumsum(t, axis=1, out=t)
-    sw, swx, swxx, swy, swxy = terms[:, hi] - terms[:, lo]
+    # the five windowed sums (weights 0 or 1) from one cumulative sum over a (W, 5) array (row
+    # gathers of 5 contiguous sums: much cheaper than fancy indexing along the second axis)
+    terms = np.zeros((W + 1, 5))
+    t = terms[1:]
+    t[:, 0], t[:, 1], t[:, 2], t[:, 3] = 1.0, x, x * x, row
+    np.multiply(x, row, out=t[:, 4])
+    np.multiply(t, use[:, None], out=t)
+    np.cumsum(t, axis=0, out=t)
+    sw, swx, swxx, swy, swxy = (terms.take(hi, axis=0) - terms.take(lo, axis=0)).T
     s0 = sw
     sx = swx - x * s0  # sums of (x - x_c) with x_c the column itself
     sxx = swxx - 2 * x * swx + x * x * s0
