@@ -253,8 +253,7 @@ def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np
         idx = np.nonzero(plateau & valid)[0]
         if idx.size:
             # flat top: its centre, refined by the centre of mass over it (as refine_peaks)
-            row[idx], ok[idx] = _plateau_centre(padded[pad : pad + n], k[idx], np.full(idx.size, 255.0),
-                                                np.zeros(idx.size), lo[idx], hi[idx], cols[idx], half_width, 0.0)
+            row[idx], ok[idx] = _plateau_centre_padded(padded, pad, k[idx], lo[idx], hi[idx], cols[idx], half_width)
     valid &= ok & np.isfinite(row)
     peak = np.where(empty, np.nan, f0)
     return ColumnPeaks(np.where(valid, row, np.nan), peak, k, valid, plateau, spread)
@@ -266,6 +265,35 @@ def _com_window(half_width: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     (3, 2 half_width + 1) matrix of the moments 1, o, o^2."""
     o = np.arange(-half_width, half_width + 1)
     return (o * width)[:, None], np.stack([np.ones(o.size), o, o * o]).astype(np.float64)
+
+
+def _plateau_centre_padded(padded, pad, k, lo, hi, cols, half):
+    """:func:`_plateau_centre` for a plateau at 255 with no background or pedestal, on the
+    zero-padded image of :func:`refine_com_padded` (same sums, so the same result): rows beyond
+    the interval read zeros, so only the window's own span needs masking."""
+    width = padded.shape[1]
+    flat = padded.ravel()
+    last = padded.shape[0] - 1  # a pad row (zero)
+    end = k.copy()
+    active = np.arange(k.size)
+    ahead = np.arange(1, PLATEAU_STEP + 1)[:, None]
+    while active.size:  # walk to the end of each plateau, PLATEAU_STEP rows per gather
+        r = end[active] + ahead
+        same = flat.take(np.minimum(r + pad, last) * width + cols[active]) == 255
+        whole = same.all(axis=0)
+        end[active] += np.where(whole, PLATEAU_STEP, np.argmin(same, axis=0))  # leading equal rows
+        active = active[whole]
+    mid = np.floor((k + end) / 2.0).astype(np.intp)
+    span = (end - k) // 2 + half
+    offs = np.arange(-int(span.max()), int(span.max()) + 1)[:, None]
+    r = np.minimum(np.maximum(mid + offs + pad, 0), last)
+    vals = flat.take(r * width + cols).astype(np.float64)
+    w = np.where(np.abs(offs) <= span, vals, 0.0)
+    s = w.sum(axis=0)
+    cut = (((mid - span < lo) & (flat.take((lo + pad) * width + cols) > 0))
+           | ((mid + span >= hi) & (flat.take((hi - 1 + pad) * width + cols) > 0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return mid + (w * offs).sum(axis=0) / s, (s > 0) & ~cut
 
 
 def _centre_of_mass(img, k, vals, inside, f0, bg, lo, hi, half, pedestal):
