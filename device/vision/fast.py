@@ -148,6 +148,10 @@ class FastPipeline:
         self._global_keys = ((block_key >> 4) << 16) | (block_key & (BLOCK_ROWS - 1))
         self._block_keys = (0xFFF0 - BLOCK_ROWS * np.arange(nb, dtype=np.uint32))[:, None]
         self._cols2 = np.concatenate([self.cols, self.cols])
+        h = params.support_half
+        offs = np.array([o for o in range(-h, h + 1) if o != 0])
+        self._choose_offsets = (offs + h)[:, None]  # neighbours in columns padded by h
+        self._choose_tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
         self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
         self._buffers: dict[int, np.ndarray] = {}
         spacing = np.abs(np.diff(g.column_angle))
@@ -394,21 +398,23 @@ class FastPipeline:
         pick2 = det2 & ~det1
         idx = np.nonzero(det1 & det2)[0]
         if idx.size:
-            cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
-            single = det1 != det2
-            own = cand[:, idx]  # (2, n)
-            offs = np.array([o for o in range(-h, h + 1) if o != 0])
-            j = idx[None, :] + offs[:, None]  # (2h, n) neighbour columns
-            inside = (j >= 0) & (j < W)
-            jc = clamp(j, 0, W - 1)
-            nb = np.where(inside[None], cand[:, jc], np.nan)  # (2, 2h, n)
-            tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
+            # candidates and "single" padded by h columns of none on each side: neighbours need
+            # no bounds checks
+            cand = np.full((2, W + 2 * h), np.nan)
+            cand[0, h:-h] = np.where(det1, r1, np.nan)
+            cand[1, h:-h] = np.where(det2, r2, np.nan)
+            single = np.zeros(W + 2 * h, bool)
+            single[h:-h] = det1 != det2
+            own = cand[:, idx + h]  # (2, n)
+            j = idx + self._choose_offsets  # (2h, n) neighbour columns, padded coordinates
+            nb = cand.take(j, axis=1)  # (2, 2h, n)
             with np.errstate(invalid="ignore"):
-                agree = (np.abs(own[:, None, None, :] - nb[None]) <= tol).any(axis=1)  # (2, 2h, n)
+                agree = (np.abs(own[:, None, None, :] - nb[None]) <= self._choose_tol).any(axis=1)  # (2, 2h, n)
             support = agree.sum(axis=1)
-            alone = (agree & (inside & single[jc])[None]).sum(axis=1)
+            alone = (agree & single.take(j)[None]).sum(axis=1)
             # which candidate is farther: smaller inverse depth (nearer the horizon)
-            iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
+            iz = self.geometry.inverse_depth(own.ravel() + self.top, np.concatenate([idx, idx]))[0]
+            iz = np.where(np.isnan(iz), np.inf, iz).reshape(2, -1)
             far2 = iz[1] < iz[0]
             near_alone = np.where(far2, alone[0], alone[1]) >= h
             take_far = np.where(far2, 2 * support[1] >= support[0], 2 * support[0] >= support[1])
