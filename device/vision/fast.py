@@ -501,13 +501,14 @@ def _running_median(x: np.ndarray, found: np.ndarray) -> np.ndarray:
     pad[2:-2] = np.where(found, x, np.inf)
     a, b, e, c, d = (pad[i : i + W] for i in range(5))
     f = np.maximum(np.minimum(a, b), np.minimum(c, d))
-    g = np.minimum(np.maximum(a, b), np.maximum(c, d))
+    hi_ab, hi_cd = np.maximum(a, b), np.maximum(c, d)
+    g = np.minimum(hi_ab, hi_cd)
     med = np.maximum(np.minimum(e, f), np.minimum(np.maximum(e, f), g))
-    n = np.convolve(found.view(np.int8), np.ones(5, np.int8), "same")  # found values in the window
-    part = np.nonzero(found & (n < 5))[0]
+    # a window with a missing value has +inf for its largest
+    part = np.nonzero(found & (np.maximum(np.maximum(hi_ab, hi_cd), e) == np.inf))[0]
     if part.size:
         win = np.sort(pad[part[:, None] + np.arange(5)], axis=1)
-        m, rows = n[part], np.arange(part.size)
+        m, rows = np.isfinite(win).sum(axis=1), np.arange(part.size)
         med[part] = 0.5 * (win[rows, (m - 1) // 2] + win[rows, m // 2])
     return np.where(found, med, np.nan)
 

@@ -74,8 +74,9 @@ class ColumnGeometry:
         i0 = r0 * self.width + cols
         i1 = i0 + self.width if n > 1 else i0
         xn, yn = self.xn.ravel(), self.yn.ravel()
-        x = xn.take(i0) * (1 - t) + xn.take(i1) * t
-        y = yn.take(i0) * (1 - t) + yn.take(i1) * t
+        u = 1 - t
+        x = xn.take(i0) * u + xn.take(i1) * t
+        y = yn.take(i0) * u + yn.take(i1) * t
         # the ray/plane intersection of intersect_plane (eq. 3.13, 3.17), same arithmetic, written
         # out for one ray per column (its generic (..., 2) handling costs more than the maths)
         nx, ny, nz = self.plane.normal
