@@ -278,16 +278,21 @@ class FastPipeline:
         det1 = (s1 >= thr) & (c1.peak >= 0.5 * s1) & (c1.spread <= p.max_spread_px)
         r1 = np.where(c1.valid, c1.row, k1)
         # second candidates: refined only where they are strong enough to matter (few columns)
-        det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
+        det2 = np.zeros(W, bool)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
+            r2, v2, ok2 = np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
             c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx])
             det2[idx] = (c2.peak >= 0.5 * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
-        pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
-        row = np.where(pick2, r2, r1)
-        peak = np.where(pick2, v2, c1.peak)
-        measured = np.where(pick2, ok2, c1.valid)
+        two = bool(det2.any())
+        if two:
+            pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
+            row = np.where(pick2, r2, r1)
+            peak = np.where(pick2, v2, c1.peak)
+            measured = np.where(pick2, ok2, c1.valid)
+        else:  # the usual case when tracking a single line: no second candidate anywhere
+            row, peak, measured = r1, c1.peak, c1.valid
         found = det1 | det2
         failed = found & ~measured  # a line is there, its sub-pixel estimate is not
         found &= measured
@@ -313,8 +318,9 @@ class FastPipeline:
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         # rows of the line and of runs of second candidates (a mirror image runs alongside the
         # line; a lone second candidate is noise)
-        ghost = _run_length(det2) >= p.min_run
-        cand = np.concatenate([row[found] - self.top, (k2 + t0)[ghost]])
+        cand = row[found] - self.top
+        if two:
+            cand = np.concatenate([cand, (k2 + t0)[_run_length(det2) >= p.min_run]])
         seen = (int(math.floor(cand.min())), int(math.ceil(cand.max()))) if cand.size else (t1, -1)
         return found, row, peak, status, seen
 
