@@ -213,9 +213,9 @@ class FastPipeline:
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == ColumnStatus.OK
-        tri = self.geometry.triangulate(np.where(found, row, np.nan))
-        return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
-                      status, tri, self.config.post_calibration)
+        row = np.where(found, row, np.nan)
+        return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
+                      self.config.post_calibration)
 
     def _tracking_band(self) -> tuple[int, int] | None:
         """Rows [t0, t1) of the band (whole blocks) to search this frame: the previous frame's
