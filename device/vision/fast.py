@@ -343,12 +343,11 @@ class FastPipeline:
 
     def _candidates(self, sm: np.ndarray, padded: np.ndarray) -> np.ndarray:
         """Rows (band coordinates, (2W,): first candidates, then second ones) of the largest and
-        the second, separated, peak per column of
-        the smoothed difference ``sm``: the largest outside the 16-row blocks within
-        ``half_width + 1`` rows of the first, or, if those are all zero, in the first block (at
-        least that far from the first). Each is moved to the largest of the difference (stored in
-        ``padded``, :meth:`_padded`) at k-1, k, k+1 (the smoothed peak can sit a row off the
-        unsmoothed one)."""
+        the second, separated, peak per column of the smoothed difference ``sm``: the largest
+        outside the 16-row blocks within ``half_width + 1`` rows of the first, or, if those are
+        all zero, in the first block (at least that far from the first). Each is moved to the
+        largest of the difference (stored in ``padded``, :meth:`_padded`) at k-1, k, k+1 (the
+        smoothed peak can sit a row off the unsmoothed one)."""
         nb = sm.shape[0] // BLOCK_ROWS
         W = self.cols.size
         # keys value << 4 | (15 - row in block): one contiguous max per block gives the block's
