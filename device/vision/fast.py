@@ -209,7 +209,8 @@ class FastPipeline:
             close = np.zeros(W, bool)
             close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
             close &= empty
-            status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
+            if close.any():
+                status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == ColumnStatus.OK
