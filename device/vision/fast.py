@@ -153,7 +153,7 @@ class FastPipeline:
         self._choose_offsets = (offs + h)[:, None]  # neighbours in columns padded by h
         self._choose_tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
         self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
-        self._buffers: dict[int, np.ndarray] = {}
+        self._buffers: dict[tuple, np.ndarray] = {}
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -244,6 +244,7 @@ class FastPipeline:
         # the difference goes into a buffer with zero rows above and below (sub-pixel windows
         # at the band's edges need no clamping)
         padded = self._padded(t1 - t0)
+        n = t1 - t0
         pad = self._pad
         # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
         # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
@@ -262,12 +263,13 @@ class FastPipeline:
         cv2.bitwise_and(d, self.mask[t0:t1], dst=d)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
-        sm = cv2.blur(d, DETECT_KERNEL)
+        sm = cv2.blur(d, DETECT_KERNEL, dst=self._buffer("sm", (n, W), np.uint8))
         # noise: the largest smoothed negative difference over the whole band, also when tracking
         # (a maximum over fewer rows would be lower: more, and dimmer, detections). The ROI mask is
         # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
         fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
-        noise = cv2.blur(cv2.subtract(fb, fa), DETECT_KERNEL).max(axis=0).astype(np.float64)
+        neg = cv2.subtract(fb, fa, dst=self._buffer("neg", fa.shape, np.uint8))
+        noise = cv2.blur(neg, DETECT_KERNEL, dst=self._buffer("neg_blur", fa.shape, np.uint8)).max(axis=0).astype(np.float64)
         k = self._candidates(sm, padded)  # (2W,): first candidates, then second ones
         s = sm.reshape(-1).take(k * W + self._cols2).astype(np.float64)
         k1, k2, s1, s2 = k[:W], k[W:], s[:W], s[W:]
@@ -327,9 +329,16 @@ class FastPipeline:
 
     def _padded(self, n: int) -> np.ndarray:
         """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero (kept per n)."""
-        buf = self._buffers.get(n)
+        return self._buffer("padded", (n + 2 * self._pad, self.cols.size), np.uint8)
+
+    def _buffer(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+        """A zero-initialised array kept between frame pairs for one use (``name``) and shape: the
+        image-sized temporaries (0.6-1.3 MB) are not allocated per frame, which costs page faults
+        whenever the allocator returns them to the system."""
+        key = (name, shape)
+        buf = self._buffers.get(key)
         if buf is None:
-            buf = self._buffers[n] = np.zeros((n + 2 * self._pad, self.cols.size), np.uint8)
+            buf = self._buffers[key] = np.zeros(shape, dtype)
         return buf
 
     def _refine(self, padded: np.ndarray, k: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -355,7 +364,8 @@ class FastPipeline:
         # maximum and the first row holding it (no strided argmax, no per-column gather); then as
         # keys value << 16 | (0xFFFF - row) (a table lookup), one max over blocks gives the first
         # row of the column's maximum
-        key = sm[: nb * BLOCK_ROWS].astype(np.uint16)  # a plain cast, then in place: cheaper than a casting shift
+        key = self._buffer("key", (nb * BLOCK_ROWS, W), np.uint16)
+        np.copyto(key, sm[: nb * BLOCK_ROWS])  # a plain cast, then in place: cheaper than a casting shift
         key <<= 4
         key |= self._in_block_keys[: nb * BLOCK_ROWS]
         g = self._global_keys.take(key.reshape(nb, BLOCK_ROWS, -1).max(axis=1))  # (nb, W)
