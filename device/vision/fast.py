@@ -153,7 +153,14 @@ class FastPipeline:
         self._choose_offsets = (offs + h)[:, None]  # neighbours in columns padded by h
         self._choose_tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
         self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
-        self._buffers: dict[tuple, np.ndarray] = {}
+        # image-sized temporaries kept between frame pairs (a search uses their first rows): one
+        # allocated per frame costs page faults whenever the allocator returns it to the system
+        W = config.width
+        self._padded_buf = np.zeros((self.rows + 2 * self._pad, W), np.uint8)
+        self._sm_buf = np.zeros((self.rows, W), np.uint8)
+        self._key_buf = np.zeros((self.rows, W), np.uint16)
+        self._neg_buf = np.zeros((self.rows, W), np.uint8)
+        self._neg_blur_buf = np.zeros((self.rows, W), np.uint8)
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -263,13 +270,13 @@ class FastPipeline:
         cv2.bitwise_and(d, self.mask[t0:t1], dst=d)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
-        sm = cv2.blur(d, DETECT_KERNEL, dst=self._buffer("sm", (n, W), np.uint8))
+        sm = cv2.blur(d, DETECT_KERNEL, dst=self._sm_buf[:n])
         # noise: the largest smoothed negative difference over the whole band, also when tracking
         # (a maximum over fewer rows would be lower: more, and dimmer, detections). The ROI mask is
         # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
         fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
-        neg = cv2.subtract(fb, fa, dst=self._buffer("neg", fa.shape, np.uint8))
-        noise = cv2.blur(neg, DETECT_KERNEL, dst=self._buffer("neg_blur", fa.shape, np.uint8)).max(axis=0).astype(np.float64)
+        neg = cv2.subtract(fb, fa, dst=self._neg_buf)
+        noise = cv2.blur(neg, DETECT_KERNEL, dst=self._neg_blur_buf).max(axis=0).astype(np.float64)
         k = self._candidates(sm, padded)  # (2W,): first candidates, then second ones
         s = sm.reshape(-1).take(k * W + self._cols2).astype(np.float64)
         k1, k2, s1, s2 = k[:W], k[W:], s[:W], s[W:]
@@ -328,17 +335,9 @@ class FastPipeline:
         return found, row, peak, status, seen
 
     def _padded(self, n: int) -> np.ndarray:
-        """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero (kept per n)."""
-        return self._buffer("padded", (n + 2 * self._pad, self.cols.size), np.uint8)
-
-    def _buffer(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
-        """A zero-initialised array kept between frame pairs for one use (``name``) and shape: the
-        image-sized temporaries (0.6-1.3 MB) are not allocated per frame, which costs page faults
-        whenever the allocator returns them to the system."""
-        key = (name, shape)
-        buf = self._buffers.get(key)
-        if buf is None:
-            buf = self._buffers[key] = np.zeros(shape, dtype)
+        """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero."""
+        buf = self._padded_buf[: n + 2 * self._pad]
+        buf[n + self._pad :] = 0  # a previous, taller search may have written there
         return buf
 
     def _refine(self, padded: np.ndarray, k: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -364,7 +363,7 @@ class FastPipeline:
         # maximum and the first row holding it (no strided argmax, no per-column gather); then as
         # keys value << 16 | (0xFFFF - row) (a table lookup), one max over blocks gives the first
         # row of the column's maximum
-        key = self._buffer("key", (nb * BLOCK_ROWS, W), np.uint16)
+        key = self._key_buf[: nb * BLOCK_ROWS]
         np.copyto(key, sm[: nb * BLOCK_ROWS])  # a plain cast, then in place: cheaper than a casting shift
         key <<= 4
         key |= self._in_block_keys[: nb * BLOCK_ROWS]
