@@ -250,14 +250,13 @@ class FastPipeline:
         lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
         # the difference goes into a buffer with zero rows above and below (sub-pixel windows
         # at the band's edges need no clamping)
-        padded = self._padded(t1 - t0)
-        n = t1 - t0
-        pad = self._pad
+        n, pad = t1 - t0, self._pad
+        padded = self._padded(n)
         # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
         # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
-        d = cv2.subtract(a, b, dst=padded[pad : pad + t1 - t0])
+        d = cv2.subtract(a, b, dst=padded[pad : pad + n])
         # only the rows that hold a saturated pixel (usually a few: the line's)
         full = np.nonzero(a.max(axis=1) == 255)[0]
         if full.size >= 2:
