@@ -30,6 +30,30 @@ def test_table_triangulation_matches_direct_backward_projection():
     np.testing.assert_allclose(1 / iz[ok], direct.depth[ok], rtol=5e-5)
 
 
+def test_table_triangulation_is_intersect_plane_on_the_interpolated_ray():
+    # the table path writes the ray/plane intersection out; it must give intersect_plane's bits
+    # and statuses, also for NaN rows, rows off the table, and depths beyond the limits
+    g = column_geometry(CFG, 0.5, 3.0)
+    rng = np.random.default_rng(1)
+    rows = rng.uniform(g.top - 20, g.bottom + 20, CFG.width)
+    rows[rng.random(CFG.width) < 0.1] = np.nan
+    tab = g.triangulate(rows)
+    n = g.bottom - g.top
+    r = rows - g.top
+    inside = np.isfinite(r) & (r >= 0) & (r <= n - 1)
+    r = np.where(inside, r, 0.0)
+    r0 = np.minimum(np.floor(r).astype(int), n - 2)
+    t, cols = r - r0, np.arange(CFG.width)
+    x = g.xn[r0, cols] * (1 - t) + g.xn[r0 + 1, cols] * t
+    y = g.yn[r0, cols] * (1 - t) + g.yn[r0 + 1, cols] * t
+    want = intersect_plane(np.stack([np.where(inside, x, np.nan), np.where(inside, y, np.nan)], -1), CFG.plane, 0.5, 3.0)
+    assert {int(s) for s in np.unique(tab.status)} >= {RangeStatus.OK, RangeStatus.INVALID_PIXEL, RangeStatus.TOO_CLOSE,
+                                                     RangeStatus.TOO_FAR}
+    np.testing.assert_array_equal(tab.status, want.status)
+    np.testing.assert_array_equal(tab.depth, want.depth)
+    np.testing.assert_array_equal(tab.points, want.points)
+
+
 def test_roi_holds_exactly_the_rows_of_the_range_limits():
     g = column_geometry(CFG, 0.5, 3.0, margin=0)
     for c in (0, 400, 832, 1300, CFG.width - 1):

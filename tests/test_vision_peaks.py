@@ -129,3 +129,28 @@ def test_two_lines_in_one_window_show_as_wide_spread():
     double = column_peaks(gaussian_image(np.full(W, 22.5), 1.2) + gaussian_image(np.full(W, 25.5), 1.2), "com")
     assert np.all(single.spread < 1.3)
     assert np.all(double.spread > 1.5 * single.spread)
+
+
+def test_padded_centre_of_mass_is_identical_to_refine_peaks():
+    # random 8-bit profiles with lines, flat saturated tops, lines cut by per-column intervals
+    # and by the image edge, empty intervals and candidates outside their interval
+    from device.vision.peaks import refine_com_padded, refine_peaks
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-2, H + 2, W)
+    img = gaussian_image(centres, sigma=rng.uniform(0.8, 2.5, W), amp=rng.uniform(5, 400, W))
+    img = np.clip(img + rng.normal(0, 3, (H, W)), 0, 255).astype(np.uint8)
+    lo = rng.integers(0, H // 2, W)
+    hi = np.where(rng.random(W) < 0.05, lo, rng.integers(H // 2, H + 1, W))
+    rows = np.arange(H)[:, None]
+    img[(rows < lo) | (rows >= hi)] = 0  # zeros outside each column's interval, as the contract says
+    k = np.where(rng.random(W) < 0.1, rng.integers(0, H, W), np.argmax(img, axis=0))
+    pad = 4
+    padded = np.zeros((H + 2 * pad, W), np.uint8)
+    padded[pad:-pad] = img
+    for cols in (np.arange(W), np.sort(rng.choice(W, 40, replace=False))):
+        want = refine_peaks(img[:, cols], k[cols], "com", lo[cols], hi[cols], 1.0, 0.0, 4, 0.0, 255)
+        got = refine_com_padded(padded, pad, k[cols], cols, lo[cols], hi[cols], 4)
+        assert got.plateau.any() and got.valid.any() and not got.valid.all()
+        for name in ("row", "peak", "argmax", "valid", "plateau", "spread"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)

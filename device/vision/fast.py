@@ -61,7 +61,7 @@ import numpy as np
 from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
-from .peaks import ESTIMATORS, clamp, refine_peaks
+from .peaks import ESTIMATORS, clamp, refine_com_padded, refine_peaks
 
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
@@ -154,9 +154,23 @@ class FastPipeline:
         nb = self.rows // BLOCK_ROWS
         self._block_rows = np.arange(BLOCK_ROWS)[None, :]
         self._in_block_keys = ((BLOCK_ROWS - 1) - np.arange(self.rows) % BLOCK_ROWS).astype(np.uint16)[:, None]
-        self._block_index = np.arange(nb)[:, None]
-        self._row_keys = (nb - 1 - np.arange(nb, dtype=np.uint16))[:, None]
+        block_key = np.arange(1 << 12, dtype=np.uint32)  # value << 4 | (15 - row in block)
+        self._global_keys = ((block_key >> 4) << 16) | (block_key & (BLOCK_ROWS - 1))
+        self._block_keys = (0xFFF0 - BLOCK_ROWS * np.arange(nb, dtype=np.uint32))[:, None]
         self._cols2 = np.concatenate([self.cols, self.cols])
+        h = params.support_half
+        offs = np.array([o for o in range(-h, h + 1) if o != 0])
+        self._choose_offsets = (offs + h)[:, None]  # neighbours in columns padded by h
+        self._choose_tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
+        self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
+        # image-sized temporaries kept between frame pairs (a search uses their first rows): one
+        # allocated per frame costs page faults whenever the allocator returns it to the system
+        W = config.width
+        self._padded_buf = np.zeros((self.rows + 2 * self._pad, W), np.uint8)
+        self._sm_buf = np.zeros((self.rows, W), np.uint8)
+        self._key_buf = np.zeros((self.rows, W), np.uint16)
+        self._neg_buf = np.zeros((self.rows, W), np.uint8)
+        self._neg_blur_buf = np.zeros((self.rows, W), np.uint8)
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -183,7 +197,7 @@ class FastPipeline:
             found, row, peak, status, seen = self._search(lum_lit, lum_unlit, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
-            if (np.any(_run_length(_runs(lost)) >= p.track_lost_run)
+            if (np.any(_run_length(lost) >= p.track_lost_run)
                     or (band[0] > 0 and seen[0] < band[0] + edge) or (band[1] < self.rows and seen[1] >= band[1] - edge)):
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
@@ -196,11 +210,13 @@ class FastPipeline:
             tr = self._track
             self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
         W = self.cols.size
-        empty = np.nonzero(status == ColumnStatus.NO_RETURN)[0]
-        if self.near_bottom > self.near_top and empty.size >= p.min_run:
-            # only over the columns without a return (none: a wall fills every column); every
-            # other row: a line is at least two rows high
-            c0, c1 = int(empty[0]), int(empty[-1]) + 1
+        # too close: only columns in runs of >= min_run without a return can become a run of
+        # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
+        empty = _run_length(status == ColumnStatus.NO_RETURN) >= p.min_run
+        cols = np.nonzero(empty)[0]
+        if self.near_bottom > self.near_top and cols.size:
+            # every other row: a line is at least two rows high
+            c0, c1 = int(cols[0]), int(cols[-1]) + 1
             la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
             ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
             mask = self.near_mask[:, c0:c1]
@@ -209,14 +225,15 @@ class FastPipeline:
             # stricter than in range (twice the noise ratio): a false "too close" stops a robot
             close = np.zeros(W, bool)
             close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
-            close &= status == ColumnStatus.NO_RETURN
-            status[close & (_run_length(_runs(close)) >= p.min_run)] = ColumnStatus.TOO_CLOSE
+            close &= empty
+            if close.any():
+                status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == ColumnStatus.OK
-        tri = self.geometry.triangulate(np.where(found, row, np.nan))
-        return finish(self.geometry, self.cols, np.where(found, row, np.nan), np.where(found, peak, 0.0),
-                      status, tri, self.config.post_calibration)
+        row = np.where(found, row, np.nan)
+        return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
+                      self.config.post_calibration)
 
     def _tracking_band(self) -> tuple[int, int] | None:
         """Rows [t0, t1) of the band (whole blocks) to search this frame: the previous frame's
@@ -241,53 +258,60 @@ class FastPipeline:
         p = self.params
         W = self.cols.size
         lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
+        # the difference goes into a buffer with zero rows above and below (sub-pixel windows
+        # at the band's edges need no clamping)
+        n, pad = t1 - t0, self._pad
+        padded = self._padded(n)
         # a saturated lit pixel that the laser clearly brightened is "at least full scale": flat
         # top at 255, so the estimators' plateau handling finds its centre whatever the unlit
         # frame's noise (a bright background that merely touches 255 is left alone: the pixel must
         # be brightened by the laser and one of its vertical neighbours too)
-        d = cv2.subtract(a, b)
-        if a.max() == 255:
-            # only the rows that hold a saturated pixel (usually a few: the line's)
-            full = np.nonzero(a.max(axis=1) == 255)[0]
+        d = cv2.subtract(a, b, dst=padded[pad : pad + n])
+        # only the rows that hold a saturated pixel (usually a few: the line's)
+        full = np.nonzero(a.max(axis=1) == 255)[0]
+        if full.size >= 2:
             r0, r1 = int(full[0]), int(full[-1]) + 1
-            if r1 - r0 >= 2:
-                a_s, d_s = a[r0:r1], d[r0:r1]
-                sat = cv2.bitwise_and(cv2.compare(a_s, 255, cv2.CMP_EQ), cv2.compare(d_s, SATURATED_LINE_MIN, cv2.CMP_GE))
-                pair = cv2.bitwise_and(sat[1:], sat[:-1])
-                sat = np.zeros_like(sat)
-                sat[1:] = pair
-                sat[:-1] |= pair
-                d[r0:r1] = cv2.max(d_s, sat)
-        d = cv2.bitwise_and(d, self.mask[t0:t1])
+            d_s = d[r0:r1]
+            sat = cv2.bitwise_and(cv2.compare(a[r0:r1], 255, cv2.CMP_EQ), cv2.compare(d_s, SATURATED_LINE_MIN, cv2.CMP_GE))
+            pair = cv2.bitwise_and(sat[1:], sat[:-1])  # both rows of a vertical pair, in place
+            cv2.max(d_s[1:], pair, dst=d_s[1:])
+            cv2.max(d_s[:-1], pair, dst=d_s[:-1])
+        cv2.bitwise_and(d, self.mask[t0:t1], dst=d)
         # detection on a copy smoothed along the line (5 columns) and across it (3 rows): it
         # averages speckle and noise; the sub-pixel estimate still uses the unsmoothed difference
-        sm = cv2.blur(d, DETECT_KERNEL)
+        sm = cv2.blur(d, DETECT_KERNEL, dst=self._sm_buf[:n])
         # noise: the largest smoothed negative difference over the whole band, also when tracking
         # (a maximum over fewer rows would be lower: more, and dimmer, detections). The ROI mask is
         # left out: the band's rows are as noisy as the column's own interval, and it saves a pass
         fa, fb = lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows]
-        noise = cv2.blur(cv2.subtract(fb, fa), DETECT_KERNEL).max(axis=0).astype(np.float64)
-        k1, k2 = self._candidates(sm, d)
-        s1, s2 = sm[k1, self.cols].astype(np.float64), sm[k2, self.cols].astype(np.float64)
+        neg = cv2.subtract(fb, fa, dst=self._neg_buf)
+        noise = cv2.blur(neg, DETECT_KERNEL, dst=self._neg_blur_buf).max(axis=0).astype(np.float64)
+        k = self._candidates(sm, padded)  # (2W,): first candidates, then second ones
+        s = sm.reshape(-1).take(k * W + self._cols2).astype(np.float64)
+        k1, k2, s1, s2 = k[:W], k[W:], s[:W], s[W:]
         thr = np.maximum(p.min_peak, p.noise_ratio * noise)
-        c1 = refine_peaks(d, k1, p.estimator, lo, hi, 1.0, 0.0, p.half_width, p.pedestal, 255)
+        c1 = self._refine(padded, k1, self.cols, lo, hi)
         # detection is decided before the estimator's own validity, so that a line whose sub-pixel
         # estimate fails is reported as such and never replaced by the other candidate (a ghost);
         # the column itself must carry the line, not only its smoothed neighbours (depth jumps)
         det1 = (s1 >= thr) & (c1.peak >= p.dim_peak_fraction * s1) & (c1.spread <= p.max_spread_px)
         r1 = np.where(c1.valid, c1.row, k1)
         # second candidates: refined only where they are strong enough to matter (few columns)
-        det2, r2, v2, ok2 = np.zeros(W, bool), np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
+        det2 = np.zeros(W, bool)
         idx = np.nonzero(s2 >= thr)[0]
         if idx.size:
-            c2 = refine_peaks(d[:, idx], k2[idx], p.estimator, lo[idx], hi[idx], 1.0, 0.0, p.half_width,
-                              p.pedestal, 255)
+            r2, v2, ok2 = np.full(W, np.nan), np.zeros(W), np.zeros(W, bool)
+            c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx])
             det2[idx] = (c2.peak >= p.dim_peak_fraction * s2[idx]) & (c2.spread <= p.max_spread_px)
             r2[idx], v2[idx], ok2[idx] = np.where(c2.valid, c2.row, k2[idx]), c2.peak, c2.valid
-        pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
-        row = np.where(pick2, r2, r1)
-        peak = np.where(pick2, v2, c1.peak)
-        measured = np.where(pick2, ok2, c1.valid)
+        two = bool(det2.any())
+        if two:
+            pick2 = self._choose(r1 + t0, r2 + t0, det1, det2)
+            row = np.where(pick2, r2, r1)
+            peak = np.where(pick2, v2, c1.peak)
+            measured = np.where(pick2, ok2, c1.valid)
+        else:  # the usual case when tracking a single line: no second candidate anywhere
+            row, peak, measured = r1, c1.peak, c1.valid
         found = det1 | det2
         failed = found & ~measured  # a line is there, its sub-pixel estimate is not
         found &= measured
@@ -296,17 +320,18 @@ class FastPipeline:
         # a dim column (a dark speckle grain: its own peak below own_peak_fraction of the smoothed
         # one) counts only between bright columns of its run, never at a run's end: past the end
         # of a surface (a depth jump) the smoothed detector still sees the neighbours' line
-        bright = found & (peak >= p.own_peak_fraction * np.where(pick2, s2, s1))
+        bright = found & (peak >= p.own_peak_fraction * (np.where(pick2, s2, s1) if two else s1))
         found &= _inside_bright(segment, bright)
-        found &= _run_length(np.where(outlier, -1, segment), segment) >= p.min_run
-        segment = np.where(found, segment, -1)
-        status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
+        # a run needs min_run columns that agree with it (outliers do not count)
+        found &= np.bincount(segment, weights=found & ~outlier).take(segment) >= p.min_run
+        status = np.where(found, np.uint8(ColumnStatus.OK), np.uint8(ColumnStatus.NO_RETURN))
         # a line seen by the smoothed detector but not measurable in the column (too wide, a
         # failed estimate, only in the neighbours): invalid, never "no return"
         status[~found & ((s1 >= thr) | failed)] = ColumnStatus.REJECTED
         if p.smooth_half:
             # outliers take the line fit of their run (the fit is what every column reports)
-            row = _local_line_fit(row, np.where(found & ~outlier, np.maximum(peak, 1.0), 0.0), segment, p.smooth_half)
+            row = _local_line_fit(row, np.where(found & ~outlier, np.maximum(peak, 1.0), 0.0), found, segment,
+                                  p.smooth_half)
             row, filled = _fill_gaps(row, found, p.max_gap, status != ColumnStatus.NO_RETURN)
             status[filled] = ColumnStatus.OK
             peak = np.where(filled, 0.0, peak)
@@ -318,57 +343,74 @@ class FastPipeline:
         status[(noise >= np.maximum(p.min_peak, 2.0 * s1)) & ~found] = ColumnStatus.UNLIT
         # rows of the line and of runs of second candidates (a mirror image runs alongside the
         # line; a lone second candidate is noise)
-        ghost = det2 & (_run_length(_runs(det2)) >= p.min_run)
-        cand = np.concatenate([row[found] - self.top, (k2 + t0)[ghost]])
+        cand = row[found] - self.top
+        if two:
+            cand = np.concatenate([cand, (k2 + t0)[_run_length(det2) >= p.min_run]])
         seen = (int(math.floor(cand.min())), int(math.ceil(cand.max()))) if cand.size else (t1, -1)
         return found, row, peak, status, seen
 
-    def _candidates(self, sm: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (band coordinates) of the largest and the second, separated, peak per column of
-        the smoothed difference ``sm``, each moved to the largest of ``d`` at k-1, k, k+1 (the
+    def _padded(self, n: int) -> np.ndarray:
+        """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero."""
+        buf = self._padded_buf[: n + 2 * self._pad]
+        buf[n + self._pad :] = 0  # a previous, taller search may have written there
+        return buf
+
+    def _refine(self, padded: np.ndarray, k: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+        """Sub-pixel rows of candidates ``k`` in columns ``cols`` of the difference stored in
+        ``padded`` (:meth:`_padded`), by the configured estimator."""
+        p = self.params
+        if p.estimator == "com" and p.pedestal == 0:
+            return refine_com_padded(padded, self._pad, k, cols, lo, hi, p.half_width)
+        d = padded[self._pad : padded.shape[0] - self._pad]
+        return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
+                            p.pedestal, 255)
+
+    def _candidates(self, sm: np.ndarray, padded: np.ndarray) -> np.ndarray:
+        """Rows (band coordinates, (2W,): first candidates, then second ones) of the largest and
+        the second, separated, peak per column of the smoothed difference ``sm``: the largest
+        outside the 16-row blocks within ``half_width + 1`` rows of the first, or, if those are
+        all zero, in the first block (at least that far from the first). Each is moved to the
+        largest of the difference (stored in ``padded``, :meth:`_padded`) at k-1, k, k+1 (the
         smoothed peak can sit a row off the unsmoothed one)."""
         nb = sm.shape[0] // BLOCK_ROWS
-        cols = self.cols
+        W = self.cols.size
         # keys value << 4 | (15 - row in block): one contiguous max per block gives the block's
-        # maximum and the first row holding it (no strided argmax, no per-column gather)
-        key = np.left_shift(sm[: nb * BLOCK_ROWS], 4, dtype=np.uint16)
+        # maximum and the first row holding it (no strided argmax, no per-column gather); then as
+        # keys value << 16 | (0xFFFF - row) (a table lookup), one max over blocks gives the first
+        # row of the column's maximum
+        key = self._key_buf[: nb * BLOCK_ROWS]
+        np.copyto(key, sm[: nb * BLOCK_ROWS])  # a plain cast, then in place: cheaper than a casting shift
+        key <<= 4
         key |= self._in_block_keys[: nb * BLOCK_ROWS]
-        bkey = key.reshape(nb, BLOCK_ROWS, -1).max(axis=1)  # (nb, W)
-        bmax = bkey >> 4
-        first_row = (BLOCK_ROWS - 1) - (bkey & (BLOCK_ROWS - 1)).astype(np.intp)
-        W = cols.size
-        b1 = self._first_argmax(bmax)
-        k1 = b1 * BLOCK_ROWS + first_row.ravel().take(b1 * W + cols)
+        g = self._global_keys.take(key.reshape(nb, BLOCK_ROWS, -1).max(axis=1))  # (nb, W)
+        g += self._block_keys[:nb]
+        k1 = 0xFFFF - (g.max(axis=0) & 0xFFFF).astype(np.intp)
+        # blocks within sep rows of the first peak (at most two: 2 sep + 1 <= BLOCK_ROWS) drop out
         sep = self.params.half_width + 1
-        blk = self._block_index[:nb]
-        near = (blk >= (k1 - sep) // BLOCK_ROWS) & (blk <= (k1 + sep) // BLOCK_ROWS)
-        bmax[near] = 0
-        b2 = self._first_argmax(bmax)
-        k2 = b2 * BLOCK_ROWS + first_row.ravel().take(b2 * W + cols)
-        odd = np.nonzero(near.ravel().take(b2 * W + cols))[0]
-        if odd.size:
-            # every block was near the first peak or empty: the second peak is the largest row
-            # of that block at least sep rows from the first
-            blocks = sm[: nb * BLOCK_ROWS].reshape(nb, BLOCK_ROWS, -1)
-            inner = blocks[b2[odd], :, odd]  # (n, BLOCK_ROWS), a copy
-            inner[np.abs(self._block_rows + (b2[odd] * BLOCK_ROWS - k1[odd])[:, None]) <= sep] = 0
-            k2[odd] = b2[odd] * BLOCK_ROWS + np.argmax(inner, axis=1)
-        # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1)
+        b_lo = np.maximum((k1 - sep) // BLOCK_ROWS, 0)
+        b_hi = np.minimum((k1 + sep) // BLOCK_ROWS, nb - 1)
+        flat = g.reshape(-1)
+        flat[b_lo * W + self.cols] = 0
+        flat[b_hi * W + self.cols] = 0
+        m2 = g.max(axis=0)
+        k2 = 0xFFFF - (m2 & 0xFFFF).astype(np.intp)
+        zero = np.nonzero(m2 <= 0xFFFF)[0]
+        if zero.size:
+            # nothing but zeros left: the first block, at least sep rows from the first peak
+            k2[zero] = 0
+            odd = zero[b_lo[zero] == 0]
+            if odd.size:
+                inner = sm[:BLOCK_ROWS, odd].T.copy()  # (n, BLOCK_ROWS)
+                inner[np.abs(self._block_rows - k1[odd][:, None]) <= sep] = 0
+                k2[odd] = np.argmax(inner, axis=1)
+        # local maximum of d around both (the first of equals, as argmax over k-1, k, k+1); the
+        # zero rows around the band stand in for clamping (a zero row above row 0 can only win
+        # when row 0 ties it, and then row 0 is the answer)
         k = np.concatenate([k1, k2])
-        km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, d.shape[0] - 1)
-        flat = d.ravel()  # contiguous: flat takes are cheaper than 2-D fancy indexing
-        vm, v0, vp = (flat.take(r * W + self._cols2) for r in (km, k, kp))
-        k = np.where((vm >= v0) & (vm >= vp), km, np.where(v0 >= vp, k, kp))
-        return k[:W], k[W:]
-
-    def _first_argmax(self, x: np.ndarray) -> np.ndarray:
-        """np.argmax(x, axis=0) for a small uint8 (n <= blocks in the band, W) array, as one contiguous max over keys
-        ``value << bits | (n - 1 - row)`` (a strided argmax is several times slower)."""
-        n = x.shape[0]
-        bits = max(n - 1, 1).bit_length()
-        key = x.astype(np.uint16) << bits
-        key |= self._row_keys[self._row_keys.size - n :]
-        return (n - 1) - (key.max(axis=0) & ((1 << bits) - 1)).astype(np.intp)
+        base = (k + self._pad) * W + self._cols2
+        d = padded.reshape(-1)
+        vm, v0, vp = d.take(base - W), d.take(base), d.take(base + W)
+        return np.maximum(np.where((vm >= v0) & (vm >= vp), k - 1, np.where(v0 >= vp, k, k + 1)), 0)
 
     def _choose(self, r1, r2, det1, det2) -> np.ndarray:
         """Where to take the second candidate, for columns with two detected lines.
@@ -386,21 +428,23 @@ class FastPipeline:
         pick2 = det2 & ~det1
         idx = np.nonzero(det1 & det2)[0]
         if idx.size:
-            cand = np.stack([np.where(det1, r1, np.nan), np.where(det2, r2, np.nan)])  # (2, W)
-            single = det1 != det2
-            own = cand[:, idx]  # (2, n)
-            offs = np.array([o for o in range(-h, h + 1) if o != 0])
-            j = idx[None, :] + offs[:, None]  # (2h, n) neighbour columns
-            inside = (j >= 0) & (j < W)
-            jc = clamp(j, 0, W - 1)
-            nb = np.where(inside[None], cand[:, jc], np.nan)  # (2, 2h, n)
-            tol = (1.0 + 0.5 * np.abs(offs))[None, None, :, None]
+            # candidates and "single" padded by h columns of none on each side: neighbours need
+            # no bounds checks
+            cand = np.full((2, W + 2 * h), np.nan)
+            cand[0, h:-h] = np.where(det1, r1, np.nan)
+            cand[1, h:-h] = np.where(det2, r2, np.nan)
+            single = np.zeros(W + 2 * h, bool)
+            single[h:-h] = det1 != det2
+            own = cand[:, idx + h]  # (2, n)
+            j = idx + self._choose_offsets  # (2h, n) neighbour columns, padded coordinates
+            nb = cand.take(j, axis=1)  # (2, 2h, n)
             with np.errstate(invalid="ignore"):
-                agree = (np.abs(own[:, None, None, :] - nb[None]) <= tol).any(axis=1)  # (2, 2h, n)
+                agree = (np.abs(own[:, None, None, :] - nb[None]) <= self._choose_tol).any(axis=1)  # (2, 2h, n)
             support = agree.sum(axis=1)
-            alone = (agree & (inside & single[jc])[None]).sum(axis=1)
+            alone = (agree & single.take(j)[None]).sum(axis=1)
             # which candidate is farther: smaller inverse depth (nearer the horizon)
-            iz = [np.nan_to_num(self.geometry.inverse_depth(own[i] + self.top, idx)[0], nan=np.inf) for i in range(2)]
+            iz = self.geometry.inverse_depth(own.ravel() + self.top, np.concatenate([idx, idx]))[0]
+            iz = np.where(np.isnan(iz), np.inf, iz).reshape(2, -1)
             far2 = iz[1] < iz[0]
             near_alone = np.where(far2, alone[0], alone[1]) >= h
             take_far = np.where(far2, 2 * support[1] >= support[0], 2 * support[0] >= support[1])
@@ -408,8 +452,8 @@ class FastPipeline:
         return pick2
 
     def _segments(self, row: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Label of the continuous surface run of each column (-1 where not found), and the
-        columns that disagree with their run (speckle outliers).
+        """Label of the continuous surface run of each column (a column without a line is a run
+        of its own), and the columns that disagree with their run (speckle outliers).
 
         Continuity is judged on a 5-column running median, which keeps depth jumps sharp but
         ignores single-column outliers: adjacent medians must differ by less than the row step of
@@ -417,7 +461,7 @@ class FastPipeline:
         its median is an outlier.
         """
         p = self.params
-        med = _running_median(np.where(found, row, np.nan), 2)
+        med = _running_median(row, found)
         iz, slope = self.geometry.inverse_depth(med)
         with np.errstate(invalid="ignore", divide="ignore"):
             step = np.abs(p.jump_rel * iz / slope)  # rows for a jump_rel change of depth
@@ -427,14 +471,17 @@ class FastPipeline:
             outlier = found & ~(np.abs(row - med) <= step)
             near = (np.abs(np.diff(row)) <= p.jump_factor * lim) | outlier[1:] | outlier[:-1]
             cont = found[1:] & found[:-1] & (np.abs(np.diff(med)) <= lim) & near
-        start = np.concatenate([[True], ~cont])
-        label = np.cumsum(start) - 1
-        return np.where(found, label, -1), outlier
+        start = np.empty(row.size, bool)
+        start[0] = True
+        np.logical_not(cont, out=start[1:])
+        return np.cumsum(start), outlier
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height
         if lit_rows.shape != (H,):
             raise ValueError(f"lit_rows must have shape ({H},), got {lit_rows.shape}")
+        if lit_rows.all():
+            return status  # the usual case: the pulse lit every row
         dark = np.concatenate([[0], np.cumsum(~lit_rows)])
         lo, hi = self.lo + self.top, self.hi + self.top
         roi_dark = dark[hi] - dark[lo] > 0
@@ -449,13 +496,13 @@ class FastPipeline:
 
 
 def _inside_bright(label: np.ndarray, bright: np.ndarray) -> np.ndarray:
-    """Columns of a run (same label >= 0; runs are contiguous) with a bright column of the same
-    run at or before them and at or after them."""
+    """Columns with a bright column of the same run (equal consecutive labels) at or before them
+    and at or after them."""
     W = label.size
     idx = np.arange(W)
     last = np.maximum.accumulate(np.where(bright, idx, -1))  # last bright column at or before
     nxt = np.minimum.accumulate(np.where(bright, idx, W)[::-1])[::-1]  # next bright at or after
-    ok = (label >= 0) & (last >= 0) & (nxt < W)
+    ok = (last >= 0) & (nxt < W)
     ok[ok] &= (label[np.clip(last, 0, W - 1)] == label)[ok] & (label[np.clip(nxt, 0, W - 1)] == label)[ok]
     return ok
 
@@ -470,69 +517,63 @@ def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarra
     idx = np.arange(W)
     left = np.maximum.accumulate(np.where(found, idx, -1))
     right = np.minimum.accumulate(np.where(found, idx, W)[::-1])[::-1]
-    span = right - left
-    ok = ~found & (left >= 0) & (right < W) & (span - 1 <= max_gap)
-    li, ri = clamp(left, 0, W - 1), clamp(right, 0, W - 1)
-    rl, rr = row[li], row[ri]
-    with np.errstate(invalid="ignore"):
-        ok &= np.abs(rr - rl) <= 1.0 + 0.5 * span
-    ok &= seen | (span == 2)
-    t = np.where(ok, (idx - left) / np.maximum(span, 1), 0.0)
-    return np.where(ok, rl + (rr - rl) * t, row), ok
+    gap = np.nonzero(~found & (left >= 0) & (right < W) & (right - left <= max_gap + 1))[0]
+    filled = np.zeros(W, bool)
+    if not gap.size:
+        return row, filled
+    lg, rg = left[gap], right[gap]
+    span = rg - lg
+    rl, rr = row[lg], row[rg]
+    ok = (np.abs(rr - rl) <= 1.0 + 0.5 * span) & (seen[gap] | (span == 2))
+    row = row.copy()
+    row[gap[ok]] = rl[ok] + (rr[ok] - rl[ok]) * ((gap[ok] - lg[ok]) / span[ok])
+    filled[gap[ok]] = True
+    return row, filled
 
 
-def _running_median(x: np.ndarray, half: int) -> np.ndarray:
-    """Median of the finite values within +-half of each element (NaN where x is NaN).
+def _running_median(x: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """Median of the ``found`` values of x within +-2 of each element (NaN where not found).
 
-    The 2 half + 1 shifted copies are sorted elementwise by odd-even transposition (NaN as +inf,
-    so last): 2 half + 1 rounds of np.minimum/np.maximum on whole arrays, far cheaper than
-    sorting (W, 2 half + 1) windows row by row."""
-    n_win = 2 * half + 1
-    pad = np.pad(np.where(np.isfinite(x), x, np.inf), half, constant_values=np.inf)
-    v = [pad[i : i + x.size] for i in range(n_win)]
-    for rnd in range(n_win):
-        for i in range(rnd % 2, n_win - 1, 2):
-            v[i], v[i + 1] = np.minimum(v[i], v[i + 1]), np.maximum(v[i], v[i + 1])
-    s = np.stack(v)  # (n_win, W) sorted along axis 0, +inf (missing) last
-    n = np.isfinite(s).sum(axis=0)
-    cols = np.arange(x.size)
-    lower = s[np.maximum(n - 1, 0) // 2, cols]
-    upper = s[np.maximum(n, 1) // 2, cols]
-    return np.where(np.isfinite(x), 0.5 * (lower + upper), np.nan)
-
-
-def _runs(mask: np.ndarray) -> np.ndarray:
-    """Label of each run of consecutive True elements (-1 for False)."""
-    start = np.concatenate([[True], ~(mask[1:] & mask[:-1])])
-    return np.where(mask, np.cumsum(start) - 1, -1)
+    Where all five are found (most columns of a surface) the median-of-5 selection network gives
+    it in 10 elementwise np.minimum/np.maximum over whole arrays; only the columns next to a
+    missing one sort their window (missing as +inf, so last) and average the middle one or two
+    of the found values."""
+    W = x.size
+    pad = np.full(W + 4, np.inf)
+    pad[2:-2] = np.where(found, x, np.inf)
+    a, b, e, c, d = (pad[i : i + W] for i in range(5))
+    f = np.maximum(np.minimum(a, b), np.minimum(c, d))
+    hi_ab, hi_cd = np.maximum(a, b), np.maximum(c, d)
+    g = np.minimum(hi_ab, hi_cd)
+    med = np.maximum(np.minimum(e, f), np.minimum(np.maximum(e, f), g))
+    # a window with a missing value has +inf for its largest
+    part = np.nonzero(found & (np.maximum(np.maximum(hi_ab, hi_cd), e) == np.inf))[0]
+    if part.size:
+        win = np.sort(pad[part[:, None] + np.arange(5)], axis=1)
+        m, rows = np.isfinite(win).sum(axis=1), np.arange(part.size)
+        med[part] = 0.5 * (win[rows, (m - 1) // 2] + win[rows, m // 2])
+    return np.where(found, med, np.nan)
 
 
-def _run_length(label: np.ndarray, member_of: np.ndarray | None = None) -> np.ndarray:
-    """Number of elements with each non-negative label, given to every element of ``member_of``
-    (default ``label``) with that label; 0 for -1."""
-    member_of = label if member_of is None else member_of
-    out = np.zeros(label.shape, dtype=np.intp)
-    ok = member_of >= 0
-    if ok.any():
-        counts = np.bincount(label[label >= 0], minlength=member_of.max() + 1)
-        out[ok] = counts[member_of[ok]]
-    return out
+def _run_length(mask: np.ndarray) -> np.ndarray:
+    """Length of the run of consecutive True elements that each element belongs to (0 if False)."""
+    start = np.empty(mask.size, bool)
+    start[0] = True
+    np.logical_not(mask[1:] & mask[:-1], out=start[1:])
+    label = np.cumsum(start)  # a False element is a run of its own, of weight 0
+    return np.bincount(label, weights=mask).take(label)
 
 
-def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
-    """Weighted least-squares line through the rows of the columns within +-half of each column
-    that belong to the same run (same label >= 0), evaluated at the column. Windowed sums by
-    cumsum; every column of a run gets a value, weighted or not. The caller weights by the
-    line's amplitude: under coherent speckle a dark column sits near a dark grain, where the
-    field's phase varies fastest and the centroid scatters most (on the simulator's 90 % walls
-    weighting by amplitude lowers the range error at 3 m from ~0.85 % to ~0.65 % against equal
-    weights)."""
+def _local_line_fit(row: np.ndarray, weight: np.ndarray, inrun: np.ndarray, label: np.ndarray, half: int) -> np.ndarray:
+    """Weighted least-squares line through the (finite) rows of the columns with ``weight`` > 0
+    within +-half of each ``inrun`` column that belong to the same run (equal consecutive
+    labels), evaluated at the column. Windowed sums by cumsum; every column of a run gets a
+    value, weighted or not. The caller weights by the line's amplitude: under coherent speckle a
+    dark column sits near a dark grain, where the field's phase varies fastest and the centroid
+    scatters most (on the simulator's 90 % walls weighting by amplitude lowers the range error
+    at 3 m from ~0.85 % to ~0.65 % against equal weights)."""
     W = row.size
     x = np.arange(W, dtype=np.float64)
-    inrun = label >= 0
-    ok = (weight > 0) & inrun
-    y = np.where(ok, row, 0.0)
-    w = np.where(ok, weight, 0.0)
     # window limits clipped to the run: runs are contiguous column ranges
     idx = np.arange(W)
     new = np.empty(W, bool)  # first column of a run
@@ -545,11 +586,15 @@ def _local_line_fit(row: np.ndarray, weight: np.ndarray, label: np.ndarray, half
     run_end = np.minimum.accumulate(np.where(end, idx, W - 1)[::-1])[::-1]
     lo = np.maximum(idx - half, run_start)
     hi = np.minimum(idx + half, run_end) + 1
-    # the five windowed sums from one cumulative sum over a (5, W) stack
-    wx = w * x
-    terms = np.zeros((5, W + 1))
-    np.cumsum(np.stack([w, wx, wx * x, w * y, wx * y]), axis=1, out=terms[:, 1:])
-    sw, swx, swxx, swy, swxy = terms[:, hi] - terms[:, lo]
+    # the five windowed sums from one cumulative sum over a (W, 5) array (row
+    # gathers of 5 contiguous sums: much cheaper than fancy indexing along the second axis)
+    terms = np.zeros((W + 1, 5))
+    t = terms[1:]
+    t[:, 0], t[:, 1], t[:, 2], t[:, 3] = 1.0, x, x * x, row
+    np.multiply(x, row, out=t[:, 4])
+    np.multiply(t, weight[:, None], out=t)
+    np.cumsum(t, axis=0, out=t)
+    sw, swx, swxx, swy, swxy = (terms.take(hi, axis=0) - terms.take(lo, axis=0)).T
     s0 = sw
     sx = swx - x * s0  # sums of (x - x_c) with x_c the column itself
     sxx = swxx - 2 * x * swx + x * x * s0

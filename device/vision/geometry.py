@@ -22,7 +22,7 @@ import numpy as np
 from ..config import SensorConfig
 from ..model.camera import undistort_robust
 from ..model.scan_frame import ScanFrame, scan_frame, to_scan_plane
-from ..model.triangulation import LaserPlane, RangeStatus, Triangulation, intersect_plane
+from ..model.triangulation import HORIZON_EPS, LaserPlane, RangeStatus, Triangulation, intersect_plane
 
 #: Rows added on each side of the region of interest so the line profile is whole at the limits.
 ROI_MARGIN_ROWS = 8
@@ -64,19 +64,37 @@ class ColumnGeometry:
         cols = np.arange(self.width) if columns is None else np.asarray(columns)
         if rows.shape != cols.shape:
             raise ValueError(f"rows {rows.shape} and columns {cols.shape} must have the same shape")
+        n = self.bottom - self.top
         r = rows - self.top
-        inside = np.isfinite(r) & (r >= 0) & (r <= self.bottom - self.top - 1)
+        inside = (r >= 0) & (r <= n - 1)  # False for NaN
         r = np.where(inside, r, 0.0)
-        r0 = np.minimum(np.floor(r).astype(np.intp), max(self.bottom - self.top - 2, 0))
+        r0 = np.minimum(r.astype(np.intp), max(n - 2, 0))  # floor: r >= 0
         t = r - r0
-        r1 = np.minimum(r0 + 1, self.bottom - self.top - 1)
         # flat takes on the contiguous tables: cheaper than 2-D fancy indexing
-        i0, i1 = r0 * self.width + cols, r1 * self.width + cols
+        i0 = r0 * self.width + cols
+        i1 = i0 + self.width if n > 1 else i0
         xn, yn = self.xn.ravel(), self.yn.ravel()
-        x = xn.take(i0) * (1 - t) + xn.take(i1) * t
-        y = yn.take(i0) * (1 - t) + yn.take(i1) * t
-        xy = np.stack([np.where(inside, x, np.nan), np.where(inside, y, np.nan)], axis=-1)
-        return intersect_plane(xy, self.plane, self.min_m, self.max_m)
+        u = 1 - t
+        x = xn.take(i0) * u + xn.take(i1) * t
+        y = yn.take(i0) * u + yn.take(i1) * t
+        # the ray/plane intersection of intersect_plane (eq. 3.13, 3.17), same arithmetic, written
+        # out for one ray per column (its generic (..., 2) handling costs more than the maths)
+        nx, ny, nz = self.plane.normal
+        denom = np.where(inside, nx * x + ny * y + nz, np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = self.plane.distance / denom
+            status = np.where(np.isfinite(denom),
+                              np.where(denom <= HORIZON_EPS, RangeStatus.BEYOND_HORIZON,
+                                       np.where(depth < self.min_m, RangeStatus.TOO_CLOSE,
+                                                np.where(depth > self.max_m, RangeStatus.TOO_FAR, RangeStatus.OK))),
+                              RangeStatus.INVALID_PIXEL)
+        status = status.astype(np.uint8)
+        depth[status != RangeStatus.OK] = np.nan
+        points = np.empty(rows.shape + (3,))
+        np.multiply(x, depth, out=points[..., 0])
+        np.multiply(y, depth, out=points[..., 1])
+        points[..., 2] = depth
+        return Triangulation(points, depth, status)
 
     def inverse_depth(self, rows: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(1/z, d(1/z)/d row) at sub-pixel rows, one per column (default all columns, else
@@ -86,13 +104,13 @@ class ColumnGeometry:
         rows = np.asarray(rows, dtype=np.float64)
         r = rows - self.top
         n = self.bottom - self.top
-        inside = np.isfinite(r) & (r >= 0) & (r <= n - 1)
+        inside = (r >= 0) & (r <= n - 1)  # False for NaN
         r = np.where(inside, r, 0.0)
         r0 = np.minimum(r.astype(np.intp), max(n - 2, 0))
         cols = np.arange(self.width) if columns is None else np.asarray(columns)
         flat = self.inv_depth.reshape(-1)
         i0 = r0 * self.width + cols
-        a, b = flat.take(i0), flat.take(i0 + np.where(r0 + 1 < n, self.width, 0))
+        a, b = flat.take(i0), flat.take(i0 + self.width if n > 1 else i0)
         t = r - r0
         return np.where(inside, a + (b - a) * t, np.nan), np.where(inside, b - a, np.nan)
 

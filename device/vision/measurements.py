@@ -95,18 +95,16 @@ def finish(
 ) -> ColumnMeasurements:
     """Combine line finding (``line_status``: OK where a line was measured at ``rows``) and its
     triangulation into measurements: post-calibration (eq. 6.5), scan angle/range, REP 117."""
-    status = line_status.astype(np.uint8).copy()
-    measured = status == ColumnStatus.OK
-    status[measured] = _FROM_RANGE_STATUS[tri.status[measured]]
+    status = np.asarray(line_status, dtype=np.uint8)
+    status = np.where(status == ColumnStatus.OK, _FROM_RANGE_STATUS.take(tri.status), status)
     ok = status == ColumnStatus.OK
     points = postcal.apply(post, np.where(ok[:, None], tri.points, np.nan))
     angle, rng = geom.angle_range(points)
-    angle = np.where(ok, angle, geom.column_angle[columns])
-    rng = np.where(ok, rng, _RANGE_OF_STATUS[status])
-    return ColumnMeasurements(
-        np.asarray(columns), np.where(status == ColumnStatus.NO_RETURN, np.nan, rows), angle, rng,
-        np.where(status == ColumnStatus.NO_RETURN, 0.0, quality), points, status,
-    )
+    angle = np.where(ok, angle, geom.column_angle.take(columns))
+    rng = np.where(ok, rng, _RANGE_OF_STATUS.take(status))
+    none = status == ColumnStatus.NO_RETURN
+    return ColumnMeasurements(np.asarray(columns), np.where(none, np.nan, rows), angle, rng,
+                              np.where(none, 0.0, quality), points, status)
 
 
 def to_laser_scan(meas: ColumnMeasurements, angle_min: float, angle_max: float, count: int,
