@@ -39,6 +39,7 @@ from device.config import SensorConfig, load_config, load_preset
 from device.link import ScanGeometry
 from device.model.scan_frame import uniform_angles
 from device.process import SensorSource
+from device.synced_laser import HEARTBEAT_S
 from protocol import messages as m
 
 log = logging.getLogger(__name__)
@@ -96,8 +97,9 @@ class SimulatedHardware:
     heartbeat or frame is missed because the host machine was descheduled). Whether a Pi keeps
     up is judged from the measured CPU cost instead (laserpi bench process). While requests
     from the Pi wait for the co-MCU's answers (counted by frame delimiters), the clock may pass
-    ``limit_ns`` (by at most ``answer_window_s`` after the last request), as the MCU's time would. Every ``tick_s`` of simulated time the
-    ``tickers`` run on their own thread (SyncedLaser.heartbeat).
+    ``limit_ns`` (by at most ``answer_window_s`` after the last request), as the MCU's time would.
+    Every ``tick_s`` of simulated time the ``tickers`` run on their own thread
+    (SyncedLaser.heartbeat).
 
     The co-MCU's UART is a pty (``tty_path``), opened by CoMcu through pyserial exactly as the
     real one's UART is on a Pi (``open_comcu``); the clock thread moves its bytes to and from the
@@ -108,7 +110,7 @@ class SimulatedHardware:
     line that the clock map uses (``gpio_edges``).
     """
 
-    def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = 0.01,
+    def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
                  history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
         import tty
 
@@ -200,9 +202,13 @@ class SimulatedHardware:
                 pass
 
     def _run_tickers(self) -> None:
+        # simulated time never runs ahead of the wall clock, so sleeping the simulated interval
+        # is never too long (waiting on the clock's condition instead would wake at every step)
         next_tick = self.now_ns() + self.tick_ns
         while not self._stop.is_set():
-            if not self.wait_until(next_tick, 0.1):
+            left_ns = next_tick - self.now_ns()
+            if left_ns > 0:
+                self._stop.wait(left_ns * 1e-9)
                 continue
             next_tick += self.tick_ns
             for tick in list(self.tickers):

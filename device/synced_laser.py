@@ -33,6 +33,11 @@ from protocol import mcu
 
 log = logging.getLogger(__name__)
 
+#: Heartbeat interval: the firmware switches the laser off 50 ms after the last heartbeat
+#: (firmware_pwm/src/config.h HEARTBEAT_TIMEOUT_TICKS), so 15 ms leaves three chances in that
+#: window; each one is a request and its reply on the UART (~0.5 ms of Python here).
+HEARTBEAT_S = 0.015
+
 
 class LockedComcu:
     """A CoMcu shared by the frame loop and the heartbeat thread: one request at a time, the
@@ -70,10 +75,10 @@ class SyncedLaser:
 
     def __init__(self, open_comcu: Callable[[], CoMcu], sync: SyncConfig, *,
                  gpio_edges: Callable[[], list[tuple[int, bool]]] | None = None,
-                 ping_interval_s: float = 0.05, heartbeat_s: float | None = 0.005, watchdog_s: float = 0.3,
+                 ping_interval_s: float = 0.05, heartbeat_s: float | None = HEARTBEAT_S, watchdog_s: float = 0.3,
                  pings_at_start: int = 4, clock_ns: Callable[[], int] = time.monotonic_ns):
         """heartbeat_s: interval of the heartbeat thread; None = no thread, whoever owns the
-        clock calls ``heartbeat()`` (the simulated hardware does, every 10 ms of its time).
+        clock calls ``heartbeat()`` (the simulated hardware does, every HEARTBEAT_S of its time).
         clock_ns: CLOCK_MONOTONIC of the Pi (simulated time in simulation)."""
         self.clock_ns = clock_ns
         self.open_comcu = open_comcu
