@@ -223,7 +223,7 @@ def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np
     image): identical results, much cheaper. With those zeros the window needs no clamping or
     masking (one flat gather), and the moments of 8-bit samples are exact integers.
     Used by the fast pipeline (thesis 6.1.2 step 6, improved)."""
-    n, width = padded.shape[0] - 2 * pad, padded.shape[1]
+    width = padded.shape[1]
     if pad < half_width:
         raise ValueError(f"pad must be >= half_width, got {pad} < {half_width}")
     lo, hi = row_lo, row_hi
