@@ -1,5 +1,5 @@
 """Accuracy on simulated frames against the issue's targets (device.sim renderer defaults:
-coherent, fully developed speckle (C = 1) through the focused f/2 lens, blur 1.1 px, gain 8,
+coherent, fully developed speckle (C = 1) through the focused f/2 lens, blur 1.1 px, gain 10,
 40 ms exposure, indoor 0.5 %, rolling shutter; thesis-calibrated geometry, 1664x928):
 90 % wall sub-pixel RMS <= 0.1 px, range error (1 sigma) <= 0.5 % at 2 m and <= 1 % at 3 m,
 equal or lower than the reference on the same frames; 10 % wall >= 90 % valid out to 2.5 m;

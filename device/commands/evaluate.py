@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-range", type=float, default=0.1,
                         help="fast pipeline depth limits: its region of interest (m, default 0.1)")
     parser.add_argument("--max-range", type=float, default=10.0, help="(m, default 10)")
-    parser.add_argument("--gain", type=float, default=None, help="simulated analogue gain (default: the simulator's, 8)")
+    parser.add_argument("--gain", type=float, default=None, help="simulated analogue gain (default: the simulator's, 10)")
     parser.add_argument("--exposure-us", type=float, default=None, help="simulated exposure (default 40000)")
     parser.add_argument("--no-lit-rows", action="store_true",
                         help="do not tell the pipeline which rows the pulse lit (as without synchronisation)")

@@ -28,9 +28,9 @@ class FramePair:
     lit_rows: np.ndarray  # (H,) rows the pulse lit in the lit frame
 
 
-#: Operating point of the simulated camera: the simulator's anchored defaults (device/sim/render.py,
+#: Operating point of the simulated camera: the simulator's defaults (device/sim/render.py,
 #: "Anchoring"): 40 ms exposure (the 17.4 ms pulse fits in the 22.5 ms during which all rows
-#: expose) and analogue gain 8 (device.sim.sensor.SIMULATOR_DEFAULT).
+#: expose) and analogue gain 10 (device.sim.sensor.SIMULATOR_DEFAULT).
 EXPOSURE_US = 40000.0
 
 
