@@ -479,11 +479,13 @@ def coherent_line_profiles(rows: np.ndarray, line_sigma_px: np.ndarray, blur_sig
     Then the lens's defocus blur (Gaussian, intensity), and integration over each pixel row.
     The sample grid is symmetric about the true row, so the expected profile (I0 convolved with the
     intensity line spread function and the blur) is centred on it. Columns are independent (a 1-D
-    model): in focus the grain across columns (~lambda N, 0.7 px at f/2) is below a pixel. A 2-D
-    check (circular pupil, the field over 4 sub-columns per pixel, not used here for cost) gives
-    at f/2 in focus 0.14 px per column (0.17 px here) and, with 1.2 px defocus, 0.37 px per column
-    (0.57 px here) with neighbouring columns correlated 0.3, so that a 13-column mean scatters
-    0.14 px (0.16 px here): the 1-D model is conservative for single and combined columns.
+    model): in focus the grain across columns (~lambda N, 0.7 px at f/2) is below a pixel. 2-D
+    checks (circular pupil, the field over 4 sub-columns per pixel, not used here for cost; the
+    thesis's line at 2 m, f/2): in focus 0.145 px per column (0.16 px here), neighbours correlated
+    0.2, a 13-column mean 0.044 px (0.040 px here; 0.040 px in 2-D with a 1.1 px incoherent blur
+    after the pupil); with 1.2 px defocus 0.37 px per column (0.57 px here), neighbours correlated
+    0.3, a 13-column mean 0.14 px (0.16 px here). So the 1-D model is conservative per column and
+    within 10 % for the ~13-column fits the fast pipeline makes (BENCHMARKS.md "Simulator").
 
     Returns (r, frac), both (M, 2 half + 1): pixel rows round(row) - half .. + half and the
     fraction of the column's expected electrons in each (sums to ~1 in expectation).
