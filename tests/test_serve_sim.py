@@ -199,3 +199,29 @@ def test_laser_limit_can_only_be_lowered(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 2 and "above the Class 1 limit" in out and "it can only lower the limit" in out
     assert not (tmp_path / "laserpi").exists()
+
+
+def test_the_simulated_co_mcu_is_reached_through_a_pty_with_pyserial_as_on_a_pi():
+    import os
+
+    import serial
+
+    from device.sensor import SimulatedHardware
+
+    hw = SimulatedHardware(seed=3)
+    try:
+        fd = os.open(hw.tty_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            assert os.isatty(fd) and hw.tty_path.startswith("/dev/")
+        finally:
+            os.close(fd)
+        comcu = hw.open_comcu()
+        assert isinstance(comcu.port, serial.Serial) and comcu.port.port == hw.tty_path
+        t0 = hw.now_ns()
+        comcu.ping()  # a request and its reply through the pty, the firmware answering in simavr
+        assert hw.now_ns() > t0  # the MCU's (simulated) time passed while it answered
+        hw.reset_mcu()  # a power cycle: the UART (the pty) stays, the CoMcu keeps working
+        comcu.ping()
+        comcu.port.close()
+    finally:
+        hw.close()
