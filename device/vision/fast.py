@@ -495,16 +495,23 @@ class FastPipeline:
         return status
 
 
+def _last_true(mask: np.ndarray) -> np.ndarray:
+    """Index of the last True element at or before each element (-1 if none)."""
+    return np.maximum.accumulate(np.where(mask, np.arange(mask.size), -1))
+
+
+def _next_true(mask: np.ndarray) -> np.ndarray:
+    """Index of the next True element at or after each element (``mask.size`` if none)."""
+    return np.minimum.accumulate(np.where(mask, np.arange(mask.size), mask.size)[::-1])[::-1]
+
+
 def _inside_bright(label: np.ndarray, bright: np.ndarray) -> np.ndarray:
     """Columns with a bright column of the same run (equal consecutive labels) at or before them
     and at or after them."""
     W = label.size
-    idx = np.arange(W)
-    last = np.maximum.accumulate(np.where(bright, idx, -1))  # last bright column at or before
-    nxt = np.minimum.accumulate(np.where(bright, idx, W)[::-1])[::-1]  # next bright at or after
-    ok = (last >= 0) & (nxt < W)
-    ok[ok] &= (label[np.clip(last, 0, W - 1)] == label)[ok] & (label[np.clip(nxt, 0, W - 1)] == label)[ok]
-    return ok
+    last, nxt = _last_true(bright), _next_true(bright)
+    return ((last >= 0) & (nxt < W) & (label.take(np.maximum(last, 0)) == label)
+            & (label.take(np.minimum(nxt, W - 1)) == label))
 
 
 def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -514,9 +521,7 @@ def _fill_gaps(row: np.ndarray, found: np.ndarray, max_gap: int, seen: np.ndarra
     gaps where no line was seen at all (``seen`` False everywhere), only single columns.
     Returns the new rows and the mask of filled columns."""
     W = row.size
-    idx = np.arange(W)
-    left = np.maximum.accumulate(np.where(found, idx, -1))
-    right = np.minimum.accumulate(np.where(found, idx, W)[::-1])[::-1]
+    left, right = _last_true(found), _next_true(found)
     gap = np.nonzero(~found & (left >= 0) & (right < W) & (right - left <= max_gap + 1))[0]
     filled = np.zeros(W, bool)
     if not gap.size:
@@ -582,10 +587,8 @@ def _local_line_fit(row: np.ndarray, weight: np.ndarray, inrun: np.ndarray, labe
     end = np.empty(W, bool)  # last column of a run
     end[-1] = True
     end[:-1] = new[1:]
-    run_start = np.maximum.accumulate(np.where(new, idx, 0))
-    run_end = np.minimum.accumulate(np.where(end, idx, W - 1)[::-1])[::-1]
-    lo = np.maximum(idx - half, run_start)
-    hi = np.minimum(idx + half, run_end) + 1
+    lo = np.maximum(idx - half, _last_true(new))  # new[0] and end[-1] are set: never -1 or W
+    hi = np.minimum(idx + half, _next_true(end)) + 1
     # the five windowed sums from one cumulative sum over a (W, 5) array (row
     # gathers of 5 contiguous sums: much cheaper than fancy indexing along the second axis)
     terms = np.zeros((W + 1, 5))
