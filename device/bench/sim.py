@@ -124,7 +124,6 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
     from device.sim.render import RenderOptions, SceneRenderer
     from device.sim.scene import wall_scene
     from device.sim.anchoring import relative_range_per_row
-    from device.vision.geometry import column_geometry
     from device.vision.reference import ReferencePipeline
 
     cfg = load_preset("thesis-calibrated")
@@ -139,7 +138,7 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
         m = pipe.process(lit, unlit)
     true = truth.range_m[m.column]
     ok = m.valid & np.isfinite(true)
-    iz, slope = column_geometry(cfg).inverse_depth(m.row[ok], m.column[ok])
+    iz, slope = pipe.geometry.inverse_depth(m.row[ok], m.column[ok])
     return (m.range[ok] - true[ok]) / true[ok], int(ok.sum()), relative_range_per_row(iz, slope)
 
 
@@ -211,7 +210,7 @@ def dorsch() -> list[dict]:
 def anchor(options=None) -> list[dict]:
     """The reference pipeline on simulated walls: per wall the simulated error, and with the thesis
     prototype's calibration residual added (device.sim.anchoring)."""
-    from device.sim.anchoring import THESIS_RESIDUAL_PX, with_thesis_residual
+    from device.sim.anchoring import with_thesis_residual
 
     cases = [(0.9, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0)] + [(0.1, d, "indoor") for d in (1.0, 1.5, 2.0, 2.5, 3.0, 3.5)]
     cases.append((0.9, 1.5, "sunlight"))
@@ -220,8 +219,7 @@ def anchor(options=None) -> list[dict]:
         err, n, sens = measure_wall(rho, d, amb, options=options)
         out.append({"reflectivity": rho, "distance_m": d, "ambient": amb, "columns": n,
                     "mean_pct": float(100 * err.mean()) if n else None, "std_pct": float(100 * err.std()) if n else None,
-                    "with_residual_std_pct": 100 * with_thesis_residual(err, sens) if n > 1 else None,
-                    "residual_px": THESIS_RESIDUAL_PX})
+                    "with_residual_std_pct": 100 * with_thesis_residual(err, sens) if n > 1 else None})
     return out
 
 
@@ -238,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{a['dorsch_px']:8.3f}  {a['ratio']:5.2f}  {a['mean_px']:+.4f}")
         return 0
     if args.anchor:
+        from device.sim.anchoring import THESIS_RESIDUAL_PX
         from device.sim.render import COHERENT_DEFOCUSED
 
         rows = anchor(COHERENT_DEFOCUSED if args.defocused else None)
@@ -247,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
         model = "lens defocused (COHERENT_DEFOCUSED)" if args.defocused else "default renderer options (lens in focus)"
         print(f"reference pipeline (thesis Algorithm 2) on simulated walls, thesis timing, 4 pairs, seed 0; {model}")
         if not args.defocused:  # the defocused set reproduces the thesis alone: no residual on top
-            print(f"'+ residual': with the thesis prototype's calibration residual, {rows[0]['residual_px']} px per column "
+            print(f"'+ residual': with the thesis prototype's calibration residual, {THESIS_RESIDUAL_PX} px per column "
                   "(device.sim.anchoring)")
         print("wall  ambient   d (m)  columns  mean err  std err" + ("" if args.defocused else "  + residual"))
         for a in rows:
