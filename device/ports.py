@@ -211,6 +211,17 @@ def pipe_pair(capacity: int = 65536, timeout_s: float = 0.05) -> tuple[_PipeEnd,
     return _PipeEnd(a, b, timeout_s), _PipeEnd(b, a, timeout_s)
 
 
+def open_raw_pty() -> tuple[int, int, str]:
+    """A pseudo-terminal in raw mode (no echo, no line discipline: a serial line's bytes as they
+    are): (master fd, slave fd, slave path). Keep the slave fd open while the slave may have no
+    other user, or reads on the master fail with EIO."""
+    import tty  # POSIX only: imported here so that sim:// (pipe_pair) also works on Windows
+
+    master_fd, slave_fd = os.openpty()
+    tty.setraw(slave_fd)
+    return master_fd, slave_fd, os.ttyname(slave_fd)
+
+
 class PtyLink:
     """A pseudo-terminal in raw mode with its slave symlinked at ``link_path``.
 
@@ -219,14 +230,10 @@ class PtyLink:
     """
 
     def __init__(self, link_path: str | os.PathLike):
-        import tty  # POSIX only: imported here so that sim:// (pipe_pair) also works on Windows
-
         self.link_path = Path(link_path)
         if self.link_path.exists() and not self.link_path.is_symlink():
             raise FileExistsError(f"{self.link_path} exists and is not a symlink; refusing to replace it")
-        self.master_fd, self.slave_fd = os.openpty()
-        tty.setraw(self.slave_fd)
-        self.slave_name = os.ttyname(self.slave_fd)
+        self.master_fd, self.slave_fd, self.slave_name = open_raw_pty()
         tmp = self.link_path.with_name(f".{self.link_path.name}.{os.getpid()}")
         tmp.unlink(missing_ok=True)
         tmp.symlink_to(self.slave_name)

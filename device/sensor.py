@@ -112,9 +112,8 @@ class SimulatedHardware:
 
     def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
                  history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
-        import tty
-
         from device.comcu_emulator import CPU_HZ, ELF, HARNESS, build_emulator
+        from device.ports import open_raw_pty
 
         if not (HARNESS.exists() and ELF.exists()):
             build_emulator()
@@ -136,11 +135,9 @@ class SimulatedHardware:
         self._requests_in_flight = 0  # frames (0x00 delimiters) the Pi sent that the MCU has not answered
         self.resets = -1
         # the UART: the Pi's end is the pty's slave (raw, like a serial port), the MCU's the master
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
+        self._master, self._slave, self.tty_path = open_raw_pty()
         os.set_blocking(self._master, False)
-        self.tty_path = os.ttyname(self._slave)
-        self._to_pi = bytearray()
+        self._pending_to_pi = bytearray()
         self._t_base_ns = time.monotonic_ns()
         self.reset_mcu()
         self._stop = threading.Event()
@@ -156,7 +153,7 @@ class SimulatedHardware:
     def _run_clock(self) -> None:
         while not self._stop.is_set():
             self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
-            self._from_pi()
+            self._pi_to_mcu()
             now = self.now_ns()
             target = time.monotonic_ns()
             limit = self.limit_ns
@@ -170,10 +167,10 @@ class SimulatedHardware:
             with self._lock:
                 self.mcu.run_cycles(max(1, (step_end - now) * self.cpu_hz // 1_000_000_000))
                 self._collect()
-                self._to_pi_write()
+                self._mcu_to_pi()
                 self._advanced.notify_all()
 
-    def _from_pi(self) -> None:
+    def _pi_to_mcu(self) -> None:
         """Bytes the Pi wrote to its end of the UART go into the MCU's receiver now."""
         try:
             data = os.read(self._master, 4096)
@@ -185,19 +182,19 @@ class SimulatedHardware:
                 self._requests_in_flight += data.count(0)
                 self._answer_until_ns = self.now_ns() + self.answer_window_ns
 
-    def _to_pi_write(self) -> None:
+    def _mcu_to_pi(self) -> None:
         """What the MCU sent goes to the Pi's end of the UART (kept while the pty is full)."""
         n = self.mcu.in_waiting
         if n:
             out = self.mcu.read(n)
-            self._to_pi += out
+            self._pending_to_pi += out
             # every request frame gets one answer frame
             self._requests_in_flight = max(0, self._requests_in_flight - out.count(0))
             if not self._requests_in_flight:
                 self._answer_until_ns = 0
-        if self._to_pi:
+        if self._pending_to_pi:
             try:
-                del self._to_pi[: os.write(self._master, self._to_pi)]
+                del self._pending_to_pi[: os.write(self._master, self._pending_to_pi)]
             except (BlockingIOError, OSError):
                 pass
 
