@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Installs what `make test` and `make demo` need on a fresh Debian machine:
-# the AVR toolchain and simavr (Debian packages) and a virtualenv with the Python packages.
+# the AVR toolchain and simavr (Debian packages), gcc and the Python headers for the fast pipeline's
+# C kernel, and a virtualenv with the Python packages.
 # Idempotent: it only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-DEBS=(gcc-avr avr-libc simavr libsimavr-dev python3-venv make gcc pkg-config)
+DEBS=(gcc-avr avr-libc simavr libsimavr-dev python3-venv python3-dev make gcc pkg-config)
 missing=()
 for p in "${DEBS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -23,9 +24,17 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+# reinstalled when the package's description or its compiled kernel (device/vision/_columns.c,
+# built in place by setup.py) changed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] \
+   || [ device/vision/_columns.c -nt "$stamp" ] || ! ls device/vision/_columns*.so >/dev/null 2>&1; then
   echo "bootstrap: installing Python packages into .venv"
   .venv/bin/pip install -q --upgrade pip >/dev/null
   .venv/bin/pip install -q -e ".[device,ros,test]"
+  # the kernel's build is optional for pip (a robot installing only the host SDK needs no
+  # compiler), not for the device: say so here rather than in every test
+  .venv/bin/python -c "import device.vision._columns" || {
+    echo "bootstrap: the fast pipeline's C kernel (device/vision/_columns.c) did not build; see pip's output above" >&2
+    exit 1; }
   touch "$stamp"
 fi

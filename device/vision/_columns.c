@@ -19,6 +19,7 @@
  *   resolve(...) -> (seen_first, seen_last)
  *   running_median(x, found, out)
  *   noise_level(lit, unlit, out)
+ *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
  */
 #define PY_SSIZE_T_CLEAN
@@ -29,6 +30,13 @@
 
 #define BLOCK_ROWS 16
 #define PLATEAU_STEP 8
+/* The image-wide loops get an AVX2 clone on x86-64 (picked at load time; SSE2 otherwise): they
+ * are integer loops, so the clones give identical results. NEON is ARM64's baseline. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define PIXEL_LOOP __attribute__((target_clones("avx2", "default")))
+#else
+#define PIXEL_LOOP
+#endif
 #define MIN(a, b) ((a) < (b) ? (a) : (b))
 #define MAX(a, b) ((a) > (b) ? (a) : (b))
 
@@ -101,6 +109,34 @@ static void release(Views *vs)
 
 /* ------------------------------------------------------------------ candidates */
 
+/* The keys value << 4 | (15 - row in block) of one 16-row block of sm: the largest is the
+ * block's maximum and the first row holding it. */
+PIXEL_LOOP static void block_keys(const uint8_t *restrict rows, idx_t W, uint16_t *restrict key)
+{
+    memset(key, 0, (size_t)W * sizeof(uint16_t));
+    for (idx_t r = 0; r < BLOCK_ROWS; r++) {
+        const uint8_t *line = rows + r * W;
+        uint16_t low = (uint16_t)(BLOCK_ROWS - 1 - r);
+        for (idx_t c = 0; c < W; c++) {
+            uint16_t v = (uint16_t)((line[c] << 4) | low);
+            key[c] = v > key[c] ? v : key[c];
+        }
+    }
+}
+
+/* best = max(best, block b's keys as value << 16 | (0xFFFF - row)), leaving out the columns whose
+ * lo_block or hi_block is b (when given) */
+PIXEL_LOOP static void best_over_blocks(const uint16_t *restrict key, idx_t b, const idx_t *restrict lo_block,
+                                        const idx_t *restrict hi_block, idx_t W, uint32_t *restrict best)
+{
+    uint32_t base = 0xFFFFu - (uint32_t)(b * BLOCK_ROWS + BLOCK_ROWS - 1);
+    for (idx_t c = 0; c < W; c++) {
+        uint32_t g = ((uint32_t)(key[c] >> 4) << 16) | (base + (key[c] & 15u));
+        if (lo_block) g = (b == lo_block[c] || b == hi_block[c]) ? 0 : g;
+        best[c] = g > best[c] ? g : best[c];
+    }
+}
+
 /* Rows of the largest and of the second, separated, peak per column of the smoothed difference
  * sm (n, W), n a whole number of 16-row blocks: see FastPipeline._candidates. Block maxima as
  * keys value << 4 | (15 - row in block): one unsigned max per block gives the block's maximum
@@ -135,28 +171,10 @@ static PyObject *py_candidates(PyObject *self, PyObject *args)
     }
     Py_BEGIN_ALLOW_THREADS
     /* every loop over all columns at once, without branches (the compiler vectorises them) */
-    for (idx_t b = 0; b < nb; b++) {
-        uint16_t *key = bk + b * W;
-        memset(key, 0, (size_t)W * sizeof(uint16_t));
-        for (idx_t r = 0; r < BLOCK_ROWS; r++) {
-            const uint8_t *line = sm + (b * BLOCK_ROWS + r) * W;
-            uint16_t low = (uint16_t)(BLOCK_ROWS - 1 - r);
-            for (idx_t c = 0; c < W; c++) {
-                uint16_t v = (uint16_t)((line[c] << 4) | low);
-                key[c] = v > key[c] ? v : key[c];
-            }
-        }
-    }
+    for (idx_t b = 0; b < nb; b++) block_keys(sm + b * BLOCK_ROWS * W, W, bk + b * W);
     /* over blocks as keys value << 16 | (0xFFFF - row): the largest value, then the first row */
     memset(best, 0, (size_t)(2 * W) * sizeof(uint32_t));
-    for (idx_t b = 0; b < nb; b++) {
-        const uint16_t *key = bk + b * W;
-        uint32_t base = 0xFFFFu - (uint32_t)(b * BLOCK_ROWS + BLOCK_ROWS - 1);
-        for (idx_t c = 0; c < W; c++) {
-            uint32_t g = ((uint32_t)(key[c] >> 4) << 16) | (base + (key[c] & 15u));
-            best[c] = g > best[c] ? g : best[c];
-        }
-    }
+    for (idx_t b = 0; b < nb; b++) best_over_blocks(bk + b * W, b, NULL, NULL, W, best);
     /* the second: the same outside the (at most two) blocks within sep rows of the first */
     for (idx_t c = 0; c < W; c++) {
         idx_t k1 = 0xFFFF - (idx_t)(best[c] & 0xFFFFu);
@@ -164,15 +182,7 @@ static PyObject *py_candidates(PyObject *self, PyObject *args)
         lo_block[c] = k1 - sep < 0 ? 0 : (k1 - sep) / BLOCK_ROWS;
         hi_block[c] = (k1 + sep) / BLOCK_ROWS < nb - 1 ? (k1 + sep) / BLOCK_ROWS : nb - 1;
     }
-    for (idx_t b = 0; b < nb; b++) {
-        const uint16_t *key = bk + b * W;
-        uint32_t base = 0xFFFFu - (uint32_t)(b * BLOCK_ROWS + BLOCK_ROWS - 1);
-        for (idx_t c = 0; c < W; c++) {
-            uint32_t g = ((uint32_t)(key[c] >> 4) << 16) | (base + (key[c] & 15u));
-            g = (b == lo_block[c] || b == hi_block[c]) ? 0 : g;
-            best2[c] = g > best2[c] ? g : best2[c];
-        }
-    }
+    for (idx_t b = 0; b < nb; b++) best_over_blocks(bk + b * W, b, lo_block, hi_block, W, best2);
     for (idx_t c = 0; c < W; c++) {
         idx_t k1 = k[c], k2 = 0xFFFF - (idx_t)(best2[c] & 0xFFFFu);
         if (best2[c] <= 0xFFFFu) { /* nothing but zeros elsewhere */
@@ -215,11 +225,72 @@ static inline idx_t reflect101(idx_t i, idx_t n)
     return i >= n ? 2 * (n - 1) - i : i;
 }
 
+/* Sums of the 5-column x 3-row box of every column of one row from its three lines (the rows
+ * above, at and below it), borders reflected as OpenCV's default: v gets the vertical sums. */
+PIXEL_LOOP static void box_sums(const uint8_t *restrict l0, const uint8_t *restrict l1, const uint8_t *restrict l2,
+                                idx_t W, uint16_t *restrict v, uint16_t *restrict h)
+{
+    for (idx_t c = 0; c < W; c++) v[c] = (uint16_t)(l0[c] + l1[c] + l2[c]);
+    for (idx_t c = 2; c < W - 2; c++) h[c] = (uint16_t)(v[c - 2] + v[c - 1] + v[c] + v[c + 1] + v[c + 2]);
+    for (idx_t c = 0; c < W; c++) {
+        if (c == 2 && W > 4) c = W - 2; /* the two columns at each edge */
+        uint16_t sum = 0;
+        for (idx_t j = c - 2; j <= c + 2; j++) sum = (uint16_t)(sum + v[reflect101(j, W)]);
+        h[c] = sum;
+    }
+}
+
+/* d = max(x - y, 0) of one row; returns the row's largest x */
+PIXEL_LOOP static uint8_t difference_row(const uint8_t *restrict x, const uint8_t *restrict y, idx_t W,
+                                         uint8_t *restrict d)
+{
+    uint8_t top = 0;
+    for (idx_t c = 0; c < W; c++) {
+        d[c] = x[c] > y[c] ? (uint8_t)(x[c] - y[c]) : 0;
+        top = x[c] > top ? x[c] : top;
+    }
+    return top;
+}
+
+PIXEL_LOOP static void max_row(uint16_t *restrict best, const uint16_t *restrict h, idx_t W)
+{
+    for (idx_t c = 0; c < W; c++) best[c] = h[c] > best[c] ? h[c] : best[c];
+}
+
+/* cv2.blur(x, (5, 3)) of 8-bit x is the box sum / 15 rounded; never half-way, so (sum + 7) / 15,
+ * here as a 16-bit multiply-high: x * 4370 / 2^16 exceeds x / 15 by under 0.06 for x <= 15 * 255 + 7,
+ * less than the distance of x / 15 to the next integer (>= 1/15) */
+static inline uint8_t box_mean(uint16_t sum) { return (uint8_t)(((uint32_t)(uint16_t)(sum + 7) * 4370u) >> 16); }
+
+PIXEL_LOOP static void mean_row(const uint16_t *restrict h, idx_t W, uint8_t *restrict out)
+{
+    for (idx_t c = 0; c < W; c++) out[c] = box_mean(h[c]);
+}
+
+/* 255 on the pixels of row `at` that are saturated in the lit frame, brightened by >= sat_min
+ * (d = 255 - unlit), and have such a pixel above or below them (rows `up`/`down`, NULL at the
+ * band's edges): a saturated line's flat top */
+PIXEL_LOOP static void saturated_pairs_row(const uint8_t *restrict a, const uint8_t *restrict b,
+                                           const uint8_t *a_up, const uint8_t *b_up, const uint8_t *a_down,
+                                           const uint8_t *b_down, idx_t W, uint8_t lim, uint8_t *restrict d)
+{
+    for (idx_t c = 0; c < W; c++) {
+        uint8_t self = (a[c] == 255) & (b[c] <= lim);
+        uint8_t up = a_up ? (a_up[c] == 255) & (b_up[c] <= lim) : 0;
+        uint8_t down = a_down ? (a_down[c] == 255) & (b_down[c] <= lim) : 0;
+        d[c] |= (uint8_t)(0u - (unsigned)(self & (up | down)));
+    }
+}
+
+PIXEL_LOOP static void and_rows(uint8_t *restrict d, const uint8_t *restrict mask, idx_t n)
+{
+    for (idx_t i = 0; i < n; i++) d[i] &= mask[i];
+}
+
 /* noise_level(lit, unlit, out): per column, the largest 5-column x 3-row box mean of the
- * negative difference max(unlit - lit, 0) over the rows of the band, rounded to 8 bits: exactly
- * `cv2.blur(cv2.subtract(unlit, lit), (5, 3)).max(axis=0)` (borders reflected as OpenCV's
- * default; a box mean of 15 integers is never half-way, so rounding (sum + 7) / 15 is OpenCV's),
- * in one pass without the two intermediate images. */
+ * negative difference max(unlit - lit, 0) over the rows of the band: exactly
+ * `cv2.blur(cv2.subtract(unlit, lit), (5, 3)).max(axis=0)`, in one pass without the two
+ * intermediate images. */
 static PyObject *py_noise_level(PyObject *self, PyObject *args)
 {
     PyObject *o_a, *o_b, *o_out;
@@ -236,7 +307,7 @@ static PyObject *py_noise_level(PyObject *self, PyObject *args)
         goto fail;
     }
     uint8_t *neg = PyMem_Malloc((size_t)(3 * W)); /* the negative difference of rows r-1, r, r+1 */
-    uint16_t *v = PyMem_Malloc((size_t)(2 * W) * sizeof(uint16_t)), *best = v ? v + W : NULL;
+    uint16_t *v = PyMem_Malloc((size_t)(3 * W) * sizeof(uint16_t)), *h = v ? v + W : NULL, *best = v ? v + 2 * W : NULL;
     if (!neg || !v) {
         PyMem_Free(neg), PyMem_Free(v);
         PyErr_NoMemory();
@@ -250,28 +321,79 @@ static PyObject *py_noise_level(PyObject *self, PyObject *args)
         for (int j = 0; j < 3; j++) {
             idx_t src = reflect101(r - 1 + j, n), slot = src % 3;
             if (held[slot] != src) {
-                const uint8_t *a = A + src * W, *b = B + src * W;
-                uint8_t *d = neg + slot * W;
-                for (idx_t c = 0; c < W; c++) d[c] = b[c] > a[c] ? (uint8_t)(b[c] - a[c]) : 0;
+                difference_row(B + src * W, A + src * W, W, neg + slot * W);
                 held[slot] = src;
             }
             line[j] = neg + slot * W;
         }
-        for (idx_t c = 0; c < W; c++) v[c] = (uint16_t)(line[0][c] + line[1][c] + line[2][c]);
-        for (idx_t c = 2; c < W - 2; c++) {
-            uint16_t h = (uint16_t)(v[c - 2] + v[c - 1] + v[c] + v[c + 1] + v[c + 2]);
-            best[c] = h > best[c] ? h : best[c];
-        }
-        for (idx_t c = 0; c < W; c++) {
-            if (c == 2 && W > 4) c = W - 2; /* the two columns at each edge, reflected */
-            uint16_t h = 0;
-            for (idx_t j = c - 2; j <= c + 2; j++) h = (uint16_t)(h + v[reflect101(j, W)]);
-            best[c] = h > best[c] ? h : best[c];
-        }
+        box_sums(line[0], line[1], line[2], W, v, h);
+        max_row(best, h, W);
     }
-    for (idx_t c = 0; c < W; c++) out[c] = (double)((best[c] + 7) / 15);
+    for (idx_t c = 0; c < W; c++) out[c] = (double)box_mean(best[c]);
     Py_END_ALLOW_THREADS
     PyMem_Free(neg), PyMem_Free(v);
+    release(&vs);
+    Py_RETURN_NONE;
+fail:
+    release(&vs);
+    return NULL;
+}
+
+/* band_difference(lit, unlit, mask, padded, pad, sm): the band's difference image and its
+ * detection copy, in two passes instead of OpenCV's six:
+ *   d = max(lit - unlit, 0), except 255 on both pixels of a vertical pair that are saturated in
+ *       the lit frame and brightened by >= SATURATED_LINE_MIN (a saturated line: a flat top),
+ *       then d &= mask (the region of interest), stored in padded[pad : pad + n];
+ *   sm = cv2.blur(d, (5, 3)) (exactly: borders reflected, rounding as OpenCV's).
+ */
+static PyObject *py_band_difference(PyObject *self, PyObject *args)
+{
+    PyObject *o_a, *o_b, *o_mask, *o_pad, *o_sm;
+    idx_t pad, sat_min;
+    if (!PyArg_ParseTuple(args, "OOOOnOn", &o_a, &o_b, &o_mask, &o_pad, &pad, &o_sm, &sat_min)) return NULL;
+    Views vs = {.n = 0};
+    idx_t shp[2];
+    const uint8_t *A = arg(&vs, o_a, 'u', -1, -1, 2, 0, "lit", shp);
+    idx_t n = shp[0], W = shp[1];
+    const uint8_t *B = A ? arg(&vs, o_b, 'u', n, W, 2, 0, "unlit", NULL) : NULL;
+    const uint8_t *M = B ? arg(&vs, o_mask, 'u', n, W, 2, 0, "mask", NULL) : NULL;
+    uint8_t *P = M ? arg(&vs, o_pad, 'u', n + 2 * pad, W, 2, 1, "padded", NULL) : NULL;
+    uint8_t *S = P ? arg(&vs, o_sm, 'u', n, W, 2, 1, "sm", NULL) : NULL;
+    if (!S) goto fail;
+    if (n < 1 || W < 3 || pad < 0 || sat_min < 0 || sat_min > 255) {
+        PyErr_Format(PyExc_ValueError, "band_difference: need >= 1 row, >= 3 columns, pad >= 0 and 0 <= sat_min <= 255, "
+                     "got %zdx%zd, pad %zd, sat_min %zd", W, n, pad, sat_min);
+        goto fail;
+    }
+    char *full = PyMem_Malloc((size_t)n); /* the lit row holds a saturated pixel */
+    uint16_t *v = PyMem_Malloc((size_t)(2 * W) * sizeof(uint16_t)), *h = v ? v + W : NULL;
+    if (!full || !v) {
+        PyMem_Free(full), PyMem_Free(v);
+        PyErr_NoMemory();
+        goto fail;
+    }
+    int any_full = 0;
+    Py_BEGIN_ALLOW_THREADS
+    uint8_t *D = P + pad * W;
+    for (idx_t r = 0; r < n; r++) {
+        full[r] = difference_row(A + r * W, B + r * W, W, D + r * W) == 255;
+        any_full |= full[r];
+    }
+    /* saturated pairs, before the mask: only rows next to another row with a saturated pixel */
+    uint8_t lim = (uint8_t)(255 - sat_min);
+    for (idx_t r = 0; any_full && r < n; r++) {
+        int up = r > 0 && full[r - 1], down = r + 1 < n && full[r + 1];
+        if (full[r] && (up || down))
+            saturated_pairs_row(A + r * W, B + r * W, up ? A + (r - 1) * W : NULL, up ? B + (r - 1) * W : NULL,
+                                down ? A + (r + 1) * W : NULL, down ? B + (r + 1) * W : NULL, W, lim, D + r * W);
+    }
+    and_rows(D, M, n * W);
+    for (idx_t r = 0; r < n; r++) {
+        box_sums(D + reflect101(r - 1, n) * W, D + r * W, D + reflect101(r + 1, n) * W, W, v, h);
+        mean_row(h, W, S + r * W);
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(full), PyMem_Free(v);
     release(&vs);
     Py_RETURN_NONE;
 fail:
@@ -756,6 +878,7 @@ static PyMethodDef methods[] = {
     {"resolve", py_resolve, METH_VARARGS, "resolve(...) -> (seen_first, seen_last); see device/vision/fast.py"},
     {"running_median", py_running_median, METH_VARARGS, "running_median(x, found, out)"},
     {"noise_level", py_noise_level, METH_VARARGS, "noise_level(lit, unlit, out)"},
+    {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
     {NULL, NULL, 0, NULL},
 };

@@ -29,7 +29,6 @@ and ``cv2.minMaxLoc`` works on a whole image, not per column.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -214,86 +213,34 @@ def refine_peaks(
     return ColumnPeaks(np.where(valid, row, np.nan), f0, k, valid, plateau, spread)
 
 
+def columns_kernel():
+    """The compiled per-column kernel of the fast pipeline (``device/vision/_columns.c``), with a
+    clear error where it was not built."""
+    try:
+        from . import _columns
+    except ImportError as exc:
+        raise ImportError("device.vision._columns, the fast pipeline's compiled kernel, is not built: run "
+                          "`pip install -e .` (or `make test`) with a C compiler and the Python headers") from exc
+    return _columns
+
+
 def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np.ndarray, row_lo: np.ndarray,
                       row_hi: np.ndarray, half_width: int = 4) -> ColumnPeaks:
     """:func:`refine_peaks` with ``estimator="com"``, ``pedestal=0``, ``background=0``,
     ``min_peak=1`` and ``plateau_min=255`` for columns ``cols`` of a uint8 image that is stored
-    as ``padded[pad:-pad]`` with ``pad >= half_width`` zero rows above and below it and zeros
-    outside each column's rows ``[row_lo, row_hi)`` (given per column of ``cols``, within the
-    image): identical results, much cheaper. With those zeros the window needs no clamping or
-    masking (one flat gather), and the moments of 8-bit samples are exact integers.
-    Used by the fast pipeline (thesis 6.1.2 step 6, improved)."""
-    width = padded.shape[1]
-    if pad < half_width:
-        raise ValueError(f"pad must be >= half_width, got {pad} < {half_width}")
-    lo, hi = row_lo, row_hi
-    empty = (hi <= lo) | (argmax < lo) | (argmax >= hi)
-    k = np.where(empty, -1, argmax)
-    kk = np.maximum(k, 0)
-    offsets, moments = _com_window(half_width, width)
-    win = padded.ravel().take(((kk + pad) * width + cols) + offsets)
-    f0 = win[half_width]
-    s, s1, s2 = moments @ win.astype(np.float64)
-    s[empty] = np.nan  # as refine_peaks: an empty column has no spread
-    with np.errstate(invalid="ignore", divide="ignore"):
-        delta = s1 / s
-        spread = np.sqrt(np.maximum(s2 / s - delta * delta, 0.0))
-    row = kk + delta
-    valid = (f0 > 0) & ~empty
-    ok = np.ones(k.shape, dtype=bool)
-    # the window is cut by the interval's edge while the last sample inside is still lit
-    edge = np.nonzero(valid & ((kk - half_width < lo) | (kk + half_width >= hi)))[0]
-    if edge.size:
-        flat, c = padded.ravel(), cols[edge]
-        ok[edge] = ~(((kk[edge] - half_width < lo[edge]) & (flat.take((lo[edge] + pad) * width + c) > 0))
-                     | ((kk[edge] + half_width >= hi[edge]) & (flat.take((hi[edge] - 1 + pad) * width + c) > 0)))
-    plateau = (f0 == 255) & ~empty
-    if plateau.any():
-        plateau &= (win[half_width + 1] == 255) & (win[half_width + 2] == 255)
-        idx = np.nonzero(plateau & valid)[0]
-        if idx.size:
-            # flat top: its centre, refined by the centre of mass over it (as refine_peaks)
-            row[idx], ok[idx] = _plateau_centre_padded(padded, pad, k[idx], lo[idx], hi[idx], cols[idx], half_width)
-    valid &= ok & np.isfinite(row)
-    peak = np.where(empty, np.nan, f0)
-    return ColumnPeaks(np.where(valid, row, np.nan), peak, k, valid, plateau, spread)
-
-
-@functools.lru_cache(maxsize=8)
-def _com_window(half_width: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Flat offsets (2 half_width + 1, 1) of a window's rows in a (., width) image, and the
-    (3, 2 half_width + 1) matrix of the moments 1, o, o^2."""
-    o = np.arange(-half_width, half_width + 1)
-    return (o * width)[:, None], np.stack([np.ones(o.size), o, o * o]).astype(np.float64)
-
-
-def _plateau_centre_padded(padded, pad, k, lo, hi, cols, half):
-    """:func:`_plateau_centre` for a plateau at 255 with no background or pedestal, on the
-    zero-padded image of :func:`refine_com_padded` (same sums, so the same result): rows beyond
-    the interval read zeros, so only the window's own span needs masking."""
-    width = padded.shape[1]
-    flat = padded.ravel()
-    last = padded.shape[0] - 1  # a pad row (zero)
-    end = k.copy()
-    active = np.arange(k.size)
-    ahead = np.arange(1, PLATEAU_STEP + 1)[:, None]
-    while active.size:  # walk to the end of each plateau, PLATEAU_STEP rows per gather
-        r = end[active] + ahead
-        same = flat.take(np.minimum(r + pad, last) * width + cols[active]) == 255
-        whole = same.all(axis=0)
-        end[active] += np.where(whole, PLATEAU_STEP, np.argmin(same, axis=0))  # leading equal rows
-        active = active[whole]
-    mid = np.floor((k + end) / 2.0).astype(np.intp)
-    span = (end - k) // 2 + half
-    offs = np.arange(-int(span.max()), int(span.max()) + 1)[:, None]
-    r = np.minimum(np.maximum(mid + offs + pad, 0), last)
-    vals = flat.take(r * width + cols).astype(np.float64)
-    w = np.where(np.abs(offs) <= span, vals, 0.0)
-    s = w.sum(axis=0)
-    cut = (((mid - span < lo) & (flat.take((lo + pad) * width + cols) > 0))
-           | ((mid + span >= hi) & (flat.take((hi - 1 + pad) * width + cols) > 0)))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return mid + (w * offs).sum(axis=0) / s, (s > 0) & ~cut
+    as ``padded[pad:-pad]`` with ``pad >= max(half_width, 2)`` zero rows above and below it and
+    zeros outside each column's rows ``[row_lo, row_hi)`` (given per column of ``cols``, within
+    the image): identical results, much cheaper. With those zeros the window needs no clamping
+    or masking, and the moments of 8-bit samples are exact integers. Computed by the compiled
+    kernel (:func:`columns_kernel`), one pass per column. Used by the fast pipeline (thesis
+    6.1.2 step 6, improved)."""
+    n = len(argmax)
+    row, peak, spread = np.empty(n), np.empty(n), np.empty(n)
+    k, valid, plateau = np.empty(n, np.intp), np.empty(n, bool), np.empty(n, bool)
+    columns_kernel().refine_com(padded, pad, np.ascontiguousarray(argmax, np.intp), np.ascontiguousarray(cols, np.intp),
+                                np.ascontiguousarray(row_lo, np.intp), np.ascontiguousarray(row_hi, np.intp),
+                                half_width, row, peak, k, valid, plateau, spread)
+    return ColumnPeaks(row, peak, k, valid, plateau, spread)
 
 
 def _centre_of_mass(img, k, vals, inside, f0, bg, lo, hi, half, pedestal):
