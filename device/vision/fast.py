@@ -19,7 +19,7 @@ Per frame pair:
    consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
    in a floor below the laser plane, or a secondary reflection off it, always appears farther
    from the horizon than the line that causes it and runs alongside it; the nearer line of an
-   occlusion edge continues alone on its side. See :meth:`FastPipeline._choose`.
+   occlusion edge continues alone on its side. See ``choose_second`` in ``_columns.c``.
 5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
    columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
    running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
@@ -49,6 +49,12 @@ the default 5). Steps 6-7 are unchanged.
 7. Nearer than the region of interest: the rows on the near side of it are not searched for a
    line, but their per-column maximum difference (one cheap reduction) is: a column with no
    line in range and a strong return there reports "too close" (-inf), never "no return".
+
+Steps 1-5 run in a compiled kernel, ``device/vision/_columns.c`` (its header says why C): the
+image passes (difference, detection blur, noise level: equal to the OpenCV operations they fuse,
+tested in ``tests/test_vision_kernel.py``) and one loop per column for each step after them; the
+sub-pixel estimators other than the centre of mass stay in :mod:`device.vision.peaks` (numpy).
+This module keeps the order of the steps, the tracking and the parameters.
 """
 
 from __future__ import annotations
@@ -60,7 +66,7 @@ import numpy as np
 
 from ..config import SensorConfig
 from .geometry import column_geometry
-from .measurements import ColumnMeasurements, ColumnStatus, finish, luminance
+from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, columns_kernel, refine_com_padded, refine_peaks
 
 BLOCK_ROWS = 16
@@ -209,7 +215,7 @@ class FastPipeline:
         W = self.cols.size
         # too close: only columns in runs of >= min_run without a return can become a run of
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
-        empty = _run_length(status == ColumnStatus.NO_RETURN) >= p.min_run
+        empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
         cols = np.nonzero(empty)[0]
         if self.near_bottom > self.near_top and cols.size:
             # every other row: a line is at least two rows high
@@ -227,7 +233,7 @@ class FastPipeline:
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
-        found = status == ColumnStatus.OK
+        found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
                       self.config.post_calibration)

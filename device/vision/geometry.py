@@ -24,6 +24,8 @@ from ..model.camera import undistort_robust
 from ..model.scan_frame import ScanFrame, scan_frame, to_scan_plane
 from ..model.triangulation import HORIZON_EPS, LaserPlane, RangeStatus, Triangulation, intersect_plane
 
+#: RangeStatus values as numpy scalars (numpy converts an IntEnum member on every use).
+_RANGE_STATUS_U8 = {s: np.uint8(s) for s in RangeStatus}
 #: Rows added on each side of the region of interest so the line profile is whole at the limits.
 ROI_MARGIN_ROWS = 8
 
@@ -83,13 +85,13 @@ class ColumnGeometry:
         denom = np.where(inside, nx * x + ny * y + nz, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = self.plane.distance / denom
+            s = _RANGE_STATUS_U8
             status = np.where(np.isfinite(denom),
-                              np.where(denom <= HORIZON_EPS, RangeStatus.BEYOND_HORIZON,
-                                       np.where(depth < self.min_m, RangeStatus.TOO_CLOSE,
-                                                np.where(depth > self.max_m, RangeStatus.TOO_FAR, RangeStatus.OK))),
-                              RangeStatus.INVALID_PIXEL)
-        status = status.astype(np.uint8)
-        depth[status != RangeStatus.OK] = np.nan
+                              np.where(denom <= HORIZON_EPS, s[RangeStatus.BEYOND_HORIZON],
+                                       np.where(depth < self.min_m, s[RangeStatus.TOO_CLOSE],
+                                                np.where(depth > self.max_m, s[RangeStatus.TOO_FAR], s[RangeStatus.OK]))),
+                              s[RangeStatus.INVALID_PIXEL])
+        depth[status != s[RangeStatus.OK]] = np.nan
         points = np.empty(rows.shape + (3,))
         np.multiply(x, depth, out=points[..., 0])
         np.multiply(y, depth, out=points[..., 1])

@@ -34,6 +34,10 @@ class ColumnStatus(enum.IntEnum):
     REJECTED = 7  # a line was found but failed a consistency check (width, ambiguity)  [NaN]
 
 
+#: ColumnStatus values as numpy scalars for the per-frame array operations (numpy converts an
+#: IntEnum member on every use: ~4 us a comparison on a scan, against ~1.5 us).
+STATUS_U8 = {s: np.uint8(s) for s in ColumnStatus}
+
 _RANGE_OF_STATUS = np.array([np.nan, np.inf, -np.inf, np.inf, np.nan, np.nan, np.nan, np.nan])
 _FROM_RANGE_STATUS = np.zeros(max(RangeStatus) + 1, dtype=np.uint8)  # RangeStatus -> ColumnStatus
 for _r, _c in (
@@ -96,13 +100,14 @@ def finish(
     """Combine line finding (``line_status``: OK where a line was measured at ``rows``) and its
     triangulation into measurements: post-calibration (eq. 6.5), scan angle/range, REP 117."""
     status = np.asarray(line_status, dtype=np.uint8)
-    status = np.where(status == ColumnStatus.OK, _FROM_RANGE_STATUS.take(tri.status), status)
-    ok = status == ColumnStatus.OK
+    ok_u8 = STATUS_U8[ColumnStatus.OK]
+    status = np.where(status == ok_u8, _FROM_RANGE_STATUS.take(tri.status), status)
+    ok = status == ok_u8
     points = postcal.apply(post, np.where(ok[:, None], tri.points, np.nan))
     angle, rng = geom.angle_range(points)
     angle = np.where(ok, angle, geom.column_angle.take(columns))
     rng = np.where(ok, rng, _RANGE_OF_STATUS.take(status))
-    none = status == ColumnStatus.NO_RETURN
+    none = status == STATUS_U8[ColumnStatus.NO_RETURN]
     return ColumnMeasurements(np.asarray(columns), np.where(none, np.nan, rows), angle, rng,
                               np.where(none, 0.0, quality), points, status)
 

@@ -1,0 +1,142 @@
+"""The fast pipeline's compiled kernel (device/vision/_columns.c) on its own: its image passes
+against the OpenCV operations they fuse, its helpers against plain definitions, and clear errors
+for bad arguments. The pipeline's behaviour (targets, hard cases) is tested through FastPipeline
+in test_vision_pipelines.py and test_vision_simulated.py; its centre of mass against the general
+estimator in test_vision_peaks.py."""
+
+import cv2
+import numpy as np
+import pytest
+
+from device.vision.fast import SATURATED_LINE_MIN, FastParams
+from device.vision.peaks import columns_kernel
+
+K = columns_kernel()
+SHAPES = [(1, 3), (2, 3), (3, 7), (5, 5), (16, 4), (37, 101), (128, 1664)]
+
+
+def _opencv_band(a, b, mask):
+    """The OpenCV sequence the kernel's band_difference replaced (d, sm)."""
+    d = cv2.subtract(a, b)
+    sat = (a == 255) & (d >= SATURATED_LINE_MIN)
+    pair = np.zeros_like(sat)
+    pair[1:] |= sat[1:] & sat[:-1]
+    pair[:-1] |= sat[1:] & sat[:-1]
+    d[pair] = 255
+    d = cv2.bitwise_and(d, mask)
+    return d, cv2.blur(d, (5, 3))
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_band_difference_equals_the_opencv_operations(shape):
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    n, W = shape
+    for trial in range(4):
+        a = rng.integers(0, 256, shape, dtype=np.uint8)
+        b = rng.integers(0, 256, shape, dtype=np.uint8)
+        if trial >= 2:  # a saturated line over a dim background, and bright unlit pixels that must not count
+            a = (a // 4).astype(np.uint8)
+            a[rng.random(shape) < 0.3] = 255
+            b[rng.random(shape) < 0.1] = 250
+        mask = np.where(rng.random(shape) < 0.8, 255, 0).astype(np.uint8)
+        pad = 4
+        padded = np.full((n + 2 * pad, W), 77, np.uint8)  # the pad rows are the caller's: left alone
+        sm = np.empty(shape, np.uint8)
+        K.band_difference(a, b, mask, padded, pad, sm, SATURATED_LINE_MIN)
+        want_d, want_sm = _opencv_band(a, b, mask)
+        np.testing.assert_array_equal(padded[pad : pad + n], want_d)
+        np.testing.assert_array_equal(sm, want_sm)
+        assert (padded[:pad] == 77).all() and (padded[pad + n :] == 77).all()
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_noise_level_equals_the_opencv_operations(shape):
+    rng = np.random.default_rng(shape[0] + 7 * shape[1])
+    a = rng.integers(0, 256, shape, dtype=np.uint8)
+    b = rng.integers(0, 256, shape, dtype=np.uint8)
+    out = np.empty(shape[1])
+    K.noise_level(a, b, out)
+    np.testing.assert_array_equal(out, cv2.blur(cv2.subtract(b, a), (5, 3)).max(axis=0))
+
+
+def test_box_mean_rounds_as_opencv_for_every_sum():
+    # the middle row's 5x3 boxes centred on every fifth column take every sum 0..3825 once
+    sums = np.arange(0, 15 * 255 + 1)
+    img = np.zeros((3, 5 * sums.size), np.uint8)
+    for i, s in enumerate(sums):
+        q, r = divmod(int(s), 15)
+        block = np.full(15, q, np.uint8)
+        block[:r] += 1
+        img[:, 5 * i : 5 * i + 5] = block.reshape(3, 5)
+    np.testing.assert_array_equal(cv2.boxFilter(img, cv2.CV_32S, (5, 3), normalize=False)[1, 2::5], sums)
+    out = np.empty(img.shape[1])
+    K.noise_level(np.zeros_like(img), img, out)  # unlit - lit = img; the largest over the rows
+    np.testing.assert_array_equal(out, cv2.blur(img, (5, 3)).max(axis=0))
+
+
+def test_run_length():
+    mask = np.array([1, 1, 0, 1, 0, 0, 1, 1, 1], bool)
+    out = np.empty(mask.size, np.intp)
+    K.run_length(mask, out)
+    np.testing.assert_array_equal(out, [2, 2, 0, 1, 0, 0, 3, 3, 3])
+
+
+def test_candidates_find_the_largest_and_a_separated_second_peak():
+    n, W, pad = 64, 6, 4
+    sm = np.zeros((n, W), np.uint8)
+    sm[20, :] = 50  # the line
+    sm[22, :] = 40  # its own flank: too close to be a second line
+    sm[45, :] = 30  # a ghost
+    padded = np.zeros((n + 2 * pad, W), np.uint8)
+    padded[pad : pad + n] = sm
+    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
+    K.candidates(sm, padded, pad, 5, k, s)
+    np.testing.assert_array_equal(k[:W], 20)
+    np.testing.assert_array_equal(k[W:], 45)
+    np.testing.assert_array_equal(s, [50] * W + [30] * W)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: K.noise_level(np.zeros((4, 8)), np.zeros((4, 8), np.uint8), np.empty(8)), "lit has dtype"),
+    (lambda: K.noise_level(np.zeros((4, 8), np.uint8), np.zeros((4, 9), np.uint8), np.empty(8)), "unlit has length 9"),
+    (lambda: K.noise_level(np.zeros((4, 8), np.uint8)[:, ::2], np.zeros((4, 4), np.uint8), np.empty(4)), "C-contiguous"),
+    (lambda: K.noise_level(np.zeros((4, 8), np.uint8), np.zeros((4, 8), np.uint8), np.empty(8)[:4].view()),
+     "out has length 4"),
+    (lambda: K.run_length(np.zeros(5, bool), np.empty(5, np.int8)), "out has dtype"),
+    (lambda: K.candidates(np.zeros((20, 4), np.uint8), np.zeros((28, 4), np.uint8), 4, 5, np.empty(8, np.intp),
+                          np.empty(8)), "whole 16-row blocks"),
+    (lambda: K.candidates(np.zeros((16, 4), np.uint8), np.zeros((24, 4), np.uint8), 4, 8, np.empty(8, np.intp),
+                          np.empty(8)), "2 sep + 1 <= 16"),
+    (lambda: K.refine_com(np.zeros((20, 4), np.uint8), 4, np.zeros(1, np.intp), np.array([4]), np.zeros(1, np.intp),
+                          np.ones(1, np.intp), 4, *_refine_outputs(1)), "column 4"),
+    (lambda: K.refine_com(np.zeros((20, 4), np.uint8), 1, np.zeros(1, np.intp), np.zeros(1, np.intp),
+                          np.zeros(1, np.intp), np.ones(1, np.intp), 4, *_refine_outputs(1)), "pad >= max(half_width, 2)"),
+])
+def test_bad_arguments_are_named(call, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
+        call()
+
+
+def _refine_outputs(m):
+    return np.empty(m), np.empty(m), np.empty(m, np.intp), np.empty(m, bool), np.empty(m, bool), np.empty(m)
+
+
+def test_refine_com_reads_only_its_buffers_on_empty_and_edge_columns():
+    # an empty interval, a candidate outside it, and a line cut by the interval's end: no
+    # estimate (NaN), no read outside the padded image (pad = half_width)
+    n, W, pad = 10, 3, 4
+    padded = np.zeros((n + 2 * pad, W), np.uint8)
+    padded[pad + 8 : pad + 10, 2] = 100
+    k = np.array([3, 12, 9], np.intp)
+    lo, hi = np.array([5, 0, 0], np.intp), np.array([5, 10, 10], np.intp)
+    out = _refine_outputs(3)
+    K.refine_com(padded, pad, k, np.arange(3), lo, hi, 4, *out)
+    row, peak, argmax, valid = out[:4]
+    assert not valid.any() and np.isnan(row).all()
+    np.testing.assert_array_equal(argmax, [-1, -1, 9])
+    assert np.isnan(peak[:2]).all() and peak[2] == 100
+
+
+def test_fast_params_reject_a_window_wider_than_the_candidate_blocks_allow():
+    with pytest.raises(ValueError, match="half_width must be <= 6"):
+        FastParams(half_width=7)
