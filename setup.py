@@ -2,7 +2,7 @@
 see its header for why it is C). Everything else about the package is in pyproject.toml.
 
 ``optional``: a robot that installs laserpi only for the host SDK needs no compiler; the device
-reports a missing kernel when a fast pipeline is built (device.vision.peaks.columns_kernel).
+reports a missing kernel when a fast pipeline is built (device.vision.kernel.columns_kernel).
 ``-ffp-contract=off``: no fused multiply-adds, so the kernel rounds alike on x86 and ARM."""
 
 from setuptools import Extension, setup

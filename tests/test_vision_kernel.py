@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from device.vision.fast import SATURATED_LINE_MIN, FastParams
-from device.vision.peaks import columns_kernel
+from device.vision.kernel import columns_kernel
 
 K = columns_kernel()
 SHAPES = [(1, 3), (2, 3), (3, 7), (5, 5), (16, 4), (37, 101), (128, 1664)]
@@ -111,6 +111,12 @@ def test_candidates_find_the_largest_and_a_separated_second_peak():
                           np.ones(1, np.intp), 4, *_refine_outputs(1)), "column 4"),
     (lambda: K.refine_com(np.zeros((20, 4), np.uint8), 1, np.zeros(1, np.intp), np.zeros(1, np.intp),
                           np.zeros(1, np.intp), np.ones(1, np.intp), 4, *_refine_outputs(1)), "pad >= max(half_width, 2)"),
+    (lambda: K.triangulate(np.zeros(1), np.array([5]), np.zeros((2, 4)), np.zeros((2, 4)), 0, (0.0, 1.0, 0.0, 1.0),
+                           (0.0, 1.0, 1e-9), (0, 1, 2, 3, 4), np.empty((1, 3)), np.empty(1), np.empty(1, np.uint8)),
+     "column 5 outside the table's 4 columns"),
+    (lambda: K.triangulate(np.zeros(2), np.zeros(2, np.intp), np.zeros((2, 4)), np.zeros((3, 4)), 0,
+                           (0.0, 1.0, 0.0, 1.0), (0.0, 1.0, 1e-9), (0, 1, 2, 3, 4), np.empty((2, 3)), np.empty(2),
+                           np.empty(2, np.uint8)), "yn has length 3 along axis 0"),
 ])
 def test_bad_arguments_are_named(call, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):

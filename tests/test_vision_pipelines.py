@@ -267,7 +267,7 @@ def test_dim_columns_count_inside_a_surface_never_past_its_end(wall2m, pipes):
 
 
 def test_running_median_is_the_median_of_the_found_neighbours():
-    from device.vision.peaks import columns_kernel
+    from device.vision.kernel import columns_kernel
 
     rng = np.random.default_rng(4)
     x = rng.integers(0, 6, 400).astype(float) + rng.random(400) * 0.1 * (rng.random(400) < 0.5)  # ties too

@@ -21,6 +21,7 @@
  *   noise_level(lit, unlit, out)
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
+ *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -856,6 +857,72 @@ fail:
     return NULL;
 }
 
+/* ------------------------------------------------------------------ table triangulation */
+
+/* triangulate(rows, cols, xn, yn, top, (nx, ny, nz, distance), (min_m, max_m, eps), codes,
+ *             points, depth, status): device.vision.geometry.ColumnGeometry.triangulate, the
+ * normalised ray interpolated between the table's two rows around each sub-pixel row, then the
+ * exact ray/plane intersection (thesis eq. 3.13, 3.17), in the order of its numpy formulation.
+ * codes: the RangeStatus values (ok, invalid_pixel, beyond_horizon, too_close, too_far). */
+static PyObject *py_triangulate(PyObject *self, PyObject *args)
+{
+    PyObject *o_rows, *o_cols, *o_xn, *o_yn, *o_pts, *o_depth, *o_status;
+    idx_t top;
+    double nx, ny, nz, dist, min_m, max_m, eps;
+    int c_ok, c_invalid, c_beyond, c_close, c_far;
+    if (!PyArg_ParseTuple(args, "OOOOn(dddd)(ddd)(iiiii)OOO", &o_rows, &o_cols, &o_xn, &o_yn, &top, &nx, &ny, &nz, &dist,
+                          &min_m, &max_m, &eps, &c_ok, &c_invalid, &c_beyond, &c_close, &c_far, &o_pts, &o_depth,
+                          &o_status))
+        return NULL;
+    Views vs = {.n = 0};
+    idx_t N, tab[2];
+    const double *rows = arg(&vs, o_rows, 'd', -1, 0, 1, 0, "rows", &N);
+    const idx_t *cols = rows ? arg(&vs, o_cols, 'i', N, 0, 1, 0, "columns", NULL) : NULL;
+    const double *xn = cols ? arg(&vs, o_xn, 'd', -1, -1, 2, 0, "xn", tab) : NULL;
+    const double *yn = xn ? arg(&vs, o_yn, 'd', tab[0], tab[1], 2, 0, "yn", NULL) : NULL;
+    double *pts = yn ? arg(&vs, o_pts, 'd', N, 3, 2, 1, "points", NULL) : NULL;
+    double *depth = pts ? arg(&vs, o_depth, 'd', N, 0, 1, 1, "depth", NULL) : NULL;
+    uint8_t *status = depth ? arg(&vs, o_status, 'u', N, 0, 1, 1, "status", NULL) : NULL;
+    if (!status) goto fail;
+    idx_t n = tab[0], W = tab[1];
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "triangulate: the ray table has no rows");
+        goto fail;
+    }
+    for (idx_t i = 0; i < N; i++) {
+        if (cols[i] < 0 || cols[i] >= W) {
+            PyErr_Format(PyExc_ValueError, "triangulate: column %zd outside the table's %zd columns", cols[i], W);
+            goto fail;
+        }
+    }
+    idx_t cap = n - 2 > 0 ? n - 2 : 0;
+    for (idx_t i = 0; i < N; i++) {
+        double r = rows[i] - (double)top;
+        int inside = r >= 0.0 && r <= (double)(n - 1); /* false for NaN */
+        r = inside ? r : 0.0;
+        idx_t r0 = (idx_t)r;
+        r0 = r0 < cap ? r0 : cap;
+        double t = r - (double)r0, u = 1.0 - t;
+        idx_t i0 = r0 * W + cols[i], i1 = n > 1 ? i0 + W : i0;
+        double x = xn[i0] * u + xn[i1] * t;
+        double y = yn[i0] * u + yn[i1] * t;
+        double denom = inside ? nx * x + ny * y + nz : NAN;
+        double d = dist / denom;
+        int st = !isfinite(denom) ? c_invalid : denom <= eps ? c_beyond : d < min_m ? c_close : d > max_m ? c_far : c_ok;
+        d = st == c_ok ? d : NAN;
+        status[i] = (uint8_t)st;
+        depth[i] = d;
+        pts[3 * i] = x * d;
+        pts[3 * i + 1] = y * d;
+        pts[3 * i + 2] = d;
+    }
+    release(&vs);
+    Py_RETURN_NONE;
+fail:
+    release(&vs);
+    return NULL;
+}
+
 static PyObject *py_running_median(PyObject *self, PyObject *args)
 {
     PyObject *o_x, *o_found, *o_out;
@@ -880,6 +947,7 @@ static PyMethodDef methods[] = {
     {"noise_level", py_noise_level, METH_VARARGS, "noise_level(lit, unlit, out)"},
     {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
+    {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -67,7 +67,8 @@ import numpy as np
 from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
-from .peaks import ESTIMATORS, ColumnPeaks, clamp, columns_kernel, refine_com_padded, refine_peaks
+from .kernel import columns_kernel
+from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks
 
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.

@@ -23,9 +23,11 @@ from ..config import SensorConfig
 from ..model.camera import undistort_robust
 from ..model.scan_frame import ScanFrame, scan_frame, to_scan_plane
 from ..model.triangulation import HORIZON_EPS, LaserPlane, RangeStatus, Triangulation, intersect_plane
+from .kernel import columns_kernel
 
-#: RangeStatus values as numpy scalars (numpy converts an IntEnum member on every use).
-_RANGE_STATUS_U8 = {s: np.uint8(s) for s in RangeStatus}
+#: The RangeStatus codes in the kernel's order.
+_RANGE_CODES = tuple(int(s) for s in (RangeStatus.OK, RangeStatus.INVALID_PIXEL, RangeStatus.BEYOND_HORIZON,
+                                      RangeStatus.TOO_CLOSE, RangeStatus.TOO_FAR))
 #: Rows added on each side of the region of interest so the line profile is whole at the limits.
 ROI_MARGIN_ROWS = 8
 
@@ -66,36 +68,14 @@ class ColumnGeometry:
         cols = np.arange(self.width) if columns is None else np.asarray(columns)
         if rows.shape != cols.shape:
             raise ValueError(f"rows {rows.shape} and columns {cols.shape} must have the same shape")
-        n = self.bottom - self.top
-        r = rows - self.top
-        inside = (r >= 0) & (r <= n - 1)  # False for NaN
-        r = np.where(inside, r, 0.0)
-        r0 = np.minimum(r.astype(np.intp), max(n - 2, 0))  # floor: r >= 0
-        t = r - r0
-        # flat takes on the contiguous tables: cheaper than 2-D fancy indexing
-        i0 = r0 * self.width + cols
-        i1 = i0 + self.width if n > 1 else i0
-        xn, yn = self.xn.ravel(), self.yn.ravel()
-        u = 1 - t
-        x = xn.take(i0) * u + xn.take(i1) * t
-        y = yn.take(i0) * u + yn.take(i1) * t
-        # the ray/plane intersection of intersect_plane (eq. 3.13, 3.17), same arithmetic, written
-        # out for one ray per column (its generic (..., 2) handling costs more than the maths)
-        nx, ny, nz = self.plane.normal
-        denom = np.where(inside, nx * x + ny * y + nz, np.nan)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            depth = self.plane.distance / denom
-            s = _RANGE_STATUS_U8
-            status = np.where(np.isfinite(denom),
-                              np.where(denom <= HORIZON_EPS, s[RangeStatus.BEYOND_HORIZON],
-                                       np.where(depth < self.min_m, s[RangeStatus.TOO_CLOSE],
-                                                np.where(depth > self.max_m, s[RangeStatus.TOO_FAR], s[RangeStatus.OK]))),
-                              s[RangeStatus.INVALID_PIXEL])
-        depth[status != s[RangeStatus.OK]] = np.nan
-        points = np.empty(rows.shape + (3,))
-        np.multiply(x, depth, out=points[..., 0])
-        np.multiply(y, depth, out=points[..., 1])
-        points[..., 2] = depth
+        # the ray/plane intersection of intersect_plane (eq. 3.13, 3.17), same arithmetic, one ray
+        # per row in the compiled kernel (its generic (..., 2) handling costs more than the maths)
+        points, depth = np.empty(rows.shape + (3,)), np.empty(rows.shape)
+        status = np.empty(rows.shape, np.uint8)
+        columns_kernel().triangulate(rows.ravel(), np.ascontiguousarray(cols, np.intp).ravel(), self.xn, self.yn,
+                                     self.top, (*self.plane.normal, self.plane.distance),
+                                     (self.min_m, self.max_m, HORIZON_EPS), _RANGE_CODES, points.reshape(-1, 3),
+                                     depth.reshape(-1), status.reshape(-1))
         return Triangulation(points, depth, status)
 
     def inverse_depth(self, rows: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernel import columns_kernel
+
 ESTIMATORS = ("com", "gaussian", "parabolic", "blais-rioux")
 #: Rows looked ahead per step when walking along a flat top (a saturated line is a few rows high).
 PLATEAU_STEP = 8
@@ -213,17 +215,6 @@ def refine_peaks(
     return ColumnPeaks(np.where(valid, row, np.nan), f0, k, valid, plateau, spread)
 
 
-def columns_kernel():
-    """The compiled per-column kernel of the fast pipeline (``device/vision/_columns.c``), with a
-    clear error where it was not built."""
-    try:
-        from . import _columns
-    except ImportError as exc:
-        raise ImportError("device.vision._columns, the fast pipeline's compiled kernel, is not built: run "
-                          "`pip install -e .` (or `make test`) with a C compiler and the Python headers") from exc
-    return _columns
-
-
 def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np.ndarray, row_lo: np.ndarray,
                       row_hi: np.ndarray, half_width: int = 4) -> ColumnPeaks:
     """:func:`refine_peaks` with ``estimator="com"``, ``pedestal=0``, ``background=0``,
@@ -232,7 +223,7 @@ def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np
     zeros outside each column's rows ``[row_lo, row_hi)`` (given per column of ``cols``, within
     the image): identical results, much cheaper. With those zeros the window needs no clamping
     or masking, and the moments of 8-bit samples are exact integers. Computed by the compiled
-    kernel (:func:`columns_kernel`), one pass per column. Used by the fast pipeline (thesis
+    kernel (:func:`device.vision.kernel.columns_kernel`), one pass per column. Used by the fast pipeline (thesis
     6.1.2 step 6, improved)."""
     n = len(argmax)
     row, peak, spread = np.empty(n), np.empty(n), np.empty(n)
