@@ -74,6 +74,15 @@ def test_box_mean_rounds_as_opencv_for_every_sum():
     np.testing.assert_array_equal(out, cv2.blur(img, (5, 3)).max(axis=0))
 
 
+def test_constants_shared_with_python_agree():
+    from device.vision.fast import BLOCK_ROWS
+    from device.vision.measurements import ColumnStatus
+
+    for name in ("OK", "NO_RETURN", "UNLIT", "REJECTED"):
+        assert getattr(K, f"STATUS_{name}") == ColumnStatus[name]
+    assert K.BLOCK_ROWS == BLOCK_ROWS
+
+
 def test_run_length():
     mask = np.array([1, 1, 0, 1, 0, 0, 1, 1, 1], bool)
     out = np.empty(mask.size, np.intp)
@@ -103,10 +112,10 @@ def test_candidates_find_the_largest_and_a_separated_second_peak():
     (lambda: K.noise_level(np.zeros((4, 8), np.uint8), np.zeros((4, 8), np.uint8), np.empty(8)[:4].view()),
      "out has length 4"),
     (lambda: K.run_length(np.zeros(5, bool), np.empty(5, np.int8)), "out has dtype"),
-    (lambda: K.candidates(np.zeros((20, 4), np.uint8), np.zeros((28, 4), np.uint8), 4, 5, np.empty(8, np.intp),
-                          np.empty(8)), "whole 16-row blocks"),
+    (lambda: K.candidates(np.zeros((0, 4), np.uint8), np.zeros((8, 4), np.uint8), 4, 5, np.empty(8, np.intp),
+                          np.empty(8)), "need 1 to 65535 rows (got 0)"),
     (lambda: K.candidates(np.zeros((16, 4), np.uint8), np.zeros((24, 4), np.uint8), 4, 8, np.empty(8, np.intp),
-                          np.empty(8)), "2 sep + 1 <= 16"),
+                          np.empty(8)), "sep >= 0 and 2 sep + 1 <= 16"),
     (lambda: K.refine_com(np.zeros((20, 4), np.uint8), 4, np.zeros(1, np.intp), np.array([4]), np.zeros(1, np.intp),
                           np.ones(1, np.intp), 4, *_refine_outputs(1)), "column 4"),
     (lambda: K.refine_com(np.zeros((20, 4), np.uint8), 1, np.zeros(1, np.intp), np.zeros(1, np.intp),
@@ -146,3 +155,31 @@ def test_refine_com_reads_only_its_buffers_on_empty_and_edge_columns():
 def test_fast_params_reject_a_window_wider_than_the_candidate_blocks_allow():
     with pytest.raises(ValueError, match="half_width must be <= 6"):
         FastParams(half_width=7)
+
+
+def test_candidates_in_a_band_whose_last_block_is_partial():
+    n, W, pad = 21, 3, 4  # one whole block and 5 rows
+    sm = np.zeros((n, W), np.uint8)
+    sm[19, :] = 60
+    sm[4, 1] = 20
+    padded = np.zeros((n + 2 * pad, W), np.uint8)
+    padded[pad : pad + n] = sm
+    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
+    K.candidates(sm, padded, pad, 5, k, s)
+    np.testing.assert_array_equal(k[:W], 19)
+    assert k[W + 1] == 4 and s[W + 1] == 20
+    assert (s[[W, W + 2]] == 0).all()  # nothing else: no second candidate
+
+
+def test_no_second_candidate_on_the_flank_of_a_line_near_the_band_top():
+    # only the line (row 3) and its flanks: the rows within sep of it are not candidates, and
+    # with nothing else the second candidate is empty (0), not the line's own flank
+    n, W, pad = 32, 2, 4
+    sm = np.zeros((n, W), np.uint8)
+    sm[1:6, :] = [[40], [80], [90], [80], [40]]
+    padded = np.zeros((n + 2 * pad, W), np.uint8)
+    padded[pad : pad + n] = sm
+    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
+    K.candidates(sm, padded, pad, 5, k, s)
+    np.testing.assert_array_equal(k[:W], 3)
+    np.testing.assert_array_equal(s[W:], 0)

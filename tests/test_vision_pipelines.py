@@ -277,3 +277,39 @@ def test_running_median_is_the_median_of_the_found_neighbours():
     got = np.empty(400)
     columns_kernel().running_median(x, found, got)
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("name", [v for v in VARIANTS if v.startswith("fast-")] + ["reference"])
+def test_strided_frames_give_the_same_result(wall2m, name):
+    # the Y plane cut out of a padded YUV buffer is a strided view: same measurements as a copy
+    lit, unlit = frame_pair(CFG, wall2m[0], speckle=0.3, seed=12)
+    padded = [np.zeros((f.shape[0] * 3 // 2, f.shape[1] + 64), np.uint8) for f in (lit, unlit)]
+    for buf, f in zip(padded, (lit, unlit)):
+        buf[: f.shape[0], : f.shape[1]] = f
+    views = [buf[: f.shape[0], : f.shape[1]] for buf, f in zip(padded, (lit, unlit))]
+    assert not views[0].flags.c_contiguous
+    want = make_pipeline(name, CFG).process(lit, unlit)
+    got = make_pipeline(name, CFG).process(*views)
+    assert want.valid.mean() > 0.9
+    np.testing.assert_array_equal(got.status, want.status)
+    np.testing.assert_array_equal(got.range, want.range)
+
+
+def test_small_camera_whose_band_is_not_whole_blocks():
+    # a 416x232 camera (mode 5 / 4) with the preset's 1 mm - 10 m range: the band of rows where
+    # the laser can land is the whole image, 14.5 blocks of 16 rows (the last one partial)
+    from device.model.camera import CameraModel, Intrinsics
+
+    k = CFG.camera.intrinsics
+    small = dataclasses.replace(
+        CFG, width=416, height=232, active_width=410, active_height=230,
+        camera=CameraModel(Intrinsics(k.fx / 4, k.fy / 4, k.cx / 4, k.cy / 4, 0.0, 416, 232), CFG.camera.distortion))
+    for name in ("fast-com", "fast-com-track"):
+        pipe = make_pipeline(name, small, 0.001, 10.0)
+        assert pipe.rows % 16 != 0 and pipe.top + pipe.rows == small.height
+        for z in (0.07, 0.3, 2.0):
+            rows = row_for_depth(small, np.full(small.width, z))
+            lit, unlit = frame_pair(small, rows, seed=13)
+            m = pipe.process(lit, unlit)
+            assert m.valid.sum() > 0.9 * np.isfinite(rows).sum(), (name, z)
+            np.testing.assert_allclose(m.row[m.valid], rows[m.valid], atol=0.3)

@@ -1,19 +1,22 @@
-/* The fast pipeline's per-column passes in one compiled loop each (device/vision/fast.py, issue 7).
+/* The fast pipeline's image passes and per-column steps, and the table triangulation, one
+ * compiled loop each (device/vision/fast.py, device/vision/geometry.py; issue 7).
  *
- * Why C: every step here is a short loop over the ~1664 columns of a frame (a few rows per
- * column). Written with numpy, each step is a dozen whole-array calls of 2-3 us of overhead for
- * under 1 us of arithmetic: ~230 calls per frame pair, three quarters of the fast pipeline's
+ * Why C: every per-column step is a short loop over the ~1664 columns of a frame (a few rows
+ * per column). Written with numpy, each step was a dozen whole-array calls of 2-3 us of overhead
+ * for under 1 us of arithmetic: ~230 calls per frame pair, three quarters of the fast pipeline's
  * time. OpenCV has no per-column line finder, and numba/Cython are not among the project's
- * dependencies; this file needs only the C compiler that builds the firmware harness and the
- * Python headers. It is one implementation, not a second one: fast.py calls it and the tests
- * check it (behaviour, hard cases, and refine_com_padded against device.vision.peaks).
+ * dependencies; this file needs only a C compiler and the Python headers (the buffer protocol,
+ * no numpy headers). The image passes replace sequences of OpenCV calls with one or two passes
+ * that compute the same bytes (tests/test_vision_kernel.py compares them). It is the only
+ * implementation: the numpy formulation it replaced is in the history (commit 95851ef).
  *
- * Arithmetic is IEEE double in the same order as the numpy formulation it replaced (built with
+ * Floating-point arithmetic is IEEE double in the same order as that formulation (built with
  * -ffp-contract=off, so no fused multiply-adds change the rounding on ARM), and the moments of
- * 8-bit samples are exact integers: results are identical to that formulation on every
- * simulated scene (checked when porting).
+ * 8-bit samples are exact integers: every pipeline's output was identical to it, bit for bit, on
+ * 14 simulated scenes when porting (BENCHMARKS.md "Pipeline").
  *
- * Entry points (argument checking in Python's layer below, in `get_array`):
+ * Entry points (each checks its arguments' dtype, contiguity and shape with get_array, and its
+ * sizes, and raises ValueError naming the argument):
  *   candidates(sm, padded, pad, sep, k_out, s_out)
  *   refine_com(padded, pad, k, cols, lo, hi, half_width, row, peak, argmax, valid, plateau, spread)
  *   resolve(...) -> (seen_first, seen_last)
@@ -33,7 +36,7 @@
 #define PLATEAU_STEP 8
 /* The image-wide loops get an AVX2 clone on x86-64 (picked at load time; SSE2 otherwise): they
  * are integer loops, so the clones give identical results. NEON is ARM64's baseline. */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__) /* ifunc */
 #define PIXEL_LOOP __attribute__((target_clones("avx2", "default")))
 #else
 #define PIXEL_LOOP
@@ -43,7 +46,8 @@
 
 typedef Py_ssize_t idx_t;
 
-enum { OK = 0, NO_RETURN = 1, UNLIT = 6, REJECTED = 7 }; /* device.vision.measurements.ColumnStatus */
+/* device.vision.measurements.ColumnStatus values written by resolve (exported as STATUS_*, tested equal) */
+enum { OK = 0, NO_RETURN = 1, UNLIT = 6, REJECTED = 7 };
 
 /* ------------------------------------------------------------------ argument checking */
 
@@ -57,7 +61,7 @@ static int get_array(PyObject *obj, Py_buffer *view, char kind, int ndim, idx_t 
         return -1;
     }
     const char *f = view->format ? view->format : "B";
-    if (*f == '@' || *f == '=' || *f == '<') f++;
+    if (*f == '@' || *f == '=' || (*f == '<' && PY_LITTLE_ENDIAN)) f++;
     int ok;
     switch (kind) {
     case 'u': ok = (*f == 'B') && view->itemsize == 1; break;
@@ -66,7 +70,7 @@ static int get_array(PyObject *obj, Py_buffer *view, char kind, int ndim, idx_t 
     default: ok = (*f == 'd') && view->itemsize == 8; break;
     }
     if (!ok) {
-        PyErr_Format(PyExc_ValueError, "%s has dtype format '%s' (itemsize %zd), expected %s", name, view->format,
+        PyErr_Format(PyExc_ValueError, "%s has dtype format '%s' (itemsize %zd), expected %s", name, f,
                      view->itemsize, kind == 'u' ? "uint8" : kind == 'b' ? "bool" : kind == 'i' ? "intp" : "float64");
         PyBuffer_Release(view);
         return -1;
@@ -97,6 +101,10 @@ static void *arg(Views *vs, PyObject *obj, char kind, idx_t n0, idx_t n1, int nd
                  idx_t *shape_out)
 {
     idx_t want[2] = {n0, n1};
+    if (vs->n >= (int)(sizeof vs->v / sizeof vs->v[0])) {
+        PyErr_SetString(PyExc_SystemError, "_columns: too many buffers in one call");
+        return NULL;
+    }
     if (get_array(obj, &vs->v[vs->n], kind, ndim, want, writable, name) < 0) return NULL;
     for (int d = 0; shape_out && d < ndim; d++) shape_out[d] = want[d]; /* a 1-D argument's shape_out is a scalar */
     return vs->v[vs->n++].buf;
@@ -110,12 +118,12 @@ static void release(Views *vs)
 
 /* ------------------------------------------------------------------ candidates */
 
-/* The keys value << 4 | (15 - row in block) of one 16-row block of sm: the largest is the
- * block's maximum and the first row holding it. */
-PIXEL_LOOP static void block_keys(const uint8_t *restrict rows, idx_t W, uint16_t *restrict key)
+/* The keys value << 4 | (15 - row in block) of one block of sm (16 rows, fewer if it is the
+ * band's last): the largest is the block's maximum and the first row holding it. */
+PIXEL_LOOP static void block_keys(const uint8_t *restrict rows, idx_t nrows, idx_t W, uint16_t *restrict key)
 {
     memset(key, 0, (size_t)W * sizeof(uint16_t));
-    for (idx_t r = 0; r < BLOCK_ROWS; r++) {
+    for (idx_t r = 0; r < nrows; r++) {
         const uint8_t *line = rows + r * W;
         uint16_t low = (uint16_t)(BLOCK_ROWS - 1 - r);
         for (idx_t c = 0; c < W; c++) {
@@ -156,12 +164,12 @@ static PyObject *py_candidates(PyObject *self, PyObject *args)
     idx_t *k = P ? arg(&vs, o_k, 'i', 2 * W, 0, 1, 1, "k", NULL) : NULL;
     double *s = k ? arg(&vs, o_s, 'd', 2 * W, 0, 1, 1, "s", NULL) : NULL;
     if (!s) goto fail;
-    if (n < BLOCK_ROWS || n % BLOCK_ROWS || pad < 1 || sep < 0 || 2 * sep + 1 > BLOCK_ROWS) {
-        PyErr_Format(PyExc_ValueError, "candidates: need whole 16-row blocks (got %zd rows), pad >= 1 (got %zd) and "
-                     "0 <= 2 sep + 1 <= 16 (sep %zd)", n, pad, sep);
+    if (n < 1 || n > 0xFFFF || pad < 1 || sep < 0 || 2 * sep + 1 > BLOCK_ROWS) {
+        PyErr_Format(PyExc_ValueError, "candidates: need 1 to 65535 rows (got %zd), pad >= 1 (got %zd), sep >= 0 and "
+                     "2 sep + 1 <= 16 (sep %zd)", n, pad, sep);
         goto fail;
     }
-    idx_t nb = n / BLOCK_ROWS;
+    idx_t nb = (n + BLOCK_ROWS - 1) / BLOCK_ROWS; /* the last block may be partial (a band cut by the image) */
     uint16_t *bk = PyMem_Malloc((size_t)(nb * W) * sizeof(uint16_t));
     uint32_t *best = PyMem_Malloc((size_t)(2 * W) * sizeof(uint32_t)), *best2 = best ? best + W : NULL;
     idx_t *lo_block = PyMem_Malloc((size_t)(2 * W) * sizeof(idx_t)), *hi_block = lo_block ? lo_block + W : NULL;
@@ -172,7 +180,8 @@ static PyObject *py_candidates(PyObject *self, PyObject *args)
     }
     Py_BEGIN_ALLOW_THREADS
     /* every loop over all columns at once, without branches (the compiler vectorises them) */
-    for (idx_t b = 0; b < nb; b++) block_keys(sm + b * BLOCK_ROWS * W, W, bk + b * W);
+    for (idx_t b = 0; b < nb; b++)
+        block_keys(sm + b * BLOCK_ROWS * W, MIN(BLOCK_ROWS, n - b * BLOCK_ROWS), W, bk + b * W);
     /* over blocks as keys value << 16 | (0xFFFF - row): the largest value, then the first row */
     memset(best, 0, (size_t)(2 * W) * sizeof(uint32_t));
     for (idx_t b = 0; b < nb; b++) best_over_blocks(bk + b * W, b, NULL, NULL, W, best);
@@ -186,25 +195,28 @@ static PyObject *py_candidates(PyObject *self, PyObject *args)
     for (idx_t b = 0; b < nb; b++) best_over_blocks(bk + b * W, b, lo_block, hi_block, W, best2);
     for (idx_t c = 0; c < W; c++) {
         idx_t k1 = k[c], k2 = 0xFFFF - (idx_t)(best2[c] & 0xFFFFu);
-        if (best2[c] <= 0xFFFFu) { /* nothing but zeros elsewhere */
+        int none = 0; /* no second candidate at all: k2 is a row of zeros, s2 = 0 */
+        if (best2[c] <= 0xFFFFu) { /* nothing but zeros in the other blocks */
             k2 = 0;
-            if (lo_block[c] == 0) { /* the first block, at least sep + 1 rows from the first */
-                int m = -1;
-                for (idx_t r = 0; r < BLOCK_ROWS; r++) {
-                    int v = (r - k1 <= sep && k1 - r <= sep) ? 0 : sm[r * W + c];
-                    if (v > m) m = v, k2 = r;
+            if (lo_block[c] == 0) { /* the first block's rows more than sep from the first */
+                int m = 0;
+                none = 1;
+                for (idx_t r = 0; r < MIN(BLOCK_ROWS, n); r++) {
+                    if (r - k1 <= sep && k1 - r <= sep) continue;
+                    if (sm[r * W + c] > m) m = sm[r * W + c], k2 = r, none = 0;
                 }
             }
         }
         /* each moved to the largest of the unsmoothed difference at k-1, k, k+1 (first of equals) */
         idx_t kk[2] = {k1, k2};
-        for (int j = 0; j < 2; j++) {
+        if (none) k[W + c] = k2, s[W + c] = 0.0;
+        for (int j = 0; j < 2 - none; j++) {
             idx_t at = (kk[j] + pad) * W + c;
             uint8_t vm = P[at - W], v0 = P[at], vp = P[at + W];
             idx_t r = (vm >= v0 && vm >= vp) ? kk[j] - 1 : (v0 >= vp ? kk[j] : kk[j] + 1);
             r = r < 0 ? 0 : r;
             k[j * W + c] = r;
-            s[j * W + c] = r < n ? (double)sm[r * W + c] : 0.0; /* r == n: a pad row, never larger */
+            s[j * W + c] = r < n ? (double)sm[r * W + c] : 0.0; /* defensive: r == n is a pad row, never larger */
         }
     }
     Py_END_ALLOW_THREADS
@@ -304,7 +316,7 @@ static PyObject *py_noise_level(PyObject *self, PyObject *args)
     if (!out) goto fail;
     idx_t n = shp[0], W = shp[1];
     if (n < 1 || W < 3) {
-        PyErr_Format(PyExc_ValueError, "noise_level: need >= 1 row and >= 3 columns, got %zdx%zd", W, n);
+        PyErr_Format(PyExc_ValueError, "noise_level: need >= 1 row and >= 3 columns, got %zd rows x %zd columns", n, W);
         goto fail;
     }
     uint8_t *neg = PyMem_Malloc((size_t)(3 * W)); /* the negative difference of rows r-1, r, r+1 */
@@ -363,7 +375,7 @@ static PyObject *py_band_difference(PyObject *self, PyObject *args)
     if (!S) goto fail;
     if (n < 1 || W < 3 || pad < 0 || sat_min < 0 || sat_min > 255) {
         PyErr_Format(PyExc_ValueError, "band_difference: need >= 1 row, >= 3 columns, pad >= 0 and 0 <= sat_min <= 255, "
-                     "got %zdx%zd, pad %zd, sat_min %zd", W, n, pad, sat_min);
+                     "got %zd rows x %zd columns, pad %zd, sat_min %zd", n, W, pad, sat_min);
         goto fail;
     }
     char *full = PyMem_Malloc((size_t)n); /* the lit row holds a saturated pixel */
@@ -440,7 +452,7 @@ static void plateau_centre(const uint8_t *P, idx_t W, idx_t last, idx_t pad, idx
         idx_t lead = 0;
         while (lead < PLATEAU_STEP) {
             idx_t r = end + lead + 1 + pad;
-            if (P[(r < last ? r : last) * W + c] != 255) break;
+            if (r >= last || P[r * W + c] != 255) break; /* the last row is a zero pad row: the same end */
             lead++;
         }
         end += lead;
@@ -502,14 +514,15 @@ static PyObject *py_refine_com(PyObject *self, PyObject *args)
         int empty = hi[j] <= lo[j] || k < lo[j] || k >= hi[j];
         idx_t kk = empty ? 0 : k;
         const uint8_t *at = P + (kk + pad) * W + c;
-        long is = 0, is1 = 0, is2 = 0; /* exact: 8-bit samples, small offsets */
+        int64_t is = 0, is1 = 0, is2 = 0; /* exact: 8-bit samples, small offsets */
         for (idx_t o = -half; o <= half; o++) {
-            long v = at[o * W];
+            int64_t v = at[o * W];
             is += v;
             is1 += v * o;
             is2 += v * o * o;
         }
         uint8_t f0 = at[0];
+        /* an all-zero window (s == 0) gives NaN row and spread by 0 / 0, as refine_peaks */
         double s = empty ? NAN : (double)is, s1 = (double)is1, s2 = (double)is2;
         double delta = s1 / s;
         spread[j] = sqrt_pos(s2 / s - delta * delta);
@@ -557,7 +570,7 @@ static void inverse_depth(const InvDepth *g, double row, idx_t c, double *iz, do
 }
 
 /* Median of the found values of x within +-2 of each element (NaN where not found): the middle
- * one, or the mean of the middle two. */
+ * one, or the mean of the middle two. Found values must be finite (resolve's rows are). */
 static void running_median(const double *x, const char *found, idx_t W, double *med)
 {
     for (idx_t i = 0; i < W; i++) {
@@ -702,7 +715,7 @@ static PyObject *py_resolve(PyObject *self, PyObject *args)
     }
     InvDepth g = {tab, tshape[0], W, tab_top};
     /* scratch: 7 double arrays of W, the running sums ((W + 1) x 5), 5 index and 8 flag arrays of W */
-    double *buf = PyMem_Malloc((size_t)(8 * (W + 1) + 5 * (W + 1)) * sizeof(double));
+    double *buf = PyMem_Malloc((size_t)(7 * W + 5 * (W + 1)) * sizeof(double));
     idx_t *ibuf = PyMem_Malloc((size_t)(5 * W) * sizeof(idx_t));
     char *cbuf = PyMem_Malloc((size_t)(8 * W));
     if (!buf || !ibuf || !cbuf) {
@@ -711,10 +724,10 @@ static PyObject *py_resolve(PyObject *self, PyObject *args)
         goto fail;
     }
     double *r1 = buf, *r2 = r1 + W, *v2 = r2 + W, *med = v2 + W, *step = med + W, *weight = step + W,
-           *snorm = weight + W, *T = buf + 8 * (W + 1);
+           *snorm = weight + W, *T = snorm + W;
     idx_t *label = ibuf, *start = label + W, *stop = start + W, *lastb = stop + W, *nextb = lastb + W;
     char *det1 = cbuf, *det2 = det1 + W, *ok2 = det2 + W, *pick2 = ok2 + W, *failed = pick2 + W, *outlier = failed + W,
-         *bright = outlier + W, *seen = bright + W;
+         *bright = outlier + W, *line_seen = bright + W;
     const idx_t *k1 = k, *k2 = k + W;
     const double *s1 = s, *s2 = s + W;
 
@@ -798,8 +811,8 @@ static PyObject *py_resolve(PyObject *self, PyObject *args)
         local_line_fit(row, weight, found, start, stop, W, p.smooth_half, T);
         /* gaps of up to max_gap columns inside a surface (dark speckle grains) */
         for (idx_t i = 0; i < W; i++) {
-            seen[i] = status[i] != NO_RETURN;
-            lastb[i] = found[i] ? i : (i ? lastb[i - 1] : -1);
+            line_seen[i] = status[i] != NO_RETURN;
+            lastb[i] = found[i] ? i : (i ? lastb[i - 1] : -1); /* now the last/next found column */
         }
         for (idx_t i = W - 1; i >= 0; i--) nextb[i] = found[i] ? i : (i < W - 1 ? nextb[i + 1] : W);
         for (idx_t i = 0; i < W; i++) {
@@ -807,7 +820,7 @@ static PyObject *py_resolve(PyObject *self, PyObject *args)
             if (found[i] || l < 0 || r >= W || r - l > p.max_gap + 1) continue;
             idx_t span = r - l;
             double rl = row[l], rr = row[r];
-            if (fabs(rr - rl) <= 1.0 + 0.5 * (double)span && (seen[i] || span == 2)) {
+            if (fabs(rr - rl) <= 1.0 + 0.5 * (double)span && (line_seen[i] || span == 2)) {
                 row[i] = rl + (rr - rl) * ((double)(i - l) / (double)span);
                 status[i] = OK; /* found after the loop: the ends of every gap are measured columns */
                 peak[i] = 0.0;
@@ -952,6 +965,17 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_columns",
-                                    "The fast pipeline's per-column passes (device/vision/_columns.c).", -1, methods};
+                                    "The fast pipeline's image passes and per-column steps, and the table triangulation (device/vision/_columns.c).", -1, methods};
 
-PyMODINIT_FUNC PyInit__columns(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__columns(void)
+{
+    PyObject *m = PyModule_Create(&module);
+    if (m && (PyModule_AddIntConstant(m, "STATUS_OK", OK) < 0 || PyModule_AddIntConstant(m, "STATUS_NO_RETURN", NO_RETURN) < 0
+              || PyModule_AddIntConstant(m, "STATUS_UNLIT", UNLIT) < 0
+              || PyModule_AddIntConstant(m, "STATUS_REJECTED", REJECTED) < 0
+              || PyModule_AddIntConstant(m, "BLOCK_ROWS", BLOCK_ROWS) < 0)) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

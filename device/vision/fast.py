@@ -70,11 +70,11 @@ from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, l
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks
 
+#: Rows per block of the candidate search (``BLOCK_ROWS`` in _columns.c, which also fixes the
+#: detection blur at 5 columns x 3 rows).
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
 SATURATED_LINE_MIN = 24
-#: Box (columns, rows) that smooths the difference image for detection only.
-DETECT_KERNEL = (5, 3)
 #: Largest centre-of-mass half width: the rows within half_width + 1 of the first candidate span
 #: at most two 16-row blocks, which the second candidate's search leaves out (_columns.c).
 MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2

@@ -84,13 +84,15 @@ class Pipeline(Protocol):
 
 
 def luminance(frame, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """The uint8 (H, W) luminance of a Frame or array, with a clear error for anything else."""
+    """The uint8 (H, W) luminance of a Frame or array, C-contiguous (copied only if it is a
+    strided view, e.g. the Y plane cut out of a padded YUV buffer), with a clear error for
+    anything else."""
     img = frame.image if isinstance(frame, Frame) else np.asarray(frame)
     if img.ndim != 2 or img.dtype != np.uint8:
         raise ValueError(f"{name} frame must be a (height, width) uint8 luminance image, got {img.shape} {img.dtype}")
     if shape is not None and img.shape != shape:
         raise ValueError(f"{name} frame is {img.shape[1]}x{img.shape[0]}, the configuration expects {shape[1]}x{shape[0]}")
-    return img
+    return np.ascontiguousarray(img)
 
 
 def finish(
