@@ -17,4 +17,4 @@ test: firmware
 	@$(PY) -m pytest -q
 
 clean:
-	rm -rf .venv firmware_pwm/build .pytest_cache
+	rm -rf .venv firmware_pwm/build .pytest_cache build device/vision/_columns*.so

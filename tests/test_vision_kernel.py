@@ -90,16 +90,23 @@ def test_run_length():
     np.testing.assert_array_equal(out, [2, 2, 0, 1, 0, 0, 3, 3, 3])
 
 
+def _candidates(sm, sep=5, pad=4):
+    """The kernel's candidates (k, s) for a smoothed difference that is also the difference."""
+    n, W = sm.shape
+    padded = np.zeros((n + 2 * pad, W), np.uint8)
+    padded[pad : pad + n] = sm
+    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
+    K.candidates(sm, padded, pad, sep, k, s)
+    return k, s
+
+
 def test_candidates_find_the_largest_and_a_separated_second_peak():
-    n, W, pad = 64, 6, 4
+    n, W = 64, 6
     sm = np.zeros((n, W), np.uint8)
     sm[20, :] = 50  # the line
     sm[22, :] = 40  # its own flank: too close to be a second line
     sm[45, :] = 30  # a ghost
-    padded = np.zeros((n + 2 * pad, W), np.uint8)
-    padded[pad : pad + n] = sm
-    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
-    K.candidates(sm, padded, pad, 5, k, s)
+    k, s = _candidates(sm)
     np.testing.assert_array_equal(k[:W], 20)
     np.testing.assert_array_equal(k[W:], 45)
     np.testing.assert_array_equal(s, [50] * W + [30] * W)
@@ -158,14 +165,11 @@ def test_fast_params_reject_a_window_wider_than_the_candidate_blocks_allow():
 
 
 def test_candidates_in_a_band_whose_last_block_is_partial():
-    n, W, pad = 21, 3, 4  # one whole block and 5 rows
+    n, W = 21, 3  # one whole block and 5 rows
     sm = np.zeros((n, W), np.uint8)
     sm[19, :] = 60
     sm[4, 1] = 20
-    padded = np.zeros((n + 2 * pad, W), np.uint8)
-    padded[pad : pad + n] = sm
-    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
-    K.candidates(sm, padded, pad, 5, k, s)
+    k, s = _candidates(sm)
     np.testing.assert_array_equal(k[:W], 19)
     assert k[W + 1] == 4 and s[W + 1] == 20
     assert (s[[W, W + 2]] == 0).all()  # nothing else: no second candidate
@@ -174,12 +178,9 @@ def test_candidates_in_a_band_whose_last_block_is_partial():
 def test_no_second_candidate_on_the_flank_of_a_line_near_the_band_top():
     # only the line (row 3) and its flanks: the rows within sep of it are not candidates, and
     # with nothing else the second candidate is empty (0), not the line's own flank
-    n, W, pad = 32, 2, 4
+    n, W = 32, 2
     sm = np.zeros((n, W), np.uint8)
     sm[1:6, :] = [[40], [80], [90], [80], [40]]
-    padded = np.zeros((n + 2 * pad, W), np.uint8)
-    padded[pad : pad + n] = sm
-    k, s = np.empty(2 * W, np.intp), np.empty(2 * W)
-    K.candidates(sm, padded, pad, 5, k, s)
+    k, s = _candidates(sm)
     np.testing.assert_array_equal(k[:W], 3)
     np.testing.assert_array_equal(s[W:], 0)
