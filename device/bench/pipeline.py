@@ -113,13 +113,29 @@ def _plot(rows: list[dict], path: str) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for r in rows:
         ax.scatter(r["ms_per_pair"], r["range_err_pct_2m"], color="tab:red" if r["variant"] == "reference" else "tab:blue")
-        ax.annotate(r["variant"], (r["ms_per_pair"], r["range_err_pct_2m"]), textcoords="offset points", xytext=(5, 4), fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("CPU time per frame pair (ms, one thread, log)")
     ax.set_ylabel("range error at 2 m, 1 sigma (%)")
     ax.set_title("LaserPi pipelines on simulated 90 % walls: speed against error")
     ax.grid(True, which="both", alpha=0.3)
+    ax.margins(x=0.2, y=0.12)
     fig.tight_layout()
+    # labels: the first of four places around the point that lies inside the axes and overlaps
+    # no label placed before (the last one regardless)
+    renderer = fig.canvas.get_renderer()
+    inside = ax.get_window_extent(renderer)
+    offsets = ((5, 4), (5, -12), (-5, 4), (-5, -12))
+    placed = []
+    for r in sorted(rows, key=lambda r: r["ms_per_pair"]):
+        for i, (dx, dy) in enumerate(offsets):
+            label = ax.annotate(r["variant"], (r["ms_per_pair"], r["range_err_pct_2m"]), textcoords="offset points",
+                                xytext=(dx, dy), fontsize=8, ha="left" if dx > 0 else "right")
+            box = label.get_window_extent(renderer)
+            free = inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1)
+            if i == len(offsets) - 1 or (free and not any(box.overlaps(b) for b in placed)):
+                break
+            label.remove()
+        placed.append(box)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
