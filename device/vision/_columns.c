@@ -548,6 +548,22 @@ fail:
 
 /* ------------------------------------------------------------------ per-column decisions */
 
+/* Where a sub-pixel image row falls in a per-column table of n rows from image row `top` (W
+ * columns): the flat indices of the two table rows around it in column c (i1 = i0 when n == 1)
+ * and the weight t of the second. Returns 0 outside the table (also for NaN), with row 0. */
+static inline int table_position(double row, idx_t top, idx_t n, idx_t W, idx_t c, idx_t *i0, idx_t *i1, double *t)
+{
+    double r = row - (double)top;
+    int inside = r >= 0.0 && r <= (double)(n - 1);
+    r = inside ? r : 0.0;
+    idx_t r0 = (idx_t)r, cap = n - 2 > 0 ? n - 2 : 0;
+    r0 = r0 < cap ? r0 : cap;
+    *t = r - (double)r0;
+    *i0 = r0 * W + c;
+    *i1 = n > 1 ? *i0 + W : *i0;
+    return inside;
+}
+
 typedef struct {
     const double *tab; /* (n, W) 1/z of each table row (device.vision.geometry.ColumnGeometry.inv_depth) */
     idx_t n, W, top;
@@ -556,16 +572,14 @@ typedef struct {
 /* ColumnGeometry.inverse_depth for one row of column c: (1/z, d(1/z)/d row), NaN outside the table */
 static void inverse_depth(const InvDepth *g, double row, idx_t c, double *iz, double *slope)
 {
-    double r = row - (double)g->top;
-    if (!(r >= 0.0 && r <= (double)(g->n - 1))) {
+    idx_t i0, i1;
+    double t;
+    if (!table_position(row, g->top, g->n, g->W, c, &i0, &i1, &t)) {
         *iz = *slope = NAN;
         return;
     }
-    idx_t r0 = (idx_t)r, cap = g->n - 2 > 0 ? g->n - 2 : 0;
-    r0 = r0 < cap ? r0 : cap;
-    idx_t i0 = r0 * g->W + c;
-    double a = g->tab[i0], b = g->n > 1 ? g->tab[i0 + g->W] : a;
-    *iz = a + (b - a) * (r - (double)r0);
+    double a = g->tab[i0], b = g->tab[i1];
+    *iz = a + (b - a) * t;
     *slope = b - a;
 }
 
@@ -908,15 +922,11 @@ static PyObject *py_triangulate(PyObject *self, PyObject *args)
             goto fail;
         }
     }
-    idx_t cap = n - 2 > 0 ? n - 2 : 0;
     for (idx_t i = 0; i < N; i++) {
-        double r = rows[i] - (double)top;
-        int inside = r >= 0.0 && r <= (double)(n - 1); /* false for NaN */
-        r = inside ? r : 0.0;
-        idx_t r0 = (idx_t)r;
-        r0 = r0 < cap ? r0 : cap;
-        double t = r - (double)r0, u = 1.0 - t;
-        idx_t i0 = r0 * W + cols[i], i1 = n > 1 ? i0 + W : i0;
+        idx_t i0, i1;
+        double t;
+        int inside = table_position(rows[i], top, n, W, cols[i], &i0, &i1, &t);
+        double u = 1.0 - t;
         double x = xn[i0] * u + xn[i1] * t;
         double y = yn[i0] * u + yn[i1] * t;
         double denom = inside ? nx * x + ny * y + nz : NAN;
