@@ -1,6 +1,11 @@
-/* Host-compiled unit tests of the firmware logic (make test): CRC-32, COBS, frame layer, time
- * extension, scheduler, trims, interlock (at acceptance and at run time), heartbeat, parser.
- * The hardware layer is test/fake_hw.c: a simulated tick clock with exact compare matches. */
+/* Host-compiled unit tests of the firmware (make test): CRC-32, COBS, frame layer, time
+ * extension, scheduler, trims, interlock (at acceptance and at run time), heartbeat, parser, and
+ * the Timer1 edge driver (src/timer1.c), which runs here against test/fake_avr.c: a model of the
+ * datasheet's Timer1, OC1A latch and port B.  Every test is judged on the pin that model drives
+ * (begin_run/end_run): each pulse on the pin is one the core intended, rising and falling within
+ * one timer tick of the times the core was told (core_rise_done, core_fall_done, a cut by
+ * hw_force_off), and the pin is never high otherwise.  The core's intentions are recorded by
+ * linker wraps (-Wl,--wrap), so the core and the driver run unchanged. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -9,7 +14,8 @@
 #include "config.h"
 #include "core.h"
 #include "crc32.h"
-#include "fake_hw.h"
+#include "fake_avr.h"
+#include "hw.h"
 #include "link.h"
 #include "timeext.h"
 
@@ -24,6 +30,102 @@ static int checks, failures;
             printf("\n");                                                                  \
         }                                                                                  \
     } while (0)
+
+/* The compare output acts at the timer clock after TCNT1 == OCR1A (datasheet 16.7): a pulse armed
+ * for tick T shows on the pin at T + 1. */
+#define PIN_LAG 1
+
+/* ---- the core's intended pulses, recorded at the hardware layer's calls into it ---------- */
+#define MAX_INTENDED FAKE_MAX_EDGES
+static uint64_t intended_rise[MAX_INTENDED], intended_fall[MAX_INTENDED];
+static uint32_t n_intended;
+static int intent_in_flight;
+
+static uint64_t model_time(uint64_t core_ticks) { return core_ticks + fake.timer_origin; }
+
+static void intend_fall(uint64_t model_t)
+{
+    if (intent_in_flight && n_intended < MAX_INTENDED)
+        intended_fall[n_intended++] = model_t;
+    intent_in_flight = 0;
+}
+
+uint64_t __real_core_rise_done(core_t *c, uint64_t t);
+uint64_t __wrap_core_rise_done(core_t *c, uint64_t t)
+{
+    intend_fall(fake.now); /* (never in flight here: checked by the pin comparison) */
+    if (n_intended < MAX_INTENDED) {
+        intended_rise[n_intended] = model_time(t);
+        intent_in_flight = 1;
+    }
+    return __real_core_rise_done(c, t);
+}
+
+uint8_t __real_core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next);
+uint8_t __wrap_core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
+{
+    intend_fall(model_time(t));
+    return __real_core_fall_done(c, t, flags, next);
+}
+
+uint8_t __real_hw_force_off(void);
+uint8_t __wrap_hw_force_off(void)
+{
+    intend_fall(fake.now); /* a cut: the pulse ends now */
+    return __real_hw_force_off();
+}
+
+static int pin_checks_failed;
+
+/* The pin of the run since the last begin_run against the core's intentions (file comment). */
+static void check_pin(const char *run)
+{
+    if (intent_in_flight && fake.pin && fake.n_edges < FAKE_MAX_EDGES) { /* still in flight: it ends here */
+        intended_fall[n_intended++] = fake.now;
+        fake.edge_t[fake.n_edges] = fake.now;
+        fake.edge_level[fake.n_edges++] = 0;
+    }
+    intent_in_flight = 0;
+    uint32_t pulses = 0, bad = 0;
+    for (uint32_t k = 0; k < fake.n_edges; k++) {
+        if (fake.edge_level[k] != 1)
+            continue;
+        uint64_t rise = fake.edge_t[k], fall = k + 1 < fake.n_edges ? fake.edge_t[k + 1] : UINT64_MAX;
+        if (pulses >= n_intended) {
+            printf("  %s: pin pulse [%llu, %llu] was never intended\n", run, (unsigned long long)rise,
+                   (unsigned long long)fall);
+            bad++;
+        } else {
+            uint64_t ir = intended_rise[pulses], ifall = intended_fall[pulses];
+            int ok = rise + 1 >= ir && rise <= ir + 1 && fall + 1 >= ifall && fall <= ifall + 1;
+            if (!ok && bad < 5)
+                printf("  %s: pulse %u on the pin [%llu, %llu], intended [%llu, %llu]\n", run, pulses,
+                       (unsigned long long)rise, (unsigned long long)fall, (unsigned long long)ir,
+                       (unsigned long long)ifall);
+            bad += !ok;
+        }
+        pulses++;
+    }
+    if (pulses < n_intended)
+        bad++;
+    CHECK(bad == 0 && (fake.n_edges == 0 || fake.edge_level[0] == 1), "%s: the pin follows the core's pulses (%u on the pin, %u intended)",
+          run, pulses, n_intended);
+    pin_checks_failed += bad != 0;
+}
+
+static const char *current_run = "start";
+
+/* Judges the previous run on its pin, then powers the MCU on for a new one. */
+static void begin_run_named(core_t *c, const char *name)
+{
+    if (fake.core)
+        check_pin(current_run);
+    current_run = name;
+    fake_reset(c, 1000, 0);
+    n_intended = 0;
+    intent_in_flight = 0;
+}
+#define begin_run(c) begin_run_named((c), __func__)
 
 static uint32_t rng = 12345;
 static uint32_t rnd(void)
@@ -198,7 +300,7 @@ static void run_with_heartbeats(core_t *c, uint64_t until)
 {
     while (fake.now < until) {
         uint64_t step = fake.now + 40000; /* 20 ms */
-        fake_run(c, step < until ? step : until);
+        fake_run(step < until ? step : until);
         heartbeat(c);
     }
 }
@@ -206,8 +308,7 @@ static void run_with_heartbeats(core_t *c, uint64_t until)
 static void test_schedule_pattern(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     uint64_t first = 200000;
     uint32_t period = 100000, width = 20000; /* 20 fps, every other frame lit: 10 Hz */
@@ -219,26 +320,24 @@ static void test_schedule_pattern(void)
     int exact = 1;
     for (uint32_t k = 0; k + 1 < fake.n_edges; k += 2) {
         uint64_t rise = first + (uint64_t)k * period; /* pulse k/2 is frame k */
-        exact &= fake.edge_level[k] == 1 && fake.edge_t[k] == rise;
-        exact &= fake.edge_level[k + 1] == 0 && fake.edge_t[k + 1] == rise + width;
+        exact &= fake.edge_level[k] == 1 && fake.edge_t[k] == rise + PIN_LAG;
+        exact &= fake.edge_level[k + 1] == 0 && fake.edge_t[k + 1] == rise + width + PIN_LAG;
     }
     CHECK(exact, "edges on the exact ticks");
     /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w and >= MIN_PERIOD - w */
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     schedule_payload(p, first, 200000, 20000, 0x6, 3, 0);
     r = command(&c, MSG_SCHEDULE, p, sizeof p);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "first lit index 1");
     run_with_heartbeats(&c, first + 6 * 200000);
-    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 200000 && fake.edge_t[2] == first + 400000 &&
-              fake.edge_t[4] == first + 800000, "frames 1,2,4,5 lit");
+    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 200000 + PIN_LAG && fake.edge_t[2] == first + 400000 + PIN_LAG &&
+              fake.edge_t[4] == first + 800000 + PIN_LAG, "frames 1,2,4,5 lit");
 }
 
 static void test_refusals(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     struct { uint64_t first; uint32_t period, width, mask; uint8_t n, reason; } cases[] = {
         {200000, 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
@@ -262,7 +361,7 @@ static void test_refusals(void)
               r.msg_type == MSG_NACK ? r.payload[1] : 0);
     }
     CHECK(c.refused == sizeof cases / sizeof cases[0] && c.state == STATE_IDLE, "counted, idle");
-    fake_run(&c, 2000000);
+    fake_run(2000000);
     CHECK(fake.n_edges == 0, "refused schedules never light the laser");
     /* exactly at the envelope is accepted: the shortest period with the longest pulse */
     schedule_payload(p, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
@@ -279,8 +378,7 @@ static void test_refusals(void)
 static void test_trim(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     uint64_t first = 100000;
     uint32_t period = 200000, width = 10000;
@@ -294,7 +392,8 @@ static void test_trim(void)
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "moves slot 1 (pulse 0 in flight)");
     run_with_heartbeats(&c, first + 4 * period);
     uint64_t want1 = first + period - 3000, want2 = want1 + period + 500; /* slot 1 moved, then P' */
-    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == first && fake.edge_t[2] == want1 && fake.edge_t[4] == want2,
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == first + PIN_LAG && fake.edge_t[2] == want1 + PIN_LAG &&
+              fake.edge_t[4] == want2 + PIN_LAG,
           "rises %llu %llu (want %llu %llu)", (unsigned long long)fake.edge_t[2],
           (unsigned long long)fake.edge_t[4], (unsigned long long)want1, (unsigned long long)want2);
     int widths_ok = 1;
@@ -336,8 +435,7 @@ static void test_trim(void)
 static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, uint64_t want_rise4)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     schedule_payload(p, 100000, 100000, 10000, 1, 2, 0);
     command(&c, MSG_SCHEDULE, p, sizeof p);
@@ -349,7 +447,8 @@ static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, ui
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == want_slot, "trim at %llu: slot %u",
           (unsigned long long)when, r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 999);
     run_with_heartbeats(&c, 600000);
-    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == 100000 && fake.edge_t[2] == want_rise2 && fake.edge_t[4] == want_rise4,
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == 100000 + PIN_LAG && fake.edge_t[2] == want_rise2 + PIN_LAG &&
+              fake.edge_t[4] == want_rise4 + PIN_LAG,
           "trim at %llu: rises %llu %llu, want %llu %llu", (unsigned long long)when,
           (unsigned long long)fake.edge_t[2], (unsigned long long)fake.edge_t[4],
           (unsigned long long)want_rise2, (unsigned long long)want_rise4);
@@ -367,22 +466,20 @@ static void test_runtime_interlock(void)
     /* Bypass the acceptance checks (as a logic error elsewhere would) and check that the
      * run-time check on the actual edges still refuses to build a denser train. */
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     command(&c, MSG_SCHEDULE, p, sizeof p);
     run_with_heartbeats(&c, 105000);
     c.trim_pending = 1;
     c.trim_phase = -150000; /* next gap 30000 < 4 * 20000 */
-    fake_run(&c, 1000000);
+    fake_run(1000000);
     CHECK(fake.n_edges == 2 && fake.pin == 0, "only the first pulse, got %u edges", fake.n_edges);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_DUTY), "duty fault latched");
     /* rate rule at run time, widths changing between two pulses (acceptance bypassed): a 15 ms
      * pulse, then 1 ms pulses.  Rise to rise stays >= MIN_PERIOD but fall to fall would not. */
     for (int k = 0; k < 2; k++) {
-        core_init(&c, 0);
-        fake_reset(1000);
+        begin_run(&c);
         schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
         command(&c, MSG_SCHEDULE, p, sizeof p);
         run_with_heartbeats(&c, 100001);   /* pulse 0 in flight, its fall armed at 130000 */
@@ -396,18 +493,17 @@ static void test_runtime_interlock(void)
             CHECK(fake.n_edges == 2 && c.state == STATE_FAULT && c.faults == FAULT_RATE,
                   "fall-to-fall too close: rate fault, %u edges, faults %u", fake.n_edges, c.faults);
         else
-            CHECK(fake.n_edges == 4 && fake.edge_t[2] == 310000 && fake.edge_t[3] == 312000 &&
+            CHECK(fake.n_edges == 4 && fake.edge_t[2] == 310000 + PIN_LAG && fake.edge_t[3] == 312000 + PIN_LAG &&
                       c.state == STATE_RUNNING, "fall-to-fall at MIN_PERIOD: runs");
     }
     /* a pulse cut short by STOP counts with its actual width: SCHEDULE right after is checked on
      * the real edges (rise to rise and fall to fall) */
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
     command(&c, MSG_SCHEDULE, p, sizeof p);
     run_with_heartbeats(&c, 102000);
     command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~2000 ticks */
-    uint64_t cut_rise = fake.edge_t[0], cut_fall = fake.edge_t[1];
+    uint64_t cut_rise = fake.edge_t[0] - PIN_LAG, cut_fall = fake.edge_t[1]; /* cut by software: no lag */
     schedule_payload(p, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
     frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: fall to fall");
@@ -420,13 +516,14 @@ static void test_runtime_interlock(void)
     command(&c, MSG_STOP, NULL, 0);
     schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     /* width guard: a pulse seen high too long is cut */
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     command(&c, MSG_SCHEDULE, p, sizeof p);
     run_with_heartbeats(&c, 100001);
-    fake.fall_armed = 0; /* the fall compare "never comes" */
+    /* a stuck compare unit: the fall's match leaves the latch high and raises no interrupt */
+    fake.tccr1a = (uint8_t)(_BV(COM1A1) | _BV(COM1A0));
+    fake.timsk1 &= (uint8_t)~_BV(OCIE1A);
     c.last_heartbeat = fake.now;
-    fake_run(&c, 100000 + 2 * 65536);
+    fake_run(100000 + 2 * 65536);
     CHECK(fake.pin == 0 && (c.faults & FAULT_WIDTH), "width guard");
     CHECK(fake.n_edges == 2 && fake.edge_t[1] - fake.edge_t[0] <= MAX_PULSE_TICKS + 65536,
           "cut at the next guard run");
@@ -435,14 +532,13 @@ static void test_runtime_interlock(void)
 static void test_heartbeat(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     command(&c, MSG_SCHEDULE, p, sizeof p);
     uint64_t last_hb = fake.now;
-    fake_run(&c, 100000 + 10000); /* mid pulse, heartbeats stop */
-    fake_run(&c, 2000000);
+    fake_run(100000 + 10000); /* mid pulse, heartbeats stop */
+    fake_run(2000000);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "heartbeat fault");
     uint64_t last_edge = fake.edge_t[fake.n_edges - 1];
     CHECK(fake.pin == 0 && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
@@ -457,8 +553,7 @@ static void test_heartbeat(void)
 static void test_parser_garbage(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     int acted = 0;
     for (int i = 0; i < 20000; i++) {
         core_rx_byte(&c, (uint8_t)((rnd() % 8 == 0) ? 0 : rnd()), fake.now);
@@ -486,8 +581,7 @@ static void test_parser_garbage(void)
 static void test_stop_and_edges(void)
 {
     core_t c;
-    core_init(&c, 0);
-    fake_reset(1000);
+    begin_run(&c);
     uint8_t p[LEN_SCHEDULE];
     schedule_payload(p, 100000, 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
     command(&c, MSG_SCHEDULE, p, sizeof p);
@@ -503,8 +597,127 @@ static void test_stop_and_edges(void)
     got = fake_reply(&r);
     CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 1 && r.payload[20] == EDGE_CUT &&
               get_u64(r.payload + 12) == 310000, "cut pulse reported");
-    fake_run(&c, 1000000);
+    fake_run(1000000);
     CHECK(fake.n_edges == 4, "nothing after stop");
+}
+
+/* STOP, a fault, or a forced fall in the middle of a pulse, then a new SCHEDULE: the new
+ * pulses are where it says on the pin, not inverted (no software cut may leave the OC1A latch
+ * high for the next arming to show). */
+static void test_cut_mid_pulse_then_schedule(void)
+{
+    core_t c;
+    uint8_t p[LEN_SCHEDULE];
+    for (int how = 0; how < 2; how++) {
+        for (uint32_t cut = 1; cut < 20000; cut += 1999) {
+            begin_run(&c);
+            if (how == 0) { /* STOP */
+                schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
+                command(&c, MSG_SCHEDULE, p, sizeof p);
+                run_with_heartbeats(&c, 100000 + cut);
+                CHECK(fake.pin == 1, "cut %u: mid pulse", cut);
+                command(&c, MSG_STOP, NULL, 0);
+            } else { /* no heartbeat after the SCHEDULE: the guard at the Timer1 overflow at tick
+                      * 131072 trips in the middle of the pulse */
+                schedule_payload(p, 131072 - 34800 + cut, 200000, 34800, 1, 1, 0);
+                command(&c, MSG_SCHEDULE, p, sizeof p);
+                fake_run(131072 + 10);
+                CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "cut %u: heartbeat fault", cut);
+                command(&c, MSG_STOP, NULL, 0);
+            }
+            CHECK(fake.pin == 0, "cut %u/%d: the pin is low after the cut", cut, how);
+            uint64_t first = fake.now + MIN_PERIOD_TICKS + 100000;
+            schedule_payload(p, first, 200000, 20000, 1, 1, 0);
+            frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+            CHECK(r.msg_type == MSG_ACK, "cut %u/%d: schedule after the cut", cut, how);
+            uint32_t before = fake.n_edges;
+            run_with_heartbeats(&c, first + 3 * 200000 + 30000);
+            int exact = fake.n_edges == before + 8;
+            for (uint32_t k = 0; exact && k < 4; k++)
+                exact &= fake.edge_t[before + 2 * k] == first + k * 200000 + PIN_LAG &&
+                         fake.edge_t[before + 2 * k + 1] == first + k * 200000 + 20000 + PIN_LAG &&
+                         fake.edge_level[before + 2 * k] == 1;
+            CHECK(exact, "cut %u/%d: the next schedule's pulses on the pin", cut, how);
+        }
+    }
+    /* forced falls: each TCNT1 read costs 120 ticks, so the rise interrupt cannot place the
+     * fall of a 200-tick pulse in time and ends it in software; the pulses after it are exact */
+    begin_run(&c);
+    fake.tcnt_read_cost = 120;
+    schedule_payload(p, 100000, MIN_PERIOD_TICKS, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    command(&c, MSG_SCHEDULE, p, sizeof p);
+    run_with_heartbeats(&c, 100000 + 3 * MIN_PERIOD_TICKS + 1000);
+    CHECK(c.late == 4 && fake.n_edges == 8 && fake.edge_t[6] == 100000 + 3 * MIN_PERIOD_TICKS + PIN_LAG,
+          "forced falls: %u late, %u edges", c.late, fake.n_edges);
+    command(&c, MSG_STOP, NULL, 0);
+    fake.tcnt_read_cost = 0;
+}
+
+/* A TRIM arriving just before the armed rise, with instruction time (each TCNT1 read costs 150
+ * ticks) making its critical section longer than its lead: for some arrival times the rise
+ * happens inside it, interrupts off.  The driver must see the rise in flight, and the TRIM then
+ * waits for that pulse's fall, instead of re-arming a latch that is already set. */
+static void test_trim_racing_the_armed_rise(void)
+{
+    core_t c;
+    uint8_t p[LEN_SCHEDULE], t[LEN_TRIM];
+    int deferred = 0, immediate = 0;
+    for (uint32_t lead = 2000; lead < 12000; lead += 17) {
+        begin_run(&c);
+        fake.tcnt_read_cost = 150;
+        uint64_t first = 100000;
+        schedule_payload(p, first, MIN_PERIOD_TICKS, 2000, 1, 1, 0);
+        command(&c, MSG_SCHEDULE, p, sizeof p);
+        run_with_heartbeats(&c, first + MIN_PERIOD_TICKS - lead);
+        put_u32(t, 2000); /* +1 ms */
+        put_u32(t + 4, 0);
+        frame_t r = command(&c, MSG_TRIM, t, sizeof t);
+        uint32_t slot = r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 0;
+        deferred += slot == 2;
+        immediate += slot == 1;
+        run_with_heartbeats(&c, first + 4 * MIN_PERIOD_TICKS);
+        uint64_t rise1 = first + MIN_PERIOD_TICKS + (slot == 1 ? 2000 : 0);
+        uint64_t rise2 = first + 2 * MIN_PERIOD_TICKS + 2000;
+        CHECK(slot && c.state == STATE_RUNNING && fake.n_edges >= 6 && fake.edge_t[2] == rise1 + PIN_LAG &&
+                  fake.edge_t[4] == rise2 + PIN_LAG,
+              "lead %u: slot %u, state %u faults %u, rises %llu %llu", lead, slot, c.state, c.faults,
+              (unsigned long long)fake.edge_t[2], (unsigned long long)fake.edge_t[4]);
+        command(&c, MSG_STOP, NULL, 0);
+        fake.tcnt_read_cost = 0;
+    }
+    CHECK(deferred > 0 && immediate > 0, "the sweep must hit both outcomes: %d deferred, %d immediate",
+          deferred, immediate);
+}
+
+/* A reset (power, brown-out or watchdog) in the middle of a pulse: the pin is an input at once
+ * (low through the pull-down), the booted firmware keeps it low, and the latch is clear. */
+static void test_reset_mid_pulse(void)
+{
+    core_t c;
+    uint8_t p[LEN_SCHEDULE];
+    const uint8_t causes[] = {0x01 /* PORF */, 0x04 /* BORF */, 0x08 /* WDRF */};
+    for (unsigned k = 0; k < sizeof causes; k++) {
+        begin_run(&c);
+        schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
+        command(&c, MSG_SCHEDULE, p, sizeof p);
+        run_with_heartbeats(&c, 110000);
+        CHECK(fake.pin == 1, "mid pulse");
+        intend_fall(fake.now); /* the reset ends it */
+        fake_boot(&c, causes[k]);
+        CHECK(fake.pin == 0 && c.state == STATE_IDLE && c.reset_cause == causes[k], "reset 0x%02x: pin low, idle",
+              causes[k]);
+        uint32_t before = fake.n_edges;
+        fake_run(fake.now + TICKS_PER_SECOND);
+        CHECK(fake.n_edges == before, "reset 0x%02x: nothing after it", causes[k]);
+        uint64_t first = hw_now() + MIN_PERIOD_TICKS;
+        schedule_payload(p, first, 200000, 20000, 1, 1, 0);
+        command(&c, MSG_SCHEDULE, p, sizeof p);
+        run_with_heartbeats(&c, first + 200000 + 30000);
+        CHECK(fake.n_edges == before + 4 && fake.edge_t[before] == model_time(first) + PIN_LAG &&
+                  fake.edge_t[before + 1] == model_time(first) + 20000 + PIN_LAG,
+              "reset 0x%02x: the next schedule is exact", causes[k]);
+        command(&c, MSG_STOP, NULL, 0);
+    }
 }
 
 static void test_random_commands_interlock(void)
@@ -513,8 +726,7 @@ static void test_random_commands_interlock(void)
     int violations = 0, rate_violations = 0, pulses = 0;
     for (int trial = 0; trial < 500; trial++) {
         core_t c;
-        core_init(&c, 0);
-        fake_reset(1000);
+        begin_run(&c);
         for (int step = 0; step < 60; step++) {
             uint8_t p[LEN_SCHEDULE];
             uint8_t t[LEN_TRIM];
@@ -532,7 +744,7 @@ static void test_random_commands_interlock(void)
             case 3: command(&c, MSG_STOP, NULL, 0); break;
             default: heartbeat(&c); break;
             }
-            fake_run(&c, fake.now + rnd() % 80000);
+            fake_run(fake.now + rnd() % 80000);
         }
         for (uint32_t k = 0; k < fake.n_edges; k++) {
             if (fake.edge_level[k] != 0)
@@ -570,7 +782,11 @@ int main(void)
     test_heartbeat();
     test_parser_garbage();
     test_stop_and_edges();
+    test_cut_mid_pulse_then_schedule();
+    test_trim_racing_the_armed_rise();
+    test_reset_mid_pulse();
     test_random_commands_interlock();
+    begin_run_named(&(core_t){0}, "end");
     printf("firmware unit tests: %d checks, %d failed\n", checks, failures);
     return failures ? 1 : 0;
 }
