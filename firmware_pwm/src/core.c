@@ -472,13 +472,23 @@ static void do_trim(core_t *c, const frame_t *f)
                 hw_irq_restore(s); /* now too close: decide again */
                 continue;
             }
+            if (fault) {
+                core_fault(c, fault, hw_now());
+            } else {
+                /* re-arm: replaces the rise armed before, unless that one is already in flight
+                 * (it rose, or is about to, while this ran with interrupts off): then decide
+                 * again once its interrupt has run, and the trim waits for its fall */
+                uint8_t armed = hw_arm_rise((uint64_t)now_rise);
+                if (armed == HW_IN_FLIGHT) {
+                    hw_irq_restore(s);
+                    continue;
+                }
+                if (armed == HW_LATE)
+                    core_fault(c, FAULT_LATE, hw_now());
+            }
             c->period = (uint32_t)period;
             c->next_rise = (uint64_t)now_rise;
             c->slot_floor = slot; /* slots before it keep their (old-period) starts */
-            if (fault)
-                core_fault(c, fault, hw_now());
-            else if (hw_arm_rise(c->next_rise)) /* re-arm: replaces the rise armed before */
-                core_fault(c, FAULT_LATE, hw_now());
             info = slot;
             hw_irq_restore(s);
             break;

@@ -7,11 +7,14 @@
 
 /* Current 64-bit MCU time in ticks.  Safe to call with interrupts enabled or disabled. */
 uint64_t hw_now(void);
-/* Arms the hardware to raise the laser pin at tick t (and to call core_rise_done then).
- * Returns 0 if armed, 1 if t is too close or in the past (nothing armed). */
+/* Arms the hardware to raise the laser pin at tick t (and to call core_rise_done then),
+ * replacing a rise armed before.  Returns HW_ARMED; HW_LATE if t is too close or in the past
+ * (nothing armed, the laser pin stays low); HW_IN_FLIGHT if the rise armed before is too close
+ * to replace or has already happened (nothing changed: its pulse goes on). */
+enum { HW_ARMED = 0, HW_LATE = 1, HW_IN_FLIGHT = 2 };
 uint8_t hw_arm_rise(uint64_t t);
-/* Laser pin low now, every pending edge disarmed.  Returns 1 if the pin was high. */
-uint8_t hw_force_off(void);
+/* Laser pin low now, every pending edge disarmed, the output compare latch cleared. */
+void hw_force_off(void);
 /* Sends len bytes on the serial link (blocking). */
 void hw_tx(const uint8_t *buf, uint8_t len);
 /* Interrupt masking for the few sections shared with interrupt handlers. */

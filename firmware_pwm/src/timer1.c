@@ -2,22 +2,36 @@
  * model, test/fake_avr.c).  Timer1 runs in normal mode at clk/8, extended to 64 bits by the
  * overflow interrupt; the laser is on OC1A (PB1, Arduino D9), driven by the output compare unit.
  *
- * Edge placement.  An edge at absolute tick T is armed by writing OCR1A = T mod 2^16 and
- * selecting "toggle OC1A on compare match" only while 0 < T - now < ARM_WINDOW_TICKS, so the first
- * match is exactly at T.  Rises further away are deferred: OCR1B is set to T - ARM_WINDOW/2 and
+ * The pin as the silicon drives it (ATmega328P datasheet, Atmel-8271, 16.7 Output Compare
+ * Units, 16.7.1 Force Output Compare, 16.7.3 Using the Output Compare Unit, 16.8 Compare Match
+ * Output Unit, Table 16-1, 16.11.3 TCCR1C): while COM1A1:0 != 0 the pin shows the internal OC1A
+ * register, a latch that only a compare match or a FOC1A strobe changes, by the COM1A1:0 bits
+ * present then; writing PORTB does not touch it, and a change of COM1A1:0 switches the pin's
+ * source at once.  So the driver keeps one invariant: whenever the output is disconnected
+ * (COM1A1:0 = 0) the latch is 0.  Reset clears it; every pulse is ended by a match in clear mode
+ * or, in software, by oc1a_force_low() (a FOC1A strobe in clear mode) before disconnecting.  Each
+ * edge is placed in its own mode, set (11) for a rise and clear (10) for a fall, never toggle, so
+ * no edge depends on the latch's history.
+ *
+ * Edge placement.  An edge at absolute tick T is armed by writing OCR1A = T mod 2^16 only while
+ * 0 < T - now < ARM_WINDOW_TICKS, so the first match is exactly at T (the pin moves at the timer
+ * clock after it, T + 1).  Rises further away are deferred: OCR1B is set to T - ARM_WINDOW/2 and
  * its interrupt re-tries, by which time T is about ARM_WINDOW/2 ticks ahead.  The fall is armed
- * by the rise interrupt: T + width is always inside the 16-bit window.  The compare unit, not software,
- * moves the pin, so edges land on exact ticks whatever the interrupt latency.
- * Toggle mode (not set/clear) is used because simavr 1.6 re-applies set/clear compare outputs on
- * every overflow and OCR write as if in PWM mode; toggle is exact on hardware and in simavr.
+ * by the rise interrupt: T + width is always inside the 16-bit window.  The compare unit, not
+ * software, moves the pin, so edges land on exact ticks whatever the interrupt latency.  A rise
+ * armed before is only replaced (TRIM) while it is still ARM_MARGIN_TICKS ahead: one closer, or
+ * already past with its interrupt pending, is in flight, and hw_arm_rise says so (HW_IN_FLIGHT).
  * TIFR1 is never written: simavr 1.6 clears every Timer1 flag on any TIFR1 write, which would
  * drop a pending overflow (and 65536 ticks of time).  A stale OCF1A (set by an earlier match
  * while the interrupt was off) fires as soon as a rise is armed; rises are armed only when less
  * than ARM_WINDOW_TICKS ahead, so the rise interrupt tells a stale flag from the real match by
- * TCNT1 - T alone, in 16-bit arithmetic, before anything else.
- * After every fall the compare output is disconnected (COM1A = 0): PORTB1 is 0, so the pin is
- * low whenever no pulse is armed.  The laser driver needs a pull-down on D9 so that the laser is
- * also off while the pin is an input (reset, bootloader).
+ * TCNT1 - T alone, in 16-bit arithmetic, before anything else (a stale match found the output
+ * disconnected or in clear mode with the latch at 0: it moved nothing).
+ * After every fall the compare output is disconnected: PORTB1 is 0, so the pin is low whenever
+ * no pulse is armed.  The laser driver needs a pull-down on D9 so that the laser is also off
+ * while the pin is an input (reset, bootloader).  simavr 1.6 models none of this latch (its pin
+ * follows PORTB, and it re-applies set/clear outputs at every overflow as in PWM modes, and has
+ * no FOC1A): the emulator harness computes the true pin itself (harness/harness.c).
  */
 #include "timer1.h"
 
@@ -30,6 +44,11 @@ static core_t *core;
 static volatile uint64_t overflow_ticks; /* overflows << 16 */
 
 enum { ARM_IDLE, ARM_RISE_DEFERRED, ARM_RISE, ARM_FALL };
+
+/* COM1A1:0 in TCCR1A (Table 16-1, non-PWM): the action of the next match on the OC1A latch */
+#define OC1A_DISCONNECTED 0
+#define OC1A_CLEAR_ON_MATCH _BV(COM1A1)
+#define OC1A_SET_ON_MATCH (_BV(COM1A1) | _BV(COM1A0))
 static volatile uint8_t arm_state;
 static volatile uint8_t in_scheduler; /* see after_fall() */
 static uint64_t arm_target;
@@ -40,7 +59,7 @@ void timer1_start(core_t *c)
     overflow_ticks = 0;
     arm_state = ARM_IDLE;
     in_scheduler = 0;
-    SFR_WRITE(TCCR1A, 0);
+    SFR_WRITE(TCCR1A, OC1A_DISCONNECTED); /* the latch is 0 after reset (16.8) */
     SFR_WRITE(TCCR1B, _BV(CS11)); /* normal mode, clk/8 */
     SFR_WRITE(TIMSK1, _BV(TOIE1));
 }
@@ -71,17 +90,25 @@ uint8_t hw_irq_save(void)
 
 void hw_irq_restore(uint8_t saved) { SFR_WRITE(SREG, saved); }
 
-uint8_t hw_force_off(void)
+/* Interrupts disabled.  Ends any pulse now and restores the invariant: the latch is cleared
+ * by a FOC1A strobe in clear mode (16.7.1: "the OC1x pin will be updated as if a real compare
+ * match had occurred"; no flag, no interrupt), then the output is disconnected (PORTB1 = 0). */
+static void oc1a_force_low(void)
+{
+    SFR_WRITE(TCCR1A, OC1A_CLEAR_ON_MATCH);
+    SFR_WRITE(TCCR1C, _BV(FOC1A));
+    SFR_WRITE(TCCR1A, OC1A_DISCONNECTED);
+}
+
+void hw_force_off(void)
 {
     uint8_t s = SFR_READ(SREG);
     IRQ_DISABLE();
-    uint8_t was_high = (SFR_READ(PINB) & _BV(PB1)) != 0;
-    SFR_WRITE(TCCR1A, 0);                                      /* disconnect OC1A: the pin follows PORTB1 */
-    SFR_WRITE(PORTB, SFR_READ(PORTB) & (uint8_t)~_BV(PB1));    /* = 0 (the write also resyncs simavr's pin state) */
+    oc1a_force_low();
+    SFR_WRITE(PORTB, SFR_READ(PORTB) & (uint8_t)~_BV(PB1));
     SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~(_BV(OCIE1A) | _BV(OCIE1B)));
     arm_state = ARM_IDLE;
     SFR_WRITE(SREG, s);
-    return was_high;
 }
 
 /* Interrupts disabled.  Arms an edge at t: ARMED (OC1A armed, the match is at t), DEFERRED
@@ -95,7 +122,7 @@ static uint8_t arm_at(uint64_t t)
     if (t - now < ARM_WINDOW_TICKS) {
         SFR_WRITE(OCR1A, (uint16_t)t);
         SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) | _BV(OCIE1A));
-        SFR_WRITE(TCCR1A, _BV(COM1A0)); /* toggle OC1A on compare match */
+        SFR_WRITE(TCCR1A, OC1A_SET_ON_MATCH); /* the latch is 0 (invariant): the pin stays low */
         return ARMED;
     }
     SFR_WRITE(OCR1B, (uint16_t)(t - ARM_WINDOW_TICKS / 2));
@@ -103,17 +130,22 @@ static uint8_t arm_at(uint64_t t)
     return DEFERRED;
 }
 
-/* Interrupts disabled, pin low.  0 if the rise at t is armed or deferred, 1 if too late.
- * Replaces a rise armed before (a TRIM re-arms the next rise while it is still far ahead). */
+/* Interrupts disabled, no pulse in flight.  HW_ARMED if the rise at t is armed or deferred,
+ * HW_LATE if t is too close, HW_IN_FLIGHT if the rise armed before cannot be replaced any more:
+ * it is less than ARM_MARGIN_TICKS ahead or has happened, its interrupt pending (nothing is
+ * changed then).  Replaces a rise armed before (a TRIM re-arms the next rise while it is still
+ * far ahead). */
 static uint8_t arm_rise(uint64_t t)
 {
-    SFR_WRITE(TCCR1A, 0);
+    if (arm_state == ARM_FALL || (arm_state == ARM_RISE && arm_target <= now_locked() + ARM_MARGIN_TICKS))
+        return HW_IN_FLIGHT;
+    oc1a_force_low(); /* whatever was armed before: latch 0, output disconnected */
     SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~(_BV(OCIE1A) | _BV(OCIE1B)));
     arm_target = t;
     switch (arm_at(t)) {
-    case ARMED: arm_state = ARM_RISE; return 0;
-    case DEFERRED: arm_state = ARM_RISE_DEFERRED; return 0;
-    default: arm_state = ARM_IDLE; return 1;
+    case ARMED: arm_state = ARM_RISE; return HW_ARMED;
+    case DEFERRED: arm_state = ARM_RISE_DEFERRED; return HW_ARMED;
+    default: arm_state = ARM_IDLE; return HW_LATE;
     }
 }
 
@@ -165,7 +197,7 @@ static void after_fall(uint64_t t, uint8_t flags)
     uint8_t more = core_fall_done(core, t, flags, &next);
     IRQ_DISABLE();
     in_scheduler = 0;
-    if (more && arm_rise(next))
+    if (more && arm_rise(next) != HW_ARMED)
         core_fault(core, FAULT_LATE, now_locked());
 }
 
@@ -186,10 +218,10 @@ TIMER1_ISR(TIMER1_COMPA_vect)
         uint64_t fall = core_rise_done(core, arm_target);
         arm_target = fall;
         arm_state = ARM_FALL;
+        SFR_WRITE(TCCR1A, OC1A_CLEAR_ON_MATCH); /* the latch is 1: the pin stays high */
         if (elapsed + 2u >= w16) { /* too late to place the fall: end the pulse now */
             uint64_t now = now_locked();
-            SFR_WRITE(TCCR1A, 0);
-            SFR_WRITE(PORTB, SFR_READ(PORTB) & (uint8_t)~_BV(PB1));
+            oc1a_force_low();
             SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~_BV(OCIE1A));
             arm_state = ARM_IDLE;
             after_fall(now, EDGE_FALL_FORCED);
@@ -197,7 +229,7 @@ TIMER1_ISR(TIMER1_COMPA_vect)
     } else if (arm_state == ARM_FALL) {
         if ((uint16_t)(SFR_READ(TCNT1) - (uint16_t)arm_target) >= 0x8000u)
             return; /* not yet due: cannot happen, the flag was cleared at the rise */
-        SFR_WRITE(TCCR1A, 0); /* disconnect: the pin stays low (PORTB1 = 0) */
+        SFR_WRITE(TCCR1A, OC1A_DISCONNECTED); /* the match cleared the latch; the pin follows PORTB1 = 0 */
         SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~_BV(OCIE1A));
         arm_state = ARM_IDLE;
         after_fall(arm_target, 0);
