@@ -12,8 +12,11 @@
  *     run <cycles>       simulate that many CPU cycles, then answer "at <cycle>"
  *     quit
  * and the UART's output comes back on stdout as "tx <hex bytes>" lines.
+ *     reset <power|wdt>  reset the MCU now, as a power-on or a watchdog reset does (simavr's
+ *                        avr_reset, then PORF or WDRF in MCUSR, as avr_watchdog.c does)
  * Both modes report on stdout, one event a line, with the CPU cycle count (62.5 ns):
- *     edge <cycle> <level>   the laser pin PB1/OC1A changed level
+ *     edge <cycle> <level>   the laser pin PB1/OC1A changed level: the true pin, computed here
+ *                            from the registers (see "The laser pin" below), not simavr's
  *     rxdelim <cycle>        a frame delimiter (0x00) entered the MCU's UART receiver
  *     int <cycle> <vector>   (--trace-interrupts) the CPU entered interrupt vector n, or
  *                            returned to vector 0 = main code
@@ -21,6 +24,22 @@
  *                            Timer1 count at cycle c is (c - cycle) / 8 with prescaler 8
  * simavr's UART is not timed like a physical line (bytes move in batches), so link latency is
  * not measured here; pin edges and timer counts are cycle-exact.
+ *
+ * The laser pin.  simavr 1.6 does not model the output compare latch: its OC1A pin follows
+ * PORTB (a toggle reads PORTB1), it re-applies set/clear outputs at every overflow as in PWM
+ * modes, and it ignores FOC1A.  So the harness computes the pin itself from what the CPU writes
+ * (every write to DDRB, PORTB, TCCR1A, TCCR1B, TCCR1C, OCR1AH/L, hooked before simavr's own
+ * handlers) and the timer count, by the ATmega328P datasheet (Atmel-8271): 16.3 Accessing
+ * 16-bit Registers (OCR1AH goes to TEMP, the OCR1AL write moves both); 16.7 Output Compare
+ * Units (TCNT1 == OCR1A is a match; the output acts at the next timer clock, count OCR1A + 1);
+ * 16.7.1 / 16.11.3 Force Output Compare (FOC1A acts on the latch as a match, by the COM1A1:0
+ * present then); 16.8 Compare Match Output Unit, Table 16-1 (the OC1A latch: 01 toggle, 10
+ * clear, 11 set, 00 no action; the pin shows the latch while COM1A1:0 != 0, PORTB1 otherwise,
+ * and only while DDRB1 is set; the latch survives COM1A changes and is cleared by reset);
+ * 14.2 Ports (an input with PORTB1 = 1 has its pull-up on: counted as high, never safe).
+ * Timer1 must run in normal mode at clk/8 (the firmware's only setting); the count starts at
+ * the TCCR1B write, as the tests' timer_count_at assumes.  simavr's timer is used for nothing
+ * here but the firmware's own interrupts.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -98,14 +117,115 @@ static void on_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
         uart_xoff = 1;
 }
 
-static void on_laser_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+/* ---- the true laser pin (file comment) ---------------------------------------------------- */
+enum { REG_DDRB = 0x24, REG_PORTB = 0x25, REG_TCCR1A = 0x80, REG_TCCR1B = 0x81, REG_TCCR1C = 0x82,
+       REG_OCR1AL = 0x88, REG_OCR1AH = 0x89 };
+static struct {
+    uint8_t ddrb, portb, tccr1a, temp, oc1a;
+    uint16_t ocr1a;
+    int running;          /* Timer1 counting at clk/8 */
+    uint64_t start;       /* cycle of the TCCR1B write that started it */
+    uint64_t next_match;  /* cycle at which the next compare match acts (count OCR1A + 1) */
+} pin;
+static void (*simavr_reset)(avr_t *);
+
+static void pin_update(uint64_t cycle)
 {
-    (void)irq; (void)param;
-    int level = (value & 0xFF) ? 1 : 0;
+    int output = (pin.ddrb >> 1) & 1, port = (pin.portb >> 1) & 1;
+    int level = output && (pin.tccr1a >> 6) ? pin.oc1a : port;
     if (level != pin_level) {
         pin_level = level;
-        printf("edge %" PRIu64 " %d\n", (uint64_t)avr->cycle, level);
+        printf("edge %" PRIu64 " %d\n", cycle, level);
     }
+}
+
+static void pin_compare_action(uint64_t cycle) /* a match or a FOC1A strobe: Table 16-1 */
+{
+    switch (pin.tccr1a >> 6) {
+    case 1: pin.oc1a ^= 1; break;
+    case 2: pin.oc1a = 0; break;
+    case 3: pin.oc1a = 1; break;
+    }
+    pin_update(cycle);
+}
+
+static void pin_schedule_match(uint64_t after) /* the first match acting after cycle `after` */
+{
+    if (!pin.running)
+        return;
+    uint64_t count = (after - pin.start) / 8, base = count & ~0xFFFFULL;
+    uint64_t at = base + pin.ocr1a + 1;
+    if (pin.start + at * 8 <= after)
+        at += 0x10000;
+    pin.next_match = pin.start + at * 8;
+}
+
+static void pin_advance(uint64_t cycle) /* every match acting up to and including `cycle` */
+{
+    while (pin.running && pin.next_match <= cycle) {
+        uint64_t at = pin.next_match;
+        pin_compare_action(at);
+        pin_schedule_match(at);
+    }
+}
+
+/* simavr's own write handler of each watched register (NULL: the core just stores the byte) */
+static struct { avr_io_write_t c; void *param; } simavr_write[0x100];
+
+static void on_register_write(struct avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    (void)param;
+    if (simavr_write[addr].c)
+        simavr_write[addr].c(a, addr, v, simavr_write[addr].param);
+    else
+        a->data[addr] = v;
+    pin_advance(a->cycle);
+    switch (addr) {
+    case REG_DDRB: pin.ddrb = v; break;
+    case REG_PORTB: pin.portb = v; break;
+    case REG_TCCR1A:
+        if (v & 3)
+            fprintf(stderr, "harness: TCCR1A = 0x%02x: only normal mode is modelled\n", v);
+        pin.tccr1a = v;
+        break;
+    case REG_TCCR1B:
+        if ((v & 0x18) || ((v & 7) != 0 && (v & 7) != 2))
+            fprintf(stderr, "harness: TCCR1B = 0x%02x: only normal mode at clk/8 is modelled\n", v);
+        pin.running = (v & 7) == 2;
+        pin.start = a->cycle;
+        pin_schedule_match(a->cycle);
+        break;
+    case REG_TCCR1C:
+        if (v & 0x80)
+            pin_compare_action(a->cycle);
+        break;
+    case REG_OCR1AH: pin.temp = v; break;
+    case REG_OCR1AL:
+        pin.ocr1a = (uint16_t)(pin.temp << 8 | v);
+        pin_schedule_match(a->cycle);
+        break;
+    }
+    pin_update(a->cycle);
+}
+
+static void on_reset(avr_t *a) /* every reset: the registers and the latch are cleared */
+{
+    if (simavr_reset)
+        simavr_reset(a);
+    pin_advance(a->cycle);
+    memset(&pin, 0, sizeof pin);
+    pin_update(a->cycle);
+}
+
+/* Our handler in front of simavr's (set directly: simavr 1.6's avr_register_io_write has too
+ * few shared slots for seven registers). */
+static void hook_register(avr_io_addr_t addr)
+{
+    avr_io_addr_t io = AVR_DATA_TO_IO(addr);
+    simavr_write[addr].c = avr->io[io].w.c;
+    simavr_write[addr].param = avr->io[io].w.param;
+    avr->io[io].w.c = on_register_write;
+    avr->io[io].w.param = NULL;
 }
 
 static void on_interrupt(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -206,11 +326,16 @@ static int stepped_loop(void)
         } else if (strncmp(line, "run ", 4) == 0) {
             uint64_t cycles = strtoull(line + 4, NULL, 10);
             int r = run_cycles(cycles);
+            pin_advance(avr->cycle);
             flush_tx_line();
             printf("at %" PRIu64 "\n", (uint64_t)avr->cycle);
             fflush(stdout);
             if (r)
                 return 1;
+        } else if (strncmp(line, "reset ", 6) == 0) {
+            int wdt = strncmp(line + 6, "wdt", 3) == 0;
+            avr_reset(avr);
+            avr_regbit_set(avr, wdt ? avr->reset_flags.wdrf : avr->reset_flags.porf);
         } else if (strncmp(line, "quit", 4) == 0) {
             return 0;
         } else {
@@ -242,6 +367,7 @@ static int free_loop(double realtime)
             queue_bytes(buf, (size_t)n);
         if (run_cycles(CPU_HZ / 10000)) /* 100 us of simulated time */
             return 1;
+        pin_advance(avr->cycle);
         fflush(stdout);
         if (realtime > 0) {
             double ahead = (double)(avr->cycle - c0) / CPU_HZ / realtime - (wall_seconds() - t0);
@@ -298,7 +424,11 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_out, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_xon, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 1), on_laser_pin, NULL);
+    simavr_reset = avr->reset;
+    avr->reset = on_reset;
+    const avr_io_addr_t watched[] = {REG_DDRB, REG_PORTB, REG_TCCR1A, REG_TCCR1B, REG_TCCR1C, REG_OCR1AH, REG_OCR1AL};
+    for (size_t i = 0; i < sizeof watched / sizeof watched[0]; i++)
+        hook_register(watched[i]);
     avr_irq_register_notify(avr_iomem_getirq(avr, 0x81 /* TCCR1B */, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, NULL);
 
     if (trace_interrupts)
