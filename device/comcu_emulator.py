@@ -4,7 +4,7 @@
         mcu = CoMcu(port)
         mcu.ping()
         port.advance(0.1)                    # 100 ms of simulated time
-        port.edges                           # [(cpu_cycle, level), ...] of the laser pin
+        port.edges                           # [(cpu_cycle, level), ...] of the true laser pin
 
 SteppedMcuPort is pyserial-like (write, read, in_waiting, timeout) and advances simulated time
 only while the host waits for bytes or calls advance(), so runs are deterministic whatever the
@@ -100,6 +100,13 @@ class SteppedMcuPort:
 
     def advance(self, seconds: float) -> None:
         self.run_cycles(int(round(seconds * CPU_HZ)))
+
+    def reset(self, cause: str = "power") -> None:
+        """Resets the MCU now, as a power-on (``"power"``) or a watchdog (``"wdt"``) reset does:
+        every register is cleared (the laser pin becomes an input) and the firmware boots."""
+        if cause not in ("power", "wdt"):
+            raise ValueError(f"reset cause must be 'power' or 'wdt', got {cause!r}")
+        self._command(f"reset {cause}")
 
     def run_cycles(self, cycles: int) -> None:
         self._command(f"run {int(cycles)}")

@@ -185,21 +185,21 @@ static uint8_t gap_fault(const core_t *c, uint64_t rise)
 }
 
 /* Interrupts disabled: arms the next rise after the run-time interlock; a fault otherwise. */
-static void arm_next(core_t *c, uint64_t now)
+static void arm_next(core_t *c)
 {
     uint8_t fault = gap_fault(c, c->next_rise);
     if (fault)
-        core_fault(c, fault, now);
+        core_fault(c, fault);
     else if (hw_arm_rise(c->next_rise))
-        core_fault(c, FAULT_LATE, now);
+        core_fault(c, FAULT_LATE);
 }
 
-void core_fault(core_t *c, uint8_t flag, uint64_t now)
+void core_fault(core_t *c, uint8_t flag)
 {
     uint8_t was_high = c->pin_high;
     hw_force_off();
-    if (was_high)
-        record_fall(c, now, EDGE_CUT);
+    if (was_high) /* the fall is the time read after the cut: never earlier than the pin's */
+        record_fall(c, hw_now(), EDGE_CUT);
     c->faults |= flag;
     c->state = STATE_FAULT;
     c->trim_pending = 0;
@@ -243,7 +243,7 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
     }
     uint8_t fault = gap_fault(c, rise); /* run-time interlock on the actual edges */
     if (fault) {
-        core_fault(c, fault, t);
+        core_fault(c, fault);
         return 0;
     }
     c->next_rise = rise;
@@ -257,9 +257,9 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
 void core_guard(core_t *c, uint64_t now)
 {
     if (c->pin_high && now - c->cur_rise > MAX_PULSE_TICKS + 2 * ARM_MARGIN_TICKS)
-        core_fault(c, FAULT_WIDTH, now);
+        core_fault(c, FAULT_WIDTH);
     if (c->state == STATE_RUNNING && now - c->last_heartbeat > HEARTBEAT_TIMEOUT_TICKS)
-        core_fault(c, FAULT_HEARTBEAT, now);
+        core_fault(c, FAULT_HEARTBEAT);
 }
 
 /* ---- commands (main context) ------------------------------------------------------------ */
@@ -341,7 +341,7 @@ static void do_schedule(core_t *c, const frame_t *f)
         c->stream_edges = flags & SCHEDULE_FLAG_STREAM_EDGES;
         c->last_heartbeat = now;
         c->state = STATE_RUNNING;
-        arm_next(c, now);
+        arm_next(c);
     }
     hw_irq_restore(s);
     if (reason)
@@ -473,7 +473,7 @@ static void do_trim(core_t *c, const frame_t *f)
                 continue;
             }
             if (fault) {
-                core_fault(c, fault, hw_now());
+                core_fault(c, fault);
             } else {
                 /* re-arm: replaces the rise armed before, unless that one is already in flight
                  * (it rose, or is about to, while this ran with interrupts off): then decide
@@ -484,7 +484,7 @@ static void do_trim(core_t *c, const frame_t *f)
                     continue;
                 }
                 if (armed == HW_LATE)
-                    core_fault(c, FAULT_LATE, hw_now());
+                    core_fault(c, FAULT_LATE);
             }
             c->period = (uint32_t)period;
             c->next_rise = (uint64_t)now_rise;
@@ -512,11 +512,10 @@ static void do_trim(core_t *c, const frame_t *f)
 static void do_stop(core_t *c, const frame_t *f)
 {
     uint8_t s = hw_irq_save();
-    uint64_t now = hw_now();
     uint8_t was_high = c->pin_high;
     hw_force_off();
-    if (was_high)
-        record_fall(c, now, EDGE_CUT);
+    if (was_high) /* the fall is the time read after the cut: never earlier than the pin's */
+        record_fall(c, hw_now(), EDGE_CUT);
     c->state = STATE_IDLE;
     c->faults = 0;
     c->trim_pending = 0;

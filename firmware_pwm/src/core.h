@@ -64,7 +64,7 @@ uint8_t core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next);
  * Switches the laser off itself (hw_force_off) when a guard trips. */
 void core_guard(core_t *c, uint64_t now);
 /* Interrupts disabled: a fault switches the laser off and latches `flag`. */
-void core_fault(core_t *c, uint8_t flag, uint64_t now);
+void core_fault(core_t *c, uint8_t flag);
 /* Main context: sends the INFO message (envelope, version, reset cause). */
 void core_send_info(core_t *c, uint16_t seq);
 

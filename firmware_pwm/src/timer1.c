@@ -177,7 +177,7 @@ TIMER1_ISR(TIMER1_COMPB_vect)
         arm_state = ARM_RISE;
     } else if (r == LATE) {
         arm_state = ARM_IDLE;
-        core_fault(core, FAULT_LATE, now_locked());
+        core_fault(core, FAULT_LATE);
     }
 }
 
@@ -198,7 +198,7 @@ static void after_fall(uint64_t t, uint8_t flags)
     IRQ_DISABLE();
     in_scheduler = 0;
     if (more && arm_rise(next) != HW_ARMED)
-        core_fault(core, FAULT_LATE, now_locked());
+        core_fault(core, FAULT_LATE);
 }
 
 TIMER1_ISR(TIMER1_COMPA_vect)
