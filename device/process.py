@@ -7,7 +7,7 @@ Composed of narrow interfaces so that the same orchestration runs on a Pi and in
   (device/comcu.py + device/sync): ``start(frame)``, ``stop()``, ``frame_lit(frame)``, ``locked``;
 * ``Pipeline``: ``(lit, dark) -> (ranges_m, quality)`` on the scan's angles (device/vision).
 
-``SensorSource`` joins them into the ScanSource the link server (device/link.py) streams from.
+``SensorSource`` joins them into the ScanSource the link server (protocol/server.py) streams from.
 It pairs each lit frame with its neighbouring unlit frame (frame differencing, ERRATA 10) into
 one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
 ``status()`` (HEALTH.errors, codes protocol.messages.ErrorCode, and HEALTH's fault counters) and
@@ -37,11 +37,11 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from device.analytic_source import median_filter
 from device.camera.base import CaptureTimeout
 from device.camera.frame import Frame
-from device.link import DeviceConfig, LinkCounters, LinkServer, ScanGeometry, SourceScan, SourceStatus
 from protocol import messages as m
+from protocol.median import median_filter
+from protocol.server import DeviceConfig, LinkCounters, LinkServer, ScanGeometry, SourceScan, SourceStatus
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +140,7 @@ class ProcessHealth:
 
 # --- the scan source -------------------------------------------------------------------------
 class SensorSource:
-    """ScanSource (device/link.py) of the whole sensor; see the module docstring."""
+    """ScanSource (protocol/server.py) of the whole sensor; see the module docstring."""
 
     def __init__(self, camera: Camera, laser: Laser, pipeline: Pipeline, geometry: ScanGeometry, *,
                  stall_timeout_s: float = 0.5, laser_retry_s: float = 0.5,

@@ -36,7 +36,7 @@ import numpy as np
 
 from device.camera.frame import Frame
 from device.config import SensorConfig, load_config, load_preset
-from device.link import ScanGeometry
+from protocol.server import ScanGeometry
 from device.model.scan_frame import uniform_angles
 from device.process import SensorSource
 from device.synced_laser import HEARTBEAT_S
@@ -113,7 +113,7 @@ class SimulatedHardware:
     def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
                  history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
         from device.comcu_emulator import CPU_HZ, ELF, HARNESS, build_emulator
-        from device.ports import open_raw_pty
+        from protocol.ports import open_raw_pty
 
         if not (HARNESS.exists() and ELF.exists()):
             build_emulator()
