@@ -1,6 +1,6 @@
 """The median filter of a scan's ranges that ``ScanSettings.median_window`` asks for (SPEC.md,
 SET_CONFIG): every scan source applies this one, the device's scan assembly
-(device/process.py) and the mock device (protocol/mock_wall.py)."""
+(device/scan/source.py) and the mock device (protocol/mock_wall.py)."""
 
 from __future__ import annotations
 

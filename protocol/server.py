@@ -182,7 +182,7 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
 @dataclass
 class LinkCounters:
     """Totals of the host link. One LinkServer counts into its own, or into one shared by the
-    successive sessions of a device process (device.process.LinkSupervisor), so that HEALTH
+    successive sessions of a device process (device.link.supervisor.LinkSupervisor), so that HEALTH
     reports totals since the process started."""
 
     scans_sent: int = 0

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from device.camera.frame import Frame
-from device.process import LaserError
+from device.laser.base import LaserError
 from protocol.server import ScanGeometry
 
 N_POINTS = 32

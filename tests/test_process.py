@@ -9,7 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from device.process import LinkSupervisor, SensorSource
+from device.link.supervisor import LinkSupervisor
+from device.scan.source import SensorSource
 from protocol import messages as m
 from protocol.framing import encode_frame
 from protocol.ports import PacedPort, pipe_pair

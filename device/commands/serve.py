@@ -4,11 +4,11 @@
     laserpi serve --simulate --scene wall --distance-m 2.0 --link /tmp/laserpi   # simulated sensor on a pty
     laserpi serve --simulate --mock --distance-m 2.0 --link /tmp/laserpi         # analytic mock, no images
 
-``--simulate`` runs the whole sensor (device/process.py) on simulated parts: the scene renderer
+``--simulate`` runs the whole sensor (device/scan/source.py) on simulated parts: the scene renderer
 as the camera, the real co-MCU firmware in the simavr harness behind a pty, the image pipeline
-(device/sensor.py). ``--mock`` serves the analytic wall of protocol/mock_wall.py
+(device/service/assembly.py, device/sim/). ``--mock`` serves the analytic wall of protocol/mock_wall.py
 instead (the protocol's mock device: scans computed in closed form, no camera or co-MCU).
-Either way the link is served by device.process.LinkSupervisor: the port is opened again when it
+Either way the link is served by device.link.supervisor.LinkSupervisor: the port is opened again when it
 fails, and the process stops cleanly on SIGTERM or SIGINT with the laser off and the --link
 symlink removed.
 
@@ -60,7 +60,7 @@ def serve_source(source, config, *, link: str | None = None, port: str | None = 
     on a pty symlinked at ``link`` or on the serial device ``port`` until SIGTERM/SIGINT.
     The port is reopened when it fails (host unplugged). Returns 0 after a clean stop."""
     from protocol.ports import PacedPort, PtyLink
-    from device.process import LinkSupervisor
+    from device.link.supervisor import LinkSupervisor
 
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -136,9 +136,11 @@ def run(args: argparse.Namespace) -> int:
             limit_mw = 5.0 if args.laser_limit_mw is None else args.laser_limit_mw
             settings = default_settings(n, min(4.0, limit_mw))
         else:
-            from device.sensor import build_sensor
+            from device.service.assembly import AssemblyConfig, build_sensor
 
-            built = build_sensor(args)
+            built = build_sensor(AssemblyConfig(simulate=args.simulate, config_path=args.config, preset=args.preset,
+                                                points=args.points, comcu=args.comcu, scene=args.scene,
+                                                distance_m=args.distance_m, seed=args.seed))
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware
             limit_mw = built.laser_limit_mw
