@@ -62,6 +62,29 @@ def import_graph(root: Path = ROOT, packages: tuple[str, ...] = PACKAGES) -> dic
     return {name: imported_modules(name, path, known) for name, path in known.items()}
 
 
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The shortest cycle through each module that is on one, each cycle once, as
+    [a, b, ..., a]."""
+    cycles = set()
+    for start in sorted(graph):
+        paths, seen, frontier = {start: [start]}, {start}, [start]
+        while frontier and start not in [n for f in frontier for n in graph[f]]:
+            nxt = []
+            for node in frontier:
+                for succ in sorted(graph[node]):
+                    if succ not in seen and succ in graph:
+                        seen.add(succ)
+                        paths[succ] = paths[node] + [succ]
+                        nxt.append(succ)
+            frontier = nxt
+        closing = [f for f in frontier if start in graph[f]]
+        if closing:
+            cycle = paths[min(closing, key=lambda f: (len(paths[f]), f))]
+            i = cycle.index(min(cycle))  # one rotation per cycle
+            cycles.add(tuple(cycle[i:] + cycle[:i]))
+    return [list(c) + [c[0]] for c in sorted(cycles)]
+
+
 def test_protocol_imports_nothing_of_ours():
     graph = import_graph()
     wrong = {m: sorted(t for t in ts if t.split(".")[0] != "protocol") for m, ts in graph.items()
@@ -74,6 +97,24 @@ def test_host_sdk_imports_only_protocol():
     wrong = {m: sorted(t for t in ts if t.split(".")[0] not in ("host_sdk", "protocol")) for m, ts in graph.items()
              if m.split(".")[0] == "host_sdk"}
     assert not {m: ts for m, ts in wrong.items() if ts}
+
+
+def test_no_import_cycles():
+    cycles = import_cycles(import_graph())
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_a_cycle_through_an_import_inside_a_function_is_found(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from pkg.sub import b\n")
+    (pkg / "sub" / "b.py").write_text("def f():\n    from ..a import g\n")
+    (pkg / "c.py").write_text("import pkg.a\n")
+    graph = import_graph(tmp_path, ("pkg",))
+    assert graph["pkg.sub.b"] == {"pkg.a"} and graph["pkg.c"] == {"pkg.a"}
+    assert import_cycles(graph) == [["pkg.a", "pkg.sub.b", "pkg.a"]]
 
 
 #: Run by a robot's Python: the SDK reads three scans from the mock device, then the script prints
