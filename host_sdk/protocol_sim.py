@@ -4,7 +4,7 @@
 
 pyserial imports ``<package>.protocol_<scheme>`` for a URL, and host_sdk/device.py adds
 "host_sdk" to ``serial.protocol_handler_packages``. Opening runs the real device link server
-(device/link.py) with the analytic wall source (device/analytic_source.py) on threads, connected
+(protocol/server.py) with the analytic wall source (protocol/mock_wall.py) on threads, connected
 to this port by an in-memory pipe whose device-to-host writes are paced at the port's baud rate
 like a UART. Every open is a fresh device; closing stops it.
 
@@ -26,9 +26,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from device.analytic_source import AnalyticWallSource, default_settings
-from device.link import DeviceConfig, LinkServer
-from device.ports import NoisyPort, PacedPort, PortClosed, pipe_pair
+from protocol.mock_wall import AnalyticWallSource, default_settings
+from protocol.ports import NoisyPort, PacedPort, PortClosed, pipe_pair
+from protocol.server import DeviceConfig, LinkServer
 
 _OPTIONS = {"distance": float, "points": int, "fov_deg": float, "rate": float, "noise": int, "seed": int,
             "limit_mw": float, "unplug_after": float, "ber": float}

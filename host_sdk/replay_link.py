@@ -15,10 +15,10 @@ import logging
 import threading
 import time
 
-from device.link import device_clock_us
 from host_sdk.recording import read_recording
 from protocol import messages as m
 from protocol.framing import FrameError, decode_frame, encode_frame
+from protocol.server import device_clock_us
 from protocol.stream import StreamDecoder
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ def recorded_info(path) -> m.Info:
 
 
 class ReplayServer:
-    """Play ``path`` on ``port`` (device/ports.py surface) at ``speed`` x real time."""
+    """Play ``path`` on ``port`` (protocol/ports.py surface) at ``speed`` x real time."""
 
     def __init__(self, port, path, speed: float = 1.0):
         if not speed > 0:

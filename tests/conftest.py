@@ -2,7 +2,7 @@
 
 import pytest
 
-from device.comcu_emulator import build_emulator
+from device.sim.comcu_emulator import build_emulator
 
 
 @pytest.fixture(scope="session")

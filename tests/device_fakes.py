@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 from device.camera.frame import Frame
-from device.link import ScanGeometry
-from device.process import LaserError
+from device.laser.base import LaserError
+from protocol.server import ScanGeometry
 
 N_POINTS = 32
 WALL_M = 2.0

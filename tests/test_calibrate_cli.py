@@ -9,11 +9,11 @@ import pytest
 from device.calibration.capture import capture_poses, render_progress
 from device.calibration.pipeline import save_capture_dir
 from device.calibration.simulate import scaled_config, simulate_capture
+from device.calibration.target import BoardSpec
 from device.camera.base import EndOfRecording
 from device.camera.frame import Frame
 from device.cli import main
 from device.config import load_config, load_preset
-from device.sim.checkerboard import BoardSpec
 
 
 @pytest.fixture(scope="module")

@@ -10,11 +10,13 @@ import pytest
 
 from device.calibration.intrinsics import CalibrationError, detect_corners
 from device.calibration.pipeline import calibrate, triangulation_table
+from device.calibration.metrics import compare
 from device.calibration.plane import BoardLine, fit_laser_plane
-from device.calibration.simulate import compare, scaled_config, simulate_capture
+from device.calibration.simulate import scaled_config, simulate_capture
+from device.calibration.target import BoardSpec
 from device.config import load_preset
 from device.model.camera import BrownConrady
-from device.sim.checkerboard import BoardSpec, Scene, generate_poses
+from device.sim.checkerboard import Scene, generate_poses
 
 SCALE = 0.5
 

@@ -7,8 +7,8 @@ from device.camera.base import Camera, CameraError, CaptureTimeout, EndOfRecordi
 from device.camera.frame import Frame
 from device.camera.picamera2_camera import MODE5_SCALER_CROP, Picamera2Camera
 from device.camera.replay import ReplayCamera, save_recording
-from device.camera.simulated import SimulatedCamera
 from device.config import load_preset
+from device.sim.camera import SimulatedCamera
 from device.sim.pulses import NoPulses, PulseTrain, frame_aligned_train
 from device.sim.render import RenderOptions
 from device.sim.scene import wall_scene

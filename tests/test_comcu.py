@@ -1,8 +1,8 @@
-"""device.comcu.CoMcu against a scripted port (no emulator): reply matching, NACK reasons,
+"""device.laser.comcu.CoMcu against a scripted port (no emulator): reply matching, NACK reasons,
 timeouts, interleaved EDGE reports, boot INFO and damaged frames."""
 import pytest
 
-from device.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTimeout
+from device.laser.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTimeout
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, decode_frame
 
@@ -84,7 +84,7 @@ def test_trim_and_stop_return_the_ack_info():
 
 
 def test_train_adapter_replaces_the_train_and_sends_period_differences():
-    from device.comcu import CoMcuTrain
+    from device.laser.comcu import CoMcuTrain
 
     port = ScriptedPort(lambda f: mcu.encode_message(mcu.Ack(f.msg_type, 0), f.seq))
     train = CoMcuTrain(CoMcu(port))

@@ -12,7 +12,7 @@ import pytest
 
 from device.commands.demo import scan_errors
 from device.commands.soak import rss_growth_mb, verdict
-from device.scene_truth import scene_truth
+from device.sim.scene_truth import scene_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""The real firmware ELF in simavr (firmware_pwm/harness), driven through device.comcu.CoMcu.
+"""The real firmware ELF in simavr (firmware_pwm/harness), driven through device.laser.comcu.CoMcu.
 
 Ground truth is the harness's log of the true laser pin (CPU cycle of every level change),
 which the harness computes from the registers the firmware writes by the datasheet's output
@@ -23,9 +23,9 @@ from pathlib import Path
 import pytest
 import serial
 
-from device.comcu import CoMcu, CoMcuNack
-from device.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
+from device.laser.comcu import CoMcu, CoMcuNack
 from device.model.envelope import FirmwareEnvelope, LineLaserOptics, parse_makefile_envelope, verify_envelope
+from device.sim.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
 

@@ -7,10 +7,10 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 import host_sdk
-from device.analytic_source import wall_ranges
 from host_sdk.receiver import Receiver
 from protocol import messages as m
 from protocol.framing import encode_frame
+from protocol.mock_wall import wall_ranges
 
 N_ANGLES = 48
 INFO = m.Info(1, 0, "fuzz", "F-1", 10.0, 0.1, 3.0, np.linspace(0.6, -0.6, N_ANGLES, dtype=np.float32),

@@ -5,11 +5,11 @@ import time
 import numpy as np
 import pytest
 
-from device.analytic_source import AnalyticWallSource, default_settings, wall_ranges
-from device.link import DeviceConfig, LinkServer, ScanGeometry, SourceScan, SourceStatus, settings_refusal
-from device.ports import pipe_pair
 from protocol import messages as m
 from protocol.framing import encode_frame
+from protocol.mock_wall import AnalyticWallSource, default_settings, wall_ranges
+from protocol.ports import pipe_pair
+from protocol.server import DeviceConfig, LinkServer, ScanGeometry, SourceScan, SourceStatus, settings_refusal
 from protocol.stream import StreamDecoder
 
 N = 32

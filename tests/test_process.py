@@ -9,11 +9,12 @@ import time
 import numpy as np
 import pytest
 
-from device.link import DeviceConfig
-from device.ports import PacedPort, pipe_pair
-from device.process import LinkSupervisor, SensorSource
+from device.link.supervisor import LinkSupervisor
+from device.scan.source import SensorSource
 from protocol import messages as m
 from protocol.framing import encode_frame
+from protocol.ports import PacedPort, pipe_pair
+from protocol.server import DeviceConfig
 from protocol.stream import StreamDecoder
 from tests.device_fakes import N_POINTS, WALL_M, FakeCamera, FakeLaser, FakePipeline, FakeRig, fake_geometry
 

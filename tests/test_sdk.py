@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import host_sdk
-from device.analytic_source import wall_ranges
 from protocol import messages as m
+from protocol.mock_wall import wall_ranges
 
 QUIET = "sim://wall?distance=2.0&noise=0&points=200"
 
@@ -164,7 +164,7 @@ def test_host_side_needs_no_opencv_or_matplotlib():
 
     code = (
         "import sys; sys.modules['cv2'] = None\n"
-        "import host_sdk, device.link, device.analytic_source\n"
+        "import host_sdk, protocol.server, protocol.mock_wall\n"
         "with host_sdk.LaserPi('sim://wall?points=20&noise=0') as s:\n"
         "    next(iter(s.scans()))\n"
         "assert 'matplotlib' not in sys.modules and 'cv2' not in [m for m in sys.modules if sys.modules[m]]\n"

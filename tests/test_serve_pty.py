@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import host_sdk
-from device.analytic_source import wall_ranges
+from protocol.mock_wall import wall_ranges
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import host_sdk
-from device.scene_truth import scene_truth
-from device.serve_child import start_serve, stop_serve
+from device.sim.scene_truth import scene_truth
+from device.service.child import start_serve, stop_serve
 from protocol import messages as m
 
 POINTS = 1640  # the configured points per scan: the active image width of the thesis preset
@@ -53,7 +53,8 @@ def offline_error_pct(frames: int = 3) -> float:
     """1-sigma range error (%) of the same pipeline and operating point on frames rendered here
     with an ideally placed pulse: what the device process may not make worse."""
     from device.camera.frame import Frame
-    from device.sensor import ANALOG_GAIN, EXPOSURE_US, PIPELINE, RANGE_M, ScanPipeline, sensor_config
+    from device.scan.pipeline import ScanPipeline
+    from device.service.assembly import ANALOG_GAIN, EXPOSURE_US, PIPELINE, RANGE_M, sensor_config
     from device.sim.render import FrameTiming, SceneRenderer
     from device.sim.scene import get_scene
     from device.sim.sensor import SensorParams
@@ -167,13 +168,11 @@ def test_faults_on_the_full_stack_degrade_and_recover(sensor):
 
 def test_stop_leaves_the_laser_pin_low_on_the_real_firmware():
     """In process: the simulated sensor scans, then stops; the firmware's laser pin stays low."""
-    import argparse
+    from device.service.assembly import AssemblyConfig, build_sensor
 
-    from device.sensor import build_sensor
-
-    args = argparse.Namespace(config=None, preset="thesis-calibrated", points=None, simulate=True, scene="wall",
-                              distance_m=2.0, seed=1, comcu=None)
-    built = build_sensor(args)
+    setup = AssemblyConfig(config_path=None, preset="thesis-calibrated", points=None, simulate=True, scene="wall",
+                           distance_m=2.0, seed=1)
+    built = build_sensor(setup)
     source, hw = built.source, built.hardware
     try:
         source.apply(built.settings)
@@ -206,7 +205,7 @@ def test_the_simulated_co_mcu_is_reached_through_a_pty_with_pyserial_as_on_a_pi(
 
     import serial
 
-    from device.sensor import SimulatedHardware
+    from device.sim.hardware import SimulatedHardware
 
     hw = SimulatedHardware(seed=3)
     try:

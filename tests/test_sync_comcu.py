@@ -1,10 +1,10 @@
 """The simulator's MCU model against the real firmware (simavr) driven through CoMcuTrain, the
-controller's LaserScheduler on device.comcu: the same commands give the same pulse ticks."""
+controller's LaserScheduler on device.laser.comcu: the same commands give the same pulse ticks."""
 
 import numpy as np
 
-from device.comcu import CoMcu, CoMcuTrain
-from device.comcu_emulator import SteppedMcuPort
+from device.laser.comcu import CoMcu, CoMcuTrain
+from device.sim.comcu_emulator import SteppedMcuPort
 from device.sim.mcu import McuConfig, SimulatedMcu
 
 MS = 2000
@@ -55,7 +55,7 @@ def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator):
     The MCU runs 100 ppm fast against the 'Pi' clock; the laser pin's edges (cycle-exact) reach
     the controller as GPIO events with a 3 us + exponential(20 us) interrupt latency; the truth
     is the pin log against the camera clock's true frame times."""
-    from device.comcu_emulator import CPU_HZ
+    from device.sim.comcu_emulator import CPU_HZ
     from device.sim.timing import CameraClock, CameraTimingConfig
     from device.sync.control import FrameInfo, SyncConfig, SyncController, SyncState
     from device.sync.placement import roi_exposure_window

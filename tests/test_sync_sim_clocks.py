@@ -132,7 +132,7 @@ def test_gpio_edges_are_late_by_the_latency_model():
 def test_simulated_camera_on_the_imx219_clock_lit_by_the_simulated_mcu():
     """The renderer driven by CameraClock and the MCU's pulses: a pulse covering exactly the
     exposure of rows 200-400 gives those rows the whole exposure of laser light, no row more."""
-    from device.camera.simulated import SimulatedCamera
+    from device.sim.camera import SimulatedCamera
     from device.config import load_preset
     from device.sim.render import FrameTiming, RenderOptions, row_overlap_s
     from device.sim.scene import wall_scene

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from device.camera.frame import Frame
-from device.comcu import CoMcuTimeout, PingResult
-from device.process import LaserError
+from device.laser.base import LaserError
+from device.laser.comcu import CoMcuTimeout, PingResult
+from device.laser.synced import SyncedLaser
 from device.sync.control import SyncConfig
-from device.synced_laser import SyncedLaser
 from protocol import mcu
 
 

@@ -60,7 +60,7 @@ def cost_per_scan(a: dict, b: dict) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     import host_sdk
-    from device.serve_child import start_serve, stop_serve
+    from device.service.child import start_serve, stop_serve
 
     with tempfile.TemporaryDirectory(prefix="laserpi-bench-") as tmp:
         link, stats = Path(tmp) / "laserpi", Path(tmp) / "stats.json"

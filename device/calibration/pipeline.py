@@ -21,9 +21,10 @@ import numpy as np
 
 from ..config import SensorConfig
 from ..model.triangulation import params_from_plane
-from ..sim.checkerboard import BoardSpec
 from .intrinsics import CalibrationError, Detection, IntrinsicsResult, calibrate_intrinsics, detect_corners
+from .metrics import wall_range_error
 from .plane import BoardLine, PlaneFit, board_mask, extract_line, fit_laser_plane, line_points
+from .target import BoardSpec
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +128,6 @@ def bootstrap_views(result: CalibrationResult, spec: BoardSpec, samples: int = 3
     misses the error the intrinsics share across all boards; this one includes it.
     """
     from .intrinsics import refit
-    from .simulate import wall_range_error
 
     used = [d for d in result.detections if d.corners is not None]
     lines = {ln.name: ln for ln in result.lines}

@@ -1,1 +1,2 @@
-"""Camera backends behind one interface: picamera2 on a Pi, the simulator, and replay."""
+"""Camera backends behind one interface (base.py): picamera2 on a Pi and replay of recorded
+frames; the simulated camera is device/sim/camera.py."""

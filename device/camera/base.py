@@ -1,4 +1,5 @@
-"""The one camera interface every backend implements (picamera2, simulator, replay)."""
+"""The one camera interface every backend implements (picamera2, simulator, replay), and the one
+the device process drives (device/scan/source.py)."""
 
 from __future__ import annotations
 
@@ -36,11 +37,15 @@ class Camera(Protocol):
     height: int
     line_time_ns: float
 
-    def start(self) -> None: ...
+    def start(self) -> None:
+        """Start streaming frames (may be called again after ``stop()`` to restart)."""
 
-    def stop(self) -> None: ...
+    def stop(self) -> None:
+        """Stop streaming; must not raise on a camera that has failed."""
 
-    def capture(self, timeout_s: float = 1.0) -> Frame: ...
+    def capture(self, timeout_s: float = 1.0) -> Frame:
+        """The next frame; CaptureTimeout if none arrived within ``timeout_s``; raises on a
+        camera error."""
 
     def set_frame_duration(self, frame_duration_us: float) -> None: ...
 

@@ -14,7 +14,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "model": ("device.bench.model", "backward projection variants: time per full pixel grid and error"),
     "pipeline": ("device.bench.pipeline", "image pipeline variants: ms per frame pair against error"),
     "sim": ("device.bench.sim", "scene renderer: ms per frame pair"),
-    "protocol": ("protocol.bench", "scan encode/decode throughput and bytes per point"),
+    "protocol": ("device.bench.protocol", "scan encode/decode throughput and bytes per point"),
     "process": ("device.bench.process", "device process: CPU per scan of serve --simulate, Pi Zero 2 W headroom"),
 }
 

@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _spec(args):
-    from ..sim.checkerboard import BoardSpec
+    from ..calibration.target import BoardSpec
 
     try:
         nx, ny = (int(v) for v in args.squares.lower().split("x"))
@@ -161,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
             from ..calibration.pipeline import calibrate
             import numpy as np
 
-            from ..calibration.simulate import compare, scaled_config, simulate_capture, simulated_wall_sweep
+            from ..calibration.metrics import compare
+            from ..calibration.simulate import scaled_config, simulate_capture, simulated_wall_sweep
 
             truth = scaled_config(_base(args.base), args.scale)
             poses, _ = simulate_capture(truth, args.poses, args.seed, _spec(args))

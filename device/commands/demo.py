@@ -6,7 +6,7 @@ progress bar, and writes a top view of the scene with the true surfaces and the 
 
 The truth does not come from the device: the demo builds the same scene description the
 simulator renders (device.sim.scene) and intersects each scan ray with it itself
-(device/scene_truth.py).
+(device/sim/scene_truth.py).
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     import host_sdk
-    from device.scene_truth import scene_truth
-    from device.serve_child import start_serve, stop_serve
+    from device.sim.scene_truth import scene_truth
+    from device.service.child import start_serve, stop_serve
 
     truth_scene = scene_truth(args.scene, args.distance_m)
     serve_args = ["--simulate", "--scene", args.scene, "--distance-m", str(args.distance_m)]

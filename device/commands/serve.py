@@ -4,11 +4,11 @@
     laserpi serve --simulate --scene wall --distance-m 2.0 --link /tmp/laserpi   # simulated sensor on a pty
     laserpi serve --simulate --mock --distance-m 2.0 --link /tmp/laserpi         # analytic mock, no images
 
-``--simulate`` runs the whole sensor (device/process.py) on simulated parts: the scene renderer
+``--simulate`` runs the whole sensor (device/scan/source.py) on simulated parts: the scene renderer
 as the camera, the real co-MCU firmware in the simavr harness behind a pty, the image pipeline
-(device/sensor.py). ``--mock`` serves the analytic wall of device/analytic_source.py
+(device/service/assembly.py, device/sim/). ``--mock`` serves the analytic wall of protocol/mock_wall.py
 instead (the protocol's mock device: scans computed in closed form, no camera or co-MCU).
-Either way the link is served by device.process.LinkSupervisor: the port is opened again when it
+Either way the link is served by device.link.supervisor.LinkSupervisor: the port is opened again when it
 fails, and the process stops cleanly on SIGTERM or SIGINT with the laser off and the --link
 symlink removed.
 
@@ -56,11 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600,
                  on_health=None) -> int:
-    """Serve ``source`` (a device.link.ScanSource) with ``config`` (a device.link.DeviceConfig)
+    """Serve ``source`` (a protocol.server.ScanSource) with ``config`` (a protocol.server.DeviceConfig)
     on a pty symlinked at ``link`` or on the serial device ``port`` until SIGTERM/SIGINT.
     The port is reopened when it fails (host unplugged). Returns 0 after a clean stop."""
-    from device.ports import PacedPort, PtyLink
-    from device.process import LinkSupervisor
+    from protocol.ports import PacedPort, PtyLink
+    from device.link.supervisor import LinkSupervisor
 
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -119,7 +119,7 @@ def _injector(name: str, fault):
 
 
 def run(args: argparse.Namespace) -> int:
-    from device.link import DeviceConfig
+    from protocol.server import DeviceConfig
 
     closers = []
     faults = {}
@@ -129,16 +129,18 @@ def run(args: argparse.Namespace) -> int:
             if not args.simulate:
                 print("laserpi serve: --mock needs --simulate")
                 return 2
-            from device.analytic_source import AnalyticWallSource, default_settings
+            from protocol.mock_wall import AnalyticWallSource, default_settings
 
             n = args.points or 1640
             source = AnalyticWallSource(args.distance_m, n_points=n, fov_rad=math.radians(args.fov_deg), seed=args.seed)
             limit_mw = 5.0 if args.laser_limit_mw is None else args.laser_limit_mw
             settings = default_settings(n, min(4.0, limit_mw))
         else:
-            from device.sensor import build_sensor
+            from device.service.assembly import AssemblyConfig, build_sensor
 
-            built = build_sensor(args)
+            built = build_sensor(AssemblyConfig(simulate=args.simulate, config_path=args.config, preset=args.preset,
+                                                points=args.points, comcu=args.comcu, scene=args.scene,
+                                                distance_m=args.distance_m, seed=args.seed))
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware
             limit_mw = built.laser_limit_mw

@@ -44,8 +44,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from device.camera.replay import save_recording
-    from device.camera.simulated import SimulatedCamera
     from device.config import ConfigError, load_config, load_preset
+    from device.sim.camera import SimulatedCamera
     from device.sim.pulses import frame_aligned_train
     from device.sim.render import RenderOptions
     from device.sim.scene import SceneError, get_scene

@@ -78,7 +78,7 @@ def verdict(seconds: float, scans: int, seq_gaps: int, device_dropped: int, host
 
 def run(args: argparse.Namespace) -> int:
     import host_sdk
-    from device.serve_child import rss_bytes, start_serve, stop_serve
+    from device.service.child import rss_bytes, start_serve, stop_serve
 
     serve_args = ["--simulate", "--scene", args.scene] + (["--mock"] if args.mock else [])
     duration = args.minutes * 60.0

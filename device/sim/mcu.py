@@ -55,7 +55,7 @@ class McuConfig:
     cmd_latency_min_s: float = 0.5e-3
     cmd_latency_max_s: float = 2.5e-3
     report_latency_s: float = 2e-3
-    link_up_min_s: float = 14 * 10 / 250_000  # PING, 14 bytes at 250000 baud 8N1 (device.comcu)
+    link_up_min_s: float = 14 * 10 / 250_000  # PING, 14 bytes at 250000 baud 8N1 (device.laser.comcu)
     link_down_min_s: float = 29 * 10 / 250_000  # PONG, 29 bytes
     usb_latency_max_s: float = 1e-3
     gpio_connected: bool = True

@@ -14,7 +14,7 @@ Wiring in the device process (one ``SyncController`` per sensor; all times CLOCK
                                                           line_time_s, frame_duration_s), time.monotonic_ns())
                                     frame metadata "lit" = label.lit (None: unknown, not locked)
 
-``CoMcu`` and ``CoMcuTrain`` (the LaserScheduler on the firmware) are in device/comcu.py.
+``CoMcu`` and ``CoMcuTrain`` (the LaserScheduler on the firmware) are in device/laser/comcu.py.
 Modules: ``clock_map`` (MCU ticks -> Pi ns), ``placement`` (ROI exposure window -> pulse, Class 1
 power), ``control`` (our controller and the thesis's baseline), ``gpio_edges`` (libgpiod),
 ``simulate`` (the closed loop against device/sim/timing.py and device/sim/mcu.py).

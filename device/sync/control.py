@@ -54,7 +54,7 @@ TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM never moves a slot starting sooner 
 
 
 class LaserScheduler(Protocol):
-    """The co-MCU's pulse train, as the controllers use it (the real one is ``device.comcu``).
+    """The co-MCU's pulse train, as the controllers use it (the real one is ``device.laser.comcu``).
 
     - ``schedule``: replace the train (stopping a running one) from ``first_start_tick`` on: slot n starts at
       ``first_start_tick + n * period_ticks`` and is lit (for ``width_ticks``) if
@@ -128,7 +128,7 @@ class SyncConfig:
     gpio_prior_jitter_s: float = 50e-6
     gpio_window: int = 256
     gpio_stale_s: float = 2.0
-    # PING (14 bytes on the line incl. delimiters) and PONG (29 bytes) at device.comcu's 250000 baud 8N1
+    # PING (14 bytes on the line incl. delimiters) and PONG (29 bytes) at device.laser.comcu's 250000 baud 8N1
     link_up_min_s: float = 14 * 10 / 250_000
     link_down_min_s: float = 29 * 10 / 250_000
     camera_window: int = 256

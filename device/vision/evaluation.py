@@ -41,7 +41,7 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
     on every other frame (ERRATA 10), centred on the frame's common exposure window
     (:func:`device.sim.pulses.frame_aligned_train`). Speckle is static (same scene), sensor
     noise differs per frame."""
-    from ..camera.simulated import SimulatedCamera
+    from ..sim.camera import SimulatedCamera
     from ..sim.pulses import frame_aligned_train
     from ..sim.render import RenderOptions
     from ..sim.scene import get_scene

@@ -76,9 +76,11 @@ class ColumnMeasurements:
 
 
 class Pipeline(Protocol):
-    """A frame-pair pipeline; built from a SensorConfig by :func:`device.vision.make_pipeline`."""
+    """A frame-pair pipeline; built from a SensorConfig by :func:`device.vision.make_pipeline`.
+    The device process runs one through device.scan.pipeline.ScanPipeline."""
 
     name: str
+    geometry: ColumnGeometry
 
     def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements: ...
 

@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
             print(scan_line(scan))
         print(f"# {rep.stats.as_dict()}")
         return 0
-    from device.ports import PtyLink
+    from protocol.ports import PtyLink
     from host_sdk.replay_link import ReplayServer
 
     stop = threading.Event()

@@ -19,7 +19,7 @@ import subprocess
 import threading
 from pathlib import Path
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware_pwm"
+FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware_pwm"
 HARNESS = FIRMWARE_DIR / "build" / "laserpi_harness"
 ELF = FIRMWARE_DIR / "build" / "laserpi_pwm.elf"
 CPU_HZ = 16_000_000

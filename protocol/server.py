@@ -1,8 +1,9 @@
 """Device end of the host link: answer host commands and stream scans from a scan source.
 
-The same server runs the mock device (device/analytic_source.py behind ``sim://`` or
-``laserpi serve --simulate``) and the real device process (the image pipeline as the source).
-It needs no OpenCV.
+The same server runs the mock device (protocol/mock_wall.py behind ``sim://`` or
+``laserpi serve --simulate --mock``) and the real device process (the image pipeline as the
+source). It is in protocol/ because both ends use it: the host SDK's ``sim://`` runs it in
+process, so it imports nothing but protocol/ (and needs no OpenCV).
 
 Scan-source interface (ScanSource, below): six small methods. ``next_scan(timeout_s)`` blocks
 until the source has a scan or the timeout passes; the server calls it only while scanning. All
@@ -181,7 +182,7 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
 @dataclass
 class LinkCounters:
     """Totals of the host link. One LinkServer counts into its own, or into one shared by the
-    successive sessions of a device process (device.process.LinkSupervisor), so that HEALTH
+    successive sessions of a device process (device.link.supervisor.LinkSupervisor), so that HEALTH
     reports totals since the process started."""
 
     scans_sent: int = 0

@@ -1,5 +1,5 @@
-"""The laser as the device process sees it: the co-MCU (device/comcu.py) driven by the
-synchronisation controller (device/sync/control.py), behind device.process.Laser.
+"""The laser as the device process sees it: the co-MCU (device/laser/comcu.py) driven by the
+synchronisation controller (device/sync/control.py), behind device.laser.base.Laser.
 
 * ``start(frame)``: opens the co-MCU link if needed, stops any old schedule (stale state from an
   earlier run), pings it a few times for the clock map and hands it to a new SyncController; the
@@ -26,8 +26,8 @@ import time
 from typing import Callable
 
 from device.camera.frame import Frame
-from device.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTrain
-from device.process import LaserError
+from device.laser.base import LaserError
+from device.laser.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTrain
 from device.sync.control import FrameInfo, SyncConfig, SyncController, SyncState
 from protocol import mcu
 
@@ -66,7 +66,7 @@ def _laser_error(exc: Exception) -> LaserError:
 
 
 class SyncedLaser:
-    """device.process.Laser: see the module docstring.
+    """device.laser.base.Laser: see the module docstring.
 
     open_comcu: opens the link and returns a CoMcu (raises OSError/CoMcuError when it cannot).
     gpio_edges: returns the laser trigger line's new edges [(CLOCK_MONOTONIC ns, rising)], or None

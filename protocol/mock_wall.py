@@ -1,8 +1,10 @@
 """Analytic scan source for the mock device: a flat wall in front of the sensor.
 
 No images: each ray's range is computed in closed form, then a simulated noise model is applied.
-This is the scene behind ``sim://wall`` and ``laserpi serve --simulate --scene wall``; the full
-image-based simulator (device/sim) replaces it behind the same ScanSource interface.
+This is the scene behind ``sim://wall`` (host_sdk/protocol_sim.py) and ``laserpi serve --simulate
+--mock``; it is here, with the link server, so that the host SDK's mock device needs nothing of the
+device's code. The whole simulated sensor (``laserpi serve --simulate``: device/sim, the pipeline)
+serves scans behind the same ScanSource interface.
 
 Scene: an infinite wall perpendicular to +x at ``distance_m`` (REP 103: x forward, y left).
 A ray at bearing θ (counter-clockwise from +x) hits it at r = d / cos θ.
@@ -19,12 +21,12 @@ from __future__ import annotations
 import math
 import threading
 import time
-import warnings
 
 import numpy as np
 
-from device.link import ScanGeometry, SourceScan, SourceStatus, device_clock_us
+from protocol.median import median_filter
 from protocol.messages import ScanSettings
+from protocol.server import ScanGeometry, SourceScan, SourceStatus, device_clock_us
 
 #: The thesis prototype's field of view (abstract: 105 degrees over the 1640 columns of mode 5).
 DEFAULT_FOV_RAD = math.radians(105.0)
@@ -56,21 +58,8 @@ def quality_of(ranges_m: np.ndarray) -> np.ndarray:
     return q
 
 
-def median_filter(ranges: np.ndarray, window: int) -> np.ndarray:
-    """Running median of odd ``window`` over finite neighbours; non-finite points stay as they are."""
-    if window <= 1:
-        return ranges
-    half = window // 2
-    padded = np.pad(ranges.astype(np.float64), half, constant_values=np.nan)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, window)
-    with warnings.catch_warnings():  # windows with no finite value: the point is not finite anyway
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(np.where(np.isfinite(windows), windows, np.nan), axis=1)
-    return np.where(np.isfinite(ranges), med, ranges).astype(np.float32)
-
-
 class AnalyticWallSource:
-    """ScanSource (device/link.py) of a wall at ``distance_m``, paced at the configured rate."""
+    """ScanSource (protocol/server.py) of a wall at ``distance_m``, paced at the configured rate."""
 
     def __init__(self, distance_m: float = 2.0, *, n_points: int = 1640, fov_rad: float = DEFAULT_FOV_RAD,
                  range_min_m: float = 0.1, range_max_m: float = 3.0, noise_floor_m: float = 0.001,

@@ -1,4 +1,5 @@
-"""Byte ports the link server (device/link.py) runs on, besides a pyserial ``Serial``.
+"""Byte ports the link server (protocol/server.py) and the replay server run on, besides a
+pyserial ``Serial``.
 
 All have the pyserial-like surface the server uses: ``read(size)`` returns the bytes that are
 available (up to size), or b"" after a short timeout; ``write(data)`` sends all of data;

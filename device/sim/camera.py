@@ -5,6 +5,13 @@ exposure, changes effective 2 frames later as on the IMX219, timestamp latency j
 frames: a dropped frame's sequence number is skipped). Each frame is rendered at its *true*
 row exposure windows, and its Frame carries the *reported* SensorTimestamp. Whether a frame is
 lit is decided by the pulse source's windows through the rolling shutter, never by a flag.
+
+Frames are delivered at once, one after the other (``laserpi simulate``, ``evaluate``,
+calibration), or, given the simulated Pi (``hardware``, device/sim/hardware.py), in simulated
+real time for the device process (``laserpi serve --simulate``): the camera clock starts 50 ms
+after each ``start()`` on the Pi's clock, and a frame is rendered ``ready_margin_s`` after its
+last row is read out on that clock, with the laser's on-windows of the co-MCU's pin as they were
+then (the hardware is the pulse source too).
 """
 
 from __future__ import annotations
@@ -13,15 +20,15 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..camera.base import CameraError, CaptureTimeout
+from ..camera.frame import Frame
 from ..config import SensorConfig
-from ..sim.pulses import PulseSource
-from ..sim.render import FrameTiming, RenderOptions, SceneRenderer
-from ..sim.scene import Scene
-from ..sim.sensor import SIMULATOR_DEFAULT, SensorParams
-from ..sim.timing import CameraClock, CameraTimingConfig
-from ..sim.truth import FrameTruth
-from .base import CameraError
-from .frame import Frame
+from .pulses import PulseSource
+from .render import FrameTiming, RenderOptions, SceneRenderer
+from .scene import Scene
+from .sensor import SIMULATOR_DEFAULT, SensorParams
+from .timing import CameraClock, CameraTimingConfig, FrameTiming as ClockFrame
+from .truth import FrameTruth
 
 #: The prototype's timing: 20 frames/s (lit every other frame: 10 scans/s), 40 ms exposure.
 DEFAULT_TIMING = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.04)
@@ -33,10 +40,13 @@ class SimulatedCamera:
     def __init__(self, cfg: SensorConfig, scene: Scene, pulses: PulseSource, *,
                  timing: CameraTimingConfig | None = None, exposure_us: float | None = None,
                  frame_duration_us: float | None = None, start_ns: int | None = None, line_time_ns: float | None = None,
-                 seed: int = 0, options: RenderOptions = RenderOptions(), sensor: SensorParams = SIMULATOR_DEFAULT):
+                 seed: int = 0, options: RenderOptions = RenderOptions(), sensor: SensorParams = SIMULATOR_DEFAULT,
+                 hardware=None, ready_margin_s: float = 0.001):
         """``timing``: the camera clock's configuration (default DEFAULT_TIMING). Or give plain
         ``exposure_us``/``frame_duration_us``/``start_ns``/``line_time_ns`` (each optional) for an
-        ideal clock: the same line quantisation and control delay, no jitter, no dropped frames."""
+        ideal clock: the same line quantisation and control delay, no jitter, no dropped frames.
+        ``hardware``: the simulated Pi (``now_ns()``, ``wait_until(t_ns, timeout_s)``,
+        ``limit_ns``) whose clock delivers the frames in real time (module docstring)."""
         plain = {"exposure_us": exposure_us, "frame_duration_us": frame_duration_us, "start_ns": start_ns,
                  "line_time_ns": line_time_ns}
         given = [k for k, v in plain.items() if v is not None]
@@ -60,15 +70,27 @@ class SimulatedCamera:
         self.renderer = SceneRenderer(cfg, scene, sensor, options, seed)
         self.width, self.height, self.line_time_ns = cfg.width, cfg.height, timing.line_time_s * 1e9
         self.pulses = pulses
-        self.clock = CameraClock(timing, np.random.default_rng([seed, 0xC10C]))
+        self.hardware = hardware
+        self.ready_margin_s = ready_margin_s
+        self.stall_until_ns = 0  # fault injection (with hardware): no frame is delivered before this time
+        self._timing = timing
+        self._clock_rng = np.random.default_rng([seed, 0xC10C])
+        self.clock = None if hardware is not None else CameraClock(timing, self._clock_rng)
         self._rng = np.random.default_rng([seed, 0xCA3])
+        self._next: ClockFrame | None = None  # a frame that was not ready when its capture timed out
         self._running = False
 
     def start(self) -> None:
+        if self.hardware is not None:
+            start_s = self.hardware.now_ns() * 1e-9 + 0.05
+            self.clock = CameraClock(replace(self._timing, start_time_s=start_s), self._clock_rng)
+            self._next = None
         self._running = True
 
     def stop(self) -> None:
         self._running = False
+        if self.hardware is not None:
+            self.hardware.limit_ns = None
 
     def set_frame_duration(self, frame_duration_us: float) -> None:
         self.clock.request(frame_duration_s=frame_duration_us * 1e-6)
@@ -81,9 +103,10 @@ class SimulatedCamera:
     def capture_with_truth(self, timeout_s: float = 1.0) -> tuple[Frame, FrameTruth]:
         if not self._running:
             raise CameraError("camera not started: call start() first")
-        ft = self.clock.next_frame()
-        while ft.dropped:  # exposed but never delivered
-            ft = self.clock.next_frame()
+        ft = self._next or self._delivered_frame()
+        self._next = None
+        if self.hardware is not None:
+            ft = self._wait_until_read_out(ft, timeout_s)
         t_ns = int(round(ft.true_start_s * 1e9))
         lt_ns = ft.line_time_s * 1e9
         exposure_us = ft.exposure_s * 1e6
@@ -97,3 +120,25 @@ class SimulatedCamera:
 
     def capture(self, timeout_s: float = 1.0) -> Frame:
         return self.capture_with_truth(timeout_s)[0]
+
+    def _delivered_frame(self) -> ClockFrame:
+        ft = self.clock.next_frame()
+        while ft.dropped:  # exposed but never delivered
+            ft = self.clock.next_frame()
+        return ft
+
+    def _ready_ns(self, ft: ClockFrame) -> int:
+        return int((ft.true_start_s + (self.height - 1) * ft.line_time_s + self.ready_margin_s) * 1e9)
+
+    def _wait_until_read_out(self, ft: ClockFrame, timeout_s: float) -> ClockFrame:
+        """``ft``, or the first frame after a stall, once the simulated clock has read it out;
+        CaptureTimeout if that takes longer than ``timeout_s``. The clock is held one frame
+        beyond it (``limit_ns``) so that it never runs away from a slow consumer."""
+        while self._ready_ns(ft) < self.stall_until_ns:  # frames of a stalled camera never arrive
+            ft = self._delivered_frame()
+        ready_ns = self._ready_ns(ft)
+        self.hardware.limit_ns = ready_ns + int(ft.frame_duration_s * 1e9)
+        if not self.hardware.wait_until(ready_ns, timeout_s):
+            self._next = ft
+            raise CaptureTimeout(f"no simulated frame within {timeout_s} s")
+        return ft

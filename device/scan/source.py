@@ -1,17 +1,19 @@
-"""The device process: camera -> synchronised laser (co-MCU) -> pipeline -> scans -> host link.
+"""The scan source of the whole sensor: camera -> synchronised laser (co-MCU) -> pipeline -> scans.
 
 Composed of narrow interfaces so that the same orchestration runs on a Pi and in simulation:
 
-* ``Camera``: ``start()``, ``stop()``, ``capture(timeout_s) -> Frame | None`` (device/camera);
-* ``Laser``: the line laser pulsed by the co-MCU and kept in step with the camera
-  (device/comcu.py + device/sync): ``start(frame)``, ``stop()``, ``frame_lit(frame)``, ``locked``;
-* ``Pipeline``: ``(lit, dark) -> (ranges_m, quality)`` on the scan's angles (device/vision).
+* the camera (device.camera.base.Camera): ``start()``, ``stop()``, ``capture(timeout_s)``
+  (no frame in time: CaptureTimeout, or None);
+* the laser (device.laser.base.Laser): the line laser pulsed by the co-MCU and kept in step with
+  the camera: ``start(frame)``, ``stop()``, ``frame_lit(frame)``, ``locked``;
+* the scan function (device.scan.pipeline.ScanFunction): ``(lit, dark) -> (ranges_m, quality)``
+  on the scan's angles; a device.vision pipeline through ScanPipeline.
 
-``SensorSource`` joins them into the ScanSource the link server (device/link.py) streams from.
+``SensorSource`` joins them into the ScanSource the link server (protocol/server.py) streams from.
 It pairs each lit frame with its neighbouring unlit frame (frame differencing, ERRATA 10) into
 one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
 ``status()`` (HEALTH.errors, codes protocol.messages.ErrorCode, and HEALTH's fault counters) and
-``LinkSupervisor.health()`` instead:
+``LinkSupervisor.health()`` (device/link/supervisor.py) instead:
 
 * camera error or stall (no frame for ``stall_timeout_s``): laser off, error CAMERA_FAULT,
   camera restarted (counted), the laser re-synchronised on the first new frame;
@@ -21,10 +23,8 @@ one scan, and it never raises out of ``next_scan``: every failure degrades and i
   are not neighbours;
 * a pipeline exception: that scan is skipped and counted, the error is logged.
 
-``LinkSupervisor`` runs the link server over a port and opens it again when the host side fails
-(a USB gadget port that vanishes when the host is unplugged); host garbage and scans dropped on
-a slow link are counted by the link server into one LinkCounters for all sessions, so HEALTH
-(and ``ProcessHealth``, for logs and ``serve --stats-file``) report totals since the process started.
+The scan then gets the host's settings: the region of interest, ``min_quality`` and the median
+filter (protocol/median.py).
 """
 
 from __future__ import annotations
@@ -33,65 +33,22 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
-from device.analytic_source import median_filter
-from device.camera.base import CaptureTimeout
+from device.camera.base import Camera, CaptureTimeout
 from device.camera.frame import Frame
-from device.link import DeviceConfig, LinkCounters, LinkServer, ScanGeometry, SourceScan, SourceStatus
+from device.laser.base import Laser, LaserError
+from device.scan.pipeline import ScanFunction
 from protocol import messages as m
+from protocol.median import median_filter
+from protocol.server import ScanGeometry, SourceScan, SourceStatus
 
 log = logging.getLogger(__name__)
 
 
-# --- interfaces ------------------------------------------------------------------------------
-class Camera(Protocol):
-    def start(self) -> None:
-        """Start streaming frames (may be called again after ``stop()`` to restart)."""
-
-    def stop(self) -> None:
-        """Stop streaming; must not raise on a camera that has failed."""
-
-    def capture(self, timeout_s: float) -> Frame | None:
-        """The next frame, or None (or CaptureTimeout) if none arrived within ``timeout_s``;
-        raises on a camera error."""
-
-
-class LaserError(RuntimeError):
-    """The co-MCU cannot drive the laser now. ``reason``: "lost" (no answer), "reset" (it
-    restarted and forgot the schedule), "fault" (it latched a fault and switched the laser off)
-    or "refused" (it declined the schedule)."""
-
-    def __init__(self, reason: str, detail: str):
-        super().__init__(f"co-MCU {reason}: {detail}")
-        self.reason = reason
-
-
-class Laser(Protocol):
-    locked: bool  # pulses are synchronised to the camera's exposure
-
-    def start(self, frame: Frame) -> bool | None:
-        """Schedule pulses for the frames after ``frame`` (its timestamp gives the camera's
-        phase); raises LaserError. Returns True if it found that the co-MCU had rebooted since
-        the last schedule without a LaserError "reset" having said so (e.g. during an outage)."""
-
-    def stop(self) -> None:
-        """Laser off now; best effort, never raises (the co-MCU also stops by itself when its
-        heartbeats stop)."""
-
-    def frame_lit(self, frame: Frame) -> bool | None:
-        """Service the co-MCU for a new frame (heartbeat, synchronisation step) and say whether
-        the schedule lit this frame; None while that is not known (not locked). Raises LaserError."""
-
-
-class Pipeline(Protocol):
-    def __call__(self, lit: Frame, dark: Frame) -> tuple[np.ndarray, np.ndarray]:
-        """Ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry."""
-
-
-# --- health ----------------------------------------------------------------------------------
+# --- counters --------------------------------------------------------------------------------
 @dataclass
 class SourceCounters:
     """Totals since the process started."""
@@ -112,37 +69,11 @@ class SourceCounters:
     cpu_pipeline_s: float = 0.0  # frame pair -> scan
 
 
-@dataclass(frozen=True)
-class ProcessHealth:
-    """Everything the process knows about its own health, for logs, tests and the soak run."""
-
-    scanning: bool
-    laser_on: bool
-    sync_locked: bool
-    errors: tuple[int, ...]
-    source: SourceCounters
-    scans_sent: int = 0
-    scans_dropped: int = 0  # whole scans dropped because the host link was slow
-    host_bytes_discarded: int = 0  # host bytes that were not part of an intact frame
-    host_frames_rejected: int = 0  # CRC, decode and oversize errors from the host
-    host_sessions: int = 0  # times the link was (re)opened
-
-    def line(self) -> str:
-        s = self.source
-        errs = ",".join(m.ErrorCode(e).name if e in m.ErrorCode._value2member_map_ else str(e) for e in self.errors)
-        return (f"scanning={self.scanning} laser={'on' if self.laser_on else 'off'} locked={self.sync_locked} "
-                f"errors=[{errs}] frames={s.frames} dropped_frames={s.frames_dropped} scans={s.scans_made} "
-                f"sent={self.scans_sent} dropped_scans={self.scans_dropped} camera_restarts={s.camera_restarts} "
-                f"comcu_lost={s.comcu_lost} comcu_resets={s.comcu_resets} pipeline_errors={s.pipeline_errors} "
-                f"host_bytes_discarded={self.host_bytes_discarded} host_frames_rejected={self.host_frames_rejected} "
-                f"host_sessions={self.host_sessions}")
-
-
 # --- the scan source -------------------------------------------------------------------------
 class SensorSource:
-    """ScanSource (device/link.py) of the whole sensor; see the module docstring."""
+    """ScanSource (protocol/server.py) of the whole sensor; see the module docstring."""
 
-    def __init__(self, camera: Camera, laser: Laser, pipeline: Pipeline, geometry: ScanGeometry, *,
+    def __init__(self, camera: Camera, laser: Laser, pipeline: ScanFunction, geometry: ScanGeometry, *,
                  stall_timeout_s: float = 0.5, laser_retry_s: float = 0.5,
                  clock: Callable[[], float] = time.monotonic):
         if not stall_timeout_s > 0 or not laser_retry_s > 0:
@@ -352,78 +283,3 @@ class SensorSource:
             self.laser.stop()
         except Exception as exc:  # the interface says never; the heartbeat timeout still holds
             log.error("laser stop raised %s; the co-MCU switches off on missing heartbeats", exc)
-
-
-# --- the link, reopened when the host side fails -----------------------------------------------
-class LinkSupervisor:
-    """Serve ``source`` (a ScanSource, usually a SensorSource) to a host over ports from
-    ``open_port`` until ``stop`` is set.
-
-    A link server whose port fails (host unplugged from a USB gadget port, serial error) ends its
-    session; the supervisor opens the port again with back-off and serves a new session with
-    the same source, so the sensor keeps running. On exit the source is stopped (laser off).
-    """
-
-    def __init__(self, open_port: Callable[[], object], source, config: DeviceConfig, *,
-                 health_log_s: float = 10.0, reopen_backoff_s: tuple[float, float] = (0.1, 2.0),
-                 on_health: Callable[[ProcessHealth], None] | None = None):
-        """on_health: called with the health at every health log line and once at the end."""
-        self.open_port = open_port
-        self.source = source
-        self.config = config
-        self.health_log_s = health_log_s
-        self.on_health = on_health
-        self.reopen_backoff_s = reopen_backoff_s
-        self.server: LinkServer | None = None
-        self.counters = LinkCounters()  # shared by every session: HEALTH reports process totals
-
-    @property
-    def sessions(self) -> int:
-        return self.counters.sessions
-
-    def health(self) -> ProcessHealth:
-        c = self.counters
-        st = self.source.status()
-        return ProcessHealth(
-            scanning=bool(self.server and self.server._scanning), laser_on=st.laser_on, sync_locked=st.sync_locked,
-            errors=st.errors, source=SourceCounters(**vars(getattr(self.source, "counters", SourceCounters()))),
-            scans_sent=c.scans_sent, scans_dropped=c.scans_dropped, host_bytes_discarded=c.host.bytes_discarded,
-            host_frames_rejected=c.host_frames_rejected, host_sessions=c.sessions)
-
-    def run(self, stop: threading.Event) -> None:
-        backoff = self.reopen_backoff_s[0]
-        next_log = time.monotonic() + self.health_log_s
-        try:
-            while not stop.is_set():
-                try:
-                    port = self.open_port()
-                except OSError as exc:
-                    log.warning("cannot open the host port (%s); again in %.1f s", exc, backoff)
-                    stop.wait(backoff)
-                    backoff = min(2 * backoff, self.reopen_backoff_s[1])
-                    continue
-                backoff = self.reopen_backoff_s[0]
-                self.server = LinkServer(port, self.source, self.config, self.counters).start()
-                log.info("host link session %d open", self.sessions)
-                while not stop.wait(0.1) and not self.server.stopped:
-                    if time.monotonic() >= next_log:
-                        self._report(self.health(), "health")
-                        next_log = time.monotonic() + self.health_log_s
-                self.server.close()
-                self.server = None
-                closer = getattr(port, "close", None)
-                if closer is not None:
-                    try:
-                        closer()
-                    except OSError:
-                        pass
-                if not stop.is_set():
-                    log.warning("host link session %d ended; reopening", self.sessions)
-        finally:
-            self.source.stop()
-            self._report(self.health(), "device process stopped, laser off")
-
-    def _report(self, health: ProcessHealth, what: str) -> None:
-        log.info("%s; %s", what, health.line())
-        if self.on_health is not None:
-            self.on_health(health)

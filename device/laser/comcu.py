@@ -2,7 +2,7 @@
 
 The port needs ``write(bytes)``, ``read(size) -> bytes`` (returning fewer bytes, or none, when
 its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at 250000 baud 8N1 on the Pi, or
-device.comcu_emulator.SteppedMcuPort for the firmware running in simavr.
+device.sim.comcu_emulator.SteppedMcuPort for the firmware running in simavr.
 
 Every command waits for its reply (matched by sequence number).  EDGE reports and unsolicited
 INFO frames (the MCU announces every boot with one) that arrive meanwhile are kept, see

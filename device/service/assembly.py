@@ -1,0 +1,163 @@
+"""Build the whole sensor (device.scan.source.SensorSource) from its parts, on a Pi or simulated.
+
+On a Pi: Picamera2Camera -> SyncedLaser (co-MCU on a UART) -> fast pipeline.
+Simulated (``laserpi serve --simulate``): the same SensorSource, SyncedLaser and pipeline, with
+the simulated hardware of device/sim:
+* the camera: the scene renderer on the simulated clock, timed by the IMX219 timing simulation
+  (device/sim/timing.py: line-quantised frame length, timestamp latency, dropped frames) --
+  device/sim/camera.py's SimulatedCamera, delivering frames in simulated real time;
+* the Pi's clock and the co-MCU: the shipped firmware ELF in the simavr harness behind a pty
+  (device/sim/hardware.py's SimulatedHardware), opened by CoMcu through pyserial as on a Pi.
+
+Operating point (both): 20 frames/s, every other frame lit (ERRATA 10), so 10 scans/s; exposure
+``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
+can land) and so the pulse, which must fit the firmware's compiled-in eye-safety envelope.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from device.config import SensorConfig, load_config, load_preset
+from device.laser.comcu import BAUDRATE, CoMcu
+from device.scan.pipeline import ScanPipeline
+from device.scan.source import SensorSource
+from protocol import messages as m
+from protocol.server import ScanGeometry
+
+if TYPE_CHECKING:
+    from device.sim.hardware import SimulatedHardware
+
+log = logging.getLogger(__name__)
+
+SCAN_RATE_HZ = 10.0
+FRAME_DURATION_S = 0.5 / SCAN_RATE_HZ  # a lit and an unlit frame per scan
+EXPOSURE_US = 9200.0
+RANGE_M = (0.4, 3.2)
+PIPELINE = "fast-com-track"
+ANALOG_GAIN = 4.0  # analogue gain, on a Pi and simulated (device/sim/sensor.py): at 1 the 3 m line is a few 8-bit levels (1.0 % at 3 m); 4 and 8 give 0.4 %
+COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
+
+
+# --- assembly ---------------------------------------------------------------------------------
+def sensor_config(config_path: str | None, preset: str) -> SensorConfig:
+    return load_config(config_path) if config_path else load_preset(preset)
+
+
+def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.01) -> float:
+    """Class 1 peak power limit (mW) of the configured laser at this pulse width and scan rate
+    (device/model/safety.py, eq. 3.45 with the thesis's 1 cm closest eye)."""
+    from device.model.safety import PulsedLineLaser, max_power_w
+
+    laser = PulsedLineLaser(cfg.laser.wavelength_m * 1e9, pulse_s, SCAN_RATE_HZ, cfg.laser.fan_angle_rad,
+                            cfg.laser.line_height_m, cfg.laser.source_diameter_m)
+    return 1e3 * max_power_w(laser, closest_eye_m)
+
+
+@dataclass(frozen=True)
+class AssemblyConfig:
+    """Which sensor ``build_sensor`` builds (``laserpi serve`` makes one of its options).
+
+    ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``points``: points
+    per scan (None: the configuration's active image width); ``comcu``: the co-MCU's serial device
+    on a Pi. ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
+    ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``.
+    """
+
+    simulate: bool = False
+    config_path: str | None = None
+    preset: str = "thesis-calibrated"
+    points: int | None = None
+    comcu: str = "/dev/serial0"
+    scene: str = "wall"
+    distance_m: float = 2.0
+    seed: int = 0
+
+
+@dataclass
+class BuiltSensor:
+    """What ``laserpi serve`` runs: the source, its power-on settings, the Class 1 laser limit it
+    enforces, what to close at the end, and in simulation the fault injections {name: callable}
+    and the simulated hardware."""
+
+    source: SensorSource
+    settings: m.ScanSettings
+    laser_limit_mw: float
+    closers: list
+    faults: dict
+    hardware: SimulatedHardware | None = None
+
+
+def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
+    """The sensor for ``laserpi serve`` (simulated with ``setup.simulate``)."""
+    from device.laser.synced import SyncedLaser
+    from device.sim.timing import CameraTimingConfig
+    from device.sync.control import SyncConfig
+    from device.vision.pipelines import make_pipeline
+
+    cfg = sensor_config(setup.config_path, setup.preset)
+    pipeline = make_pipeline(PIPELINE, cfg, *RANGE_M)
+    count = setup.points or cfg.active_width or cfg.width
+    scan = ScanPipeline(pipeline, count)
+    g = pipeline.geometry
+    row_min, row_max = int(g.roi_lo.min()), int(g.roi_hi.max()) - 1
+    # Guards: a 100 us floor and narrowing at most every 5 s keep the controller from re-placing
+    # the train for guard changes of tens of microseconds (each new train costs the frames before
+    # it, i.e. a scan). Exposure + ROI span + 2 x 1.3 x the 2 ms guard ceiling = 17.3 ms stays
+    # inside the firmware's 17.4 ms pulse envelope.
+    # (SyncConfig's PING/PONG minimum line times default to device.laser.comcu's 250000 baud.)
+    sync = SyncConfig(row_min, row_max, FRAME_DURATION_S, cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
+    pulse_s = EXPOSURE_US * 1e-6 + (row_max - row_min) * 18904e-9
+    limit = laser_limit_mw(cfg, max(pulse_s, cfg.laser.pulse_s))
+    closers = []
+    if setup.simulate:
+        from device.sim.camera import SimulatedCamera
+        from device.sim.hardware import SimulatedHardware
+        from device.sim.scene import get_scene
+        from device.sim.sensor import SensorParams
+
+        spec = f"wall:distance={setup.distance_m:g}" if setup.scene == "wall" else setup.scene
+        hw = SimulatedHardware(seed=setup.seed)
+        closers.append(hw.close)
+        timing = CameraTimingConfig(frame_duration_s=FRAME_DURATION_S, exposure_s=EXPOSURE_US * 1e-6)
+        camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,
+                                 sensor=SensorParams(analog_gain=ANALOG_GAIN), hardware=hw)
+        laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
+        hw.tickers.append(laser.heartbeat)
+        clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
+        faults = {"comcu-reset": hw.reset_mcu,
+                  "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
+    else:
+        import importlib.util
+
+        import serial
+
+        from device.camera.picamera2_camera import Picamera2Camera
+
+        if importlib.util.find_spec("picamera2") is None:
+            raise RuntimeError("no camera: picamera2 is not installed (on a Pi: sudo apt install python3-picamera2); "
+                               "use --simulate to run the simulated sensor here")
+        camera = Picamera2Camera(exposure_us=EXPOSURE_US, frame_duration_us=FRAME_DURATION_S * 1e6, analogue_gain=ANALOG_GAIN)
+
+        def open_comcu():
+            try:
+                return CoMcu(serial.Serial(setup.comcu, BAUDRATE, timeout=0.05))
+            except serial.SerialException as exc:
+                raise OSError(str(exc)) from exc
+
+        laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
+        clock = time.monotonic
+        faults, hw = {}, None
+    geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
+    source = SensorSource(camera, laser, scan, geometry, clock=clock)
+    power_mw = min(cfg.laser.power_w * 1e3, limit)
+    settings = m.ScanSettings(scan_rate_hz=SCAN_RATE_HZ, exposure_us=int(EXPOSURE_US), roi_first=0, roi_count=count,
+                              median_window=1, min_quality=0, laser_power_mw=power_mw)
+    log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
+             cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if setup.simulate else "on a Pi")
+    return BuiltSensor(source, settings, limit, closers, faults, hw)

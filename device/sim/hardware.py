@@ -1,0 +1,236 @@
+"""The simulated Pi's hardware for the device process (``laserpi serve --simulate``): its clock
+and its co-MCU, the shipped firmware ELF in the simavr harness, stepped cycle-exactly, whose cycle
+count is also the simulated Pi's clock. Its UART is a pty that CoMcu opens through pyserial, as it
+opens /dev/serial0 on a Pi. The laser pin's edges become the pulses that light the rendered rows
+(the simulated camera, device/sim/camera.py, reads them) and, with a simulated kernel latency, the
+GPIO edge events of the laser trigger line for the clock map.
+
+Why the emulator is stepped by the simulated clock and not free-running (the harness's own pty
+mode, paced to the wall clock): on this shared 2-core machine the free-running emulator lagged
+the wall clock by 10-180 ms, so its MCU clock wandered by thousands of ppm and heartbeats
+arrived late; in simulated time nothing depends on how busy the machine is (it only runs slower
+than real time then). The pty between the two is the same either way.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import select
+import threading
+import time
+
+import numpy as np
+
+from device.laser.comcu import BAUDRATE, CoMcu
+from device.laser.synced import HEARTBEAT_S
+from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, SteppedMcuPort, build_emulator
+from protocol.ports import open_raw_pty
+
+
+class SimulatedHardware:
+    """The simulated Pi's CLOCK_MONOTONIC and its co-MCU: the shipped firmware ELF running in the
+    simavr harness (device/sim/comcu_emulator.SteppedMcuPort), cycle-exact, behind a pty.
+
+    Time: simulated CLOCK_MONOTONIC = ``t_base + emulator cycles / CPU_HZ``; a clock thread keeps
+    it at the wall clock (it advances the emulator, never ahead of the wall clock) but not past
+    ``limit_ns``, which the simulated camera sets one frame beyond the frame it waits for: when
+    this machine is too busy for the device process to keep up in real time, the simulated world
+    waits for it instead of running away (it runs slower than real time, and consistently: no
+    heartbeat or frame is missed because the host machine was descheduled). Whether a Pi keeps
+    up is judged from the measured CPU cost instead (laserpi bench process). While requests
+    from the Pi wait for the co-MCU's answers (counted by frame delimiters), the clock may pass
+    ``limit_ns`` (by at most ``answer_window_s`` after the last request), as the MCU's time would.
+    Every ``tick_s`` of simulated time the ``tickers`` run on their own thread
+    (SyncedLaser.heartbeat).
+
+    The co-MCU's UART is a pty (``tty_path``), opened by CoMcu through pyserial exactly as the
+    real one's UART is on a Pi (``open_comcu``); the clock thread moves its bytes to and from the
+    emulator at every step (at most ``step_s`` of simulated time, and at once when the Pi writes).
+    The laser pin's edges (CPU cycles, exact) become the laser's on-windows that light the
+    rendered rows (``windows``, a device.sim.pulses.PulseSource) and, plus a simulated kernel
+    latency (3 us + exponential, mean ``gpio_latency_s``), the GPIO edge events of the trigger
+    line that the clock map uses (``gpio_edges``).
+    """
+
+    def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
+                 history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
+        if not (HARNESS.exists() and ELF.exists()):
+            build_emulator()
+        self.harness, self.elf, self.cpu_hz = HARNESS, ELF, CPU_HZ
+        self.gpio_latency_s = gpio_latency_s
+        self.tick_ns, self.step_ns = int(tick_s * 1e9), int(step_s * 1e9)
+        self.answer_window_ns = int(answer_window_s * 1e9)
+        self.tickers: list = []
+        self._rng = np.random.default_rng([seed, 0x6910])
+        self._lock = threading.RLock()  # the emulator: one command at a time
+        self._advanced = threading.Condition(self._lock)
+        self._windows: collections.deque[tuple[int, int]] = collections.deque(maxlen=int(64 * history_s))
+        self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
+        self._rise: int | None = None
+        self.mcu = None
+        self.clock_cpu_s = 0.0
+        self.limit_ns: int | None = None  # the clock does not pass this (the camera's consumer lags)
+        self._answer_until_ns = 0  # requests are in flight: the MCU's time may pass limit_ns until then
+        self._requests_in_flight = 0  # frames (0x00 delimiters) the Pi sent that the MCU has not answered
+        self.resets = -1
+        # the UART: the Pi's end is the pty's slave (raw, like a serial port), the MCU's the master
+        self._master, self._slave, self.tty_path = open_raw_pty()
+        os.set_blocking(self._master, False)
+        self._pending_to_pi = bytearray()
+        self._t_base_ns = time.monotonic_ns()
+        self.reset_mcu()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._run_clock, name="sim-clock", daemon=True),
+                         threading.Thread(target=self._run_tickers, name="sim-ticker", daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    # the clock
+    def now_ns(self) -> int:
+        return self._t_base_ns + self.mcu.cycle * 1_000_000_000 // self.cpu_hz
+
+    def _run_clock(self) -> None:
+        while not self._stop.is_set():
+            self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
+            self._pi_to_mcu()
+            now = self.now_ns()
+            target = time.monotonic_ns()
+            limit = self.limit_ns
+            if limit is not None:
+                target = min(target, max(limit, self._answer_until_ns))
+            if now >= target:
+                # wait for the wall clock, or at once for bytes from the Pi
+                select.select([self._master], [], [], min(0.002, (now - target) * 1e-9 + 0.0005))
+                continue
+            step_end = min(target, now + self.step_ns)
+            with self._lock:
+                self.mcu.run_cycles(max(1, (step_end - now) * self.cpu_hz // 1_000_000_000))
+                self._collect()
+                self._mcu_to_pi()
+                self._advanced.notify_all()
+
+    def _pi_to_mcu(self) -> None:
+        """Bytes the Pi wrote to its end of the UART go into the MCU's receiver now."""
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):  # nothing written (or no reader attached yet)
+            return
+        if data:
+            with self._lock:
+                self.mcu.write(data)
+                self._requests_in_flight += data.count(0)
+                self._answer_until_ns = self.now_ns() + self.answer_window_ns
+
+    def _mcu_to_pi(self) -> None:
+        """What the MCU sent goes to the Pi's end of the UART (kept while the pty is full)."""
+        n = self.mcu.in_waiting
+        if n:
+            out = self.mcu.read(n)
+            self._pending_to_pi += out
+            # every request frame gets one answer frame
+            self._requests_in_flight = max(0, self._requests_in_flight - out.count(0))
+            if not self._requests_in_flight:
+                self._answer_until_ns = 0
+        if self._pending_to_pi:
+            try:
+                del self._pending_to_pi[: os.write(self._master, self._pending_to_pi)]
+            except (BlockingIOError, OSError):
+                pass
+
+    def _run_tickers(self) -> None:
+        # simulated time never runs ahead of the wall clock, so sleeping the simulated interval
+        # is never too long (waiting on the clock's condition instead would wake at every step)
+        next_tick = self.now_ns() + self.tick_ns
+        while not self._stop.is_set():
+            left_ns = next_tick - self.now_ns()
+            if left_ns > 0:
+                self._stop.wait(left_ns * 1e-9)
+                continue
+            next_tick += self.tick_ns
+            for tick in list(self.tickers):
+                tick()
+
+    def wait_until(self, t_ns: int, timeout_s: float) -> bool:
+        """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
+        deadline = time.monotonic() + timeout_s
+        with self._advanced:
+            while self.now_ns() < t_ns:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._advanced.wait(min(left, 0.01))
+        return True
+
+    # the co-MCU
+    def reset_mcu(self) -> None:
+        """Power-cycle the co-MCU: a new emulator boots the firmware again (reset cause: power-on);
+        simulated time goes on. The UART (the pty) stays; bytes in flight are lost."""
+        with self._lock:
+            now = self.now_ns() if self.mcu is not None else time.monotonic_ns()
+            old = self.mcu
+            self.mcu = SteppedMcuPort(self.harness, self.elf, timeout=0.05)
+            self._t_base_ns = now - self.mcu.cycle * 1_000_000_000 // self.cpu_hz
+            self._rise = None
+            self.resets += 1
+        if old is not None:
+            old.close()
+
+    def open_comcu(self):
+        """A CoMcu on the co-MCU's UART (the pty, through pyserial as on a Pi) with the simulated
+        clock: what SyncedLaser opens."""
+        import serial
+
+        try:
+            return CoMcu(serial.Serial(self.tty_path, BAUDRATE, timeout=0.05), clock_ns=self.now_ns)
+        except serial.SerialException as exc:
+            raise OSError(str(exc)) from exc
+
+    # the laser pin
+    def _collect(self) -> None:
+        self.mcu.rx_delims.clear()  # the emulator logs every received delimiter; unused here, unbounded
+        edges = self.mcu.edges
+        n = len(edges)
+        if not n:
+            return
+        new = edges[:n]
+        del edges[:n]
+        for cycle, level in new:
+            t = self._t_base_ns + cycle * 1_000_000_000 // self.cpu_hz
+            latency = 3e-6 + self._rng.exponential(self.gpio_latency_s)
+            self._gpio.append((t + int(latency * 1e9), bool(level)))
+            if level:
+                self._rise = t
+            elif self._rise is not None:
+                self._windows.append((self._rise, t))
+                self._rise = None
+
+    def windows(self, start_ns: int, end_ns: int) -> list[tuple[int, int]]:
+        with self._lock:
+            self._collect()
+            out = [(a, b) for a, b in self._windows if b >= start_ns and a <= end_ns]
+            if self._rise is not None and self._rise <= end_ns:
+                out.append((self._rise, end_ns))  # still on
+            return out
+
+    def laser_on(self) -> bool:
+        """The laser pin's level now (simulated time)."""
+        with self._lock:
+            self._collect()
+            return self._rise is not None
+
+    def gpio_edges(self) -> list[tuple[int, bool]]:
+        with self._lock:
+            self._collect()
+            out = list(self._gpio)
+            self._gpio.clear()
+            return out
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        with self._lock:
+            self.mcu.close()
+        os.close(self._master)
+        os.close(self._slave)
