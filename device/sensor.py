@@ -17,7 +17,7 @@ the wall clock by 10-180 ms, so its MCU clock wandered by thousands of ppm and h
 arrived late; in simulated time nothing depends on how busy the machine is (it only runs slower
 than real time then). The pty between the two is the same either way.
 
-Operating point (both): 20 frames/s, every other frame lit (ERRATA 10), so 10 scans/s; exposure
+Operating point (both): 20 frames/s, every other frame lit (docs/thesis-notes.md N10), so 10 scans/s; exposure
 ``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
 can land) and so the pulse, which must fit the firmware's compiled-in eye-safety envelope.
 """
