@@ -6,7 +6,7 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     schema_version = 1
     name = "thesis-calibrated"
 
-    [image]            # buffer size and the active area inside it (thesis B.1.4, ERRATA 6)
+    [image]            # buffer size and the active area inside it (thesis B.1.4, docs/thesis-notes.md N6)
     width = 1664
     height = 928
     active_width = 1640
@@ -48,11 +48,11 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     f_number = 2.0
     pixel_pitch_m = 2.24e-6
 
-    [range]            # Algorithm 2's filter, 1..10000 mm (ERRATA 3)
+    [range]            # Algorithm 2's filter, 1..10000 mm (docs/thesis-notes.md N3)
     min_m = 0.001
     max_m = 10.0
 
-    [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, ERRATA 8)
+    [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, docs/thesis-notes.md N8)
     terms = [[0, 0], [1, 0], [0, 1]]
     coefficients = [0.0, 0.0, 0.0]
     x_scale_m = 1.0
@@ -110,7 +110,7 @@ class PostCalibration:
     """z_corrected = z - sum_k c_k X^i_k Z^j_k with X = x / x_scale_m, Z = (z - z_offset_m) / z_scale_m.
 
     The thesis's eq. 6.5 in raw millimetre monomials is this form with x_scale = z_scale = 1 mm;
-    fitting in scaled coordinates keeps it well conditioned (ERRATA 8).
+    fitting in scaled coordinates keeps it well conditioned (docs/thesis-notes.md N8).
     """
 
     terms: tuple[tuple[int, int], ...] = ()

@@ -159,7 +159,7 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
     lo, hi = config.exposure_range_us
     if not lo <= s.exposure_us <= hi:
         return m.NackCode.OUT_OF_RANGE, f"exposure_us {s.exposure_us} outside [{lo}, {hi}]"
-    # frame differencing takes a lit and an unlit frame per scan (ERRATA 10)
+    # frame differencing takes a lit and an unlit frame per scan (docs/thesis-notes.md N10)
     frame_budget_us = 1e6 / (2 * s.scan_rate_hz)
     if s.exposure_us > frame_budget_us:
         return m.NackCode.OUT_OF_RANGE, (

@@ -19,7 +19,7 @@ def test_plane_to_params_uses_mm_and_degrees(capsys):
     assert set(out) == {"theta_deg", "alpha_deg", "psi_deg", "s_mm"}
     p = params_from_plane(0.03099, -1.62720, 0.09405262, math.pi / 2)
     assert out["s_mm"] == pytest.approx(p.s * 1e3, rel=1e-12)
-    assert out["theta_deg"] == pytest.approx(math.degrees(math.atan(1 / 1.6272)), rel=1e-12)   # ERRATA 4
+    assert out["theta_deg"] == pytest.approx(math.degrees(math.atan(1 / 1.6272)), rel=1e-12)   # docs/thesis-notes.md N4
     assert out["alpha_deg"] + out["theta_deg"] == pytest.approx(90.0)                        # D.72, beta 90
     assert out["s_mm"] == pytest.approx(math.sin(math.radians(out["theta_deg"])) * 94.05262)  # D.71
 

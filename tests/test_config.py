@@ -20,7 +20,7 @@ def test_presets_load_and_hold_thesis_inputs():
     assert (cal.width, cal.height) == (1664, 928)
     assert cal.plane.to_abc() == pytest.approx((0.03099, -1.62720, 0.09405262))
     design = load_preset("thesis-design")
-    assert design.camera.intrinsics.cy == pytest.approx(576.404 - 155)  # ERRATA 5
+    assert design.camera.intrinsics.cy == pytest.approx(576.404 - 155)  # docs/thesis-notes.md N12
     a, b, c = design.plane.to_abc()
     assert c == pytest.approx(0.055 / math.sin(math.radians(31.1)))
 

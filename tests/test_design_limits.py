@@ -1,4 +1,4 @@
-"""Design tool (thesis 3.5, 4.1.3, ERRATA 5) against closed forms and 3-D ground truth."""
+"""Design tool (thesis 3.5, 4.1.3, docs/thesis-notes.md N5) against closed forms and 3-D ground truth."""
 
 import math
 

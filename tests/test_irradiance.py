@@ -1,4 +1,4 @@
-"""Background irradiance, eq. 3.46 with ERRATA 9, against the thesis's section 4.1.4 figures."""
+"""Background irradiance, eq. 3.46 with docs/thesis-notes.md N9, against the thesis's section 4.1.4 figures."""
 
 import math
 
@@ -46,7 +46,7 @@ def test_thesis_detection_distance_at_one_percent():
     e = ir.band_irradiance_w_m2(808, 50)
     x = ir.background_limited_distance_m(P_LASER, e, 0.01, FAN, HEIGHT)
     assert x == pytest.approx(3.50, rel=0.03)
-    # by hand, ERRATA 9 units: 25 mW / (0.01 * E mW/cm^2 * 2 tan 60 * 0.4 cm) in cm
+    # by hand, docs/thesis-notes.md N9 units: 25 mW / (0.01 * E mW/cm^2 * 2 tan 60 * 0.4 cm) in cm
     assert x * 100 == pytest.approx(25 / (0.01 * (e / 10) * 2 * math.tan(math.radians(60)) * 0.4), rel=1e-12)
 
 

@@ -1,4 +1,4 @@
-"""IEC 60825-1 Class 1 model (thesis 3.3, ERRATA 1-2): each factor against hand-computed values."""
+"""IEC 60825-1 Class 1 model (thesis 3.3, docs/thesis-notes.md N1, N2): each factor against hand-computed values."""
 
 import math
 
@@ -116,8 +116,8 @@ def test_three_conditions_for_thesis_laser():
     assert lim.limit_j == lim.pulse_train_j
 
 
-def test_errata1_pulse_train_reduces_the_single_pulse_limit():
-    """ERRATA 1: AEL_s.p.train = AEL_single x C5 <= AEL_single (the thesis's eq. 3.34 divides)."""
+def test_pulse_train_reduces_the_single_pulse_limit():
+    """docs/thesis-notes.md N1: AEL_s.p.train = AEL_single x C5 <= AEL_single (the thesis's eq. 3.34 divides)."""
     for rate in (0.5, 2.0, 10.0, 30.0):
         lim = sf.pulse_energy_limit(thesis_laser(rate_hz=rate))
         assert lim.c5 <= 1.0

@@ -1,4 +1,4 @@
-"""Per-column geometry (ROI, ray table) and the post-calibration of eq. 6.5 (ERRATA 8)."""
+"""Per-column geometry (ROI, ray table) and the post-calibration of eq. 6.5 (docs/thesis-notes.md N8)."""
 
 import dataclasses
 

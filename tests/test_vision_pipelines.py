@@ -211,7 +211,7 @@ def test_reference_far_row_gain_is_on_the_horizon_side():
     g = far_row_gain(CFG)
     n = round(0.2 * CFG.height)
     assert g[0] == pytest.approx(10.0) and g[n - 1] == pytest.approx(1.0)
-    assert np.all(np.diff(g[:n]) < 0) and np.all(g[n:] == 1.0)  # the far (top) rows, ERRATA 7
+    assert np.all(np.diff(g[:n]) < 0) and np.all(g[n:] == 1.0)  # the far (top) rows, docs/thesis-notes.md N7
     k = blur_kernel()
     assert k.sum() == pytest.approx(1.0) and k[2, 2] / k[0, 0] == pytest.approx(3.0)  # 1/sqrt(1) : 1/sqrt(9)
 

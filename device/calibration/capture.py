@@ -1,6 +1,6 @@
 """Capturing a calibration set from a camera backend (live on the Pi, or a recording replayed).
 
-The laser fires on a pattern of frames (ERRATA 10); consecutive lit and unlit frames form a pair.
+The laser fires on a pattern of frames (docs/thesis-notes.md N10); consecutive lit and unlit frames form a pair.
 A pair becomes a pose when the board is found in the unlit frame, it has not moved since the
 previous pair (a still board: no motion blur, and lit and unlit show the same pose) and it is
 somewhere new (mean corner shift from every pose kept so far). Coverage of the frame by corners

@@ -1,5 +1,5 @@
 """How good a calibration is, against the truth: focal lengths, principal point, laser plane and
-the range error it gives on a wall (thesis section 4.1.5, ERRATA 5). Used by the view bootstrap
+the range error it gives on a wall (thesis section 4.1.5, docs/thesis-notes.md N5). Used by the view bootstrap
 (pipeline.py, estimate against resampled estimates) and by ``laserpi calibrate --simulate``
 (estimate against the simulated truth)."""
 
@@ -21,7 +21,7 @@ def wall_range_error(truth: SensorConfig, estimate: SensorConfig, distance_m: fl
     triangulated with the estimated camera and plane; ranges compared in each one's scan frame.
     Returns the RMS and the worst relative error (percent) over the columns that see the wall,
     and the error at the principal-point column (where the thesis states its 1 % at 2 m
-    requirement, section 4.1.5 and ERRATA 5)."""
+    requirement, section 4.1.5 and docs/thesis-notes.md N5)."""
     fr = scan_frame(truth.plane)
     y = np.linspace(-4 * distance_m, 4 * distance_m, samples)
     scan_pts = np.stack([np.full_like(y, distance_m), y, np.zeros_like(y)], axis=-1)

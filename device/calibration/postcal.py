@@ -4,7 +4,7 @@ The thesis fitted a "2-4" polynomial (x up to 2nd order, total order 4: the 12 t
 chosen by experiment. Here the family is ``i <= x_order, i + j <= z_order`` and the pair is chosen
 by k-fold cross-validation (folds by wall distance when the sweep says which wall a point
 belongs to, so a held-out fold is a distance never seen by the fit). The fit itself is
-:func:`device.vision.postcal.fit`, in centred and scaled coordinates (ERRATA 8).
+:func:`device.vision.postcal.fit`, in centred and scaled coordinates (docs/thesis-notes.md N8).
 
 Input: points ``(x, z_measured, z_true)`` in metres, camera frame - from frames of a flat wall at
 known distances (:func:`load_wall_sweep`: ``wall_<mm>mm_lit.png`` / ``_unlit.png`` pairs), or

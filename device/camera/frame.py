@@ -14,7 +14,7 @@ class Frame:
     ``image``: (height, width) uint8 luminance (the Y plane of YUV420 on a Pi).
     ``sensor_timestamp_ns``: start of row-0 readout on CLOCK_MONOTONIC (libcamera SensorTimestamp);
     row r is exposed during [T - exposure + r * line_time, T + r * line_time] (rolling shutter).
-    ``lit``: whether the laser was scheduled to fire in this frame (ERRATA 10), None if unknown.
+    ``lit``: whether the laser was scheduled to fire in this frame (docs/thesis-notes.md N10), None if unknown.
     """
 
     image: np.ndarray

@@ -9,7 +9,7 @@ request metadata's ``SensorTimestamp`` (ns), taken, like the Frame record, as th
 first row's readout; ``ExposureTime`` and ``FrameDuration`` come from the same metadata.
 
 The Y plane is placed at the top left of a zeroed buffer of the configured size (1664x928 for
-the thesis configuration, ERRATA 6), so that frames from a Pi and from the simulator have one
+the thesis configuration, docs/thesis-notes.md N6), so that frames from a Pi and from the simulator have one
 layout.
 """
 

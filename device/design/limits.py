@@ -5,7 +5,7 @@ and the rows of that column, never the full pixel grid. Distances are SI (metres
 object distance perpendicular to the baseline s (eq. 3.14), computed on the laser plane of the
 configuration (eq. 3.17) with the camera tilt alpha derived from the plane (section 3.2.2).
 
-Resolution (ERRATA 5): for sub-pixel accuracy sigma at row v of a column,
+Resolution (docs/thesis-notes.md N5): for sub-pixel accuracy sigma at row v of a column,
 ``min(|q(v + sigma) - q(v)|, |q(v - sigma) - q(v)|) / q(v)``; "the resolution at distance q"
 is that value at the row where the model gives q(v) = q on the column through the principal
 point; ``min(q)`` is the smallest distance that column's rows can see.
@@ -61,7 +61,7 @@ def range_at_pixels(geom: RangeGeometry, pixels: np.ndarray) -> np.ndarray:
 
 
 def _forward_range(xy: np.ndarray, params: TriangulationParams) -> np.ndarray:
-    """Eq. 3.14 for points in front of the baseline line s; NaN behind it.
+    """Eq. 3.14 for points in front of the baseline line s; NaN behind it (docs/thesis-notes.md N17).
 
     A wide lens can see the laser plane behind the line s (q_y = z (sin a - y_n cos a) < 0);
     the square root of eq. 3.14 would fold those points forward into small positive distances.
@@ -78,7 +78,7 @@ def _column_pixels(column: float | np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 
 def relative_resolution(q: np.ndarray, q_before: np.ndarray, q_after: np.ndarray) -> np.ndarray:
-    """ERRATA 5: min(|q(v+sigma) - q(v)|, |q(v-sigma) - q(v)|) / q(v), elementwise.
+    """docs/thesis-notes.md N5: min(|q(v+sigma) - q(v)|, |q(v-sigma) - q(v)|) / q(v), elementwise.
 
     A neighbour beyond the horizon (inf) or invalid (NaN) does not count; NaN if neither counts
     or q itself is not a finite positive distance.
@@ -94,7 +94,7 @@ def relative_resolution(q: np.ndarray, q_before: np.ndarray, q_after: np.ndarray
 
 
 def resolution_at_pixels(geom: RangeGeometry, pixels: np.ndarray, subpixel: float) -> np.ndarray:
-    """Relative resolution (ERRATA 5) at ``pixels`` (..., 2) for sub-pixel accuracy ``subpixel``."""
+    """Relative resolution (docs/thesis-notes.md N5) at ``pixels`` (..., 2) for sub-pixel accuracy ``subpixel``."""
     if not (math.isfinite(subpixel) and subpixel > 0):
         raise ValueError(f"sub-pixel accuracy must be positive, got {subpixel!r}")
     pixels = np.asarray(pixels, dtype=float)
@@ -188,7 +188,7 @@ def _golden_max(f, lo: float, hi: float, xtol: float) -> tuple[float, float]:
 def resolution_table(geom: RangeGeometry, subpixels, ranges_m, column: float | None = None) -> np.ndarray:
     """Relative resolution (S, D) for each sub-pixel accuracy and distance (Tables 4.5, 4.10).
 
-    Evaluated on ``column`` (default: the principal point's, ERRATA 5); NaN where that column
+    Evaluated on ``column`` (default: the principal point's, docs/thesis-notes.md N5); NaN where that column
     never sees the distance.
     """
     column = geom.principal_column if column is None else float(column)

@@ -55,7 +55,7 @@ def laser_of(cfg) -> safety.PulsedLineLaser:
 
 
 def principal_limits(geom: limits.RangeGeometry) -> tuple[float, float]:
-    """(q_min, q_max) on the column through the principal point (ERRATA 5), metres."""
+    """(q_min, q_max) on the column through the principal point (docs/thesis-notes.md N5), metres."""
     col = limits.column_limits(geom, geom.principal_column)
     return float(col.q_min[0]), float(col.q_max[0])
 
@@ -115,7 +115,7 @@ def format_report(rep: DesignReport) -> str:
                    f"{int(np.sum(np.isinf(rep.columns.q_max)))} columns"
                    + (f", elsewhere max(q) >= {_mm(float(finite.min()))}" if finite.size else ""))
     out.append("")
-    out.append("resolution, % of distance (ERRATA 5: principal column, min of the two sigma-neighbours):")
+    out.append("resolution, % of distance (docs/thesis-notes.md N5: principal column, min of the two sigma-neighbours):")
     out.append("  sub-px " + "".join(f"{r * 1e3:>10.0f} mm" for r in rep.ranges_m))
     for s, row in zip(rep.subpixels, rep.resolution):
         out.append(f"  {s:6.2f} " + "".join("       n/a   " if not np.isfinite(v) else f"{v * 100:10.3f} % " for v in row))

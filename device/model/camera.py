@@ -296,7 +296,7 @@ def undistort_fixed(pixels: np.ndarray, cam: CameraModel, iterations: int = 5, t
 
     Runs exactly ``iterations`` steps of  p_n <- (p_d - d_t(p_n)) / d_r(p_n)  from p_n = p_d.
     For the fisheye model the same fixed-point idea is applied to theta = theta_d / (1 + ...).
-    Unlike the thesis (and OpenCV/kornia), the result is checked: a point whose estimated error
+    Unlike the thesis (and OpenCV/kornia; docs/thesis-notes.md N15), the result is checked: a point whose estimated error
     (see :class:`Unprojection`) exceeds ``tol_px`` is returned invalid, never as a wrong point.
     """
     if iterations < 1:

@@ -1,5 +1,5 @@
 """The co-MCU firmware's compiled-in eye-safety envelope, computed and verified against the Class 1
-model of device/model/safety.py (IEC 60825-1, thesis section 3.3, ERRATA 1-2).
+model of device/model/safety.py (IEC 60825-1, thesis section 3.3, docs/thesis-notes.md N1, N2).
 
 The firmware (firmware_pwm/, src/core.c) allows every pulse train with
   * widths from MIN_PULSE_TICKS (100 us) to ``max_pulse_ticks``,

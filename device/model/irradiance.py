@@ -1,12 +1,12 @@
 """Background (solar) irradiance against the laser return (thesis section 3.4, eq. 3.46).
 
 The sun's spectral irradiance is the ASTM G173-03 AM1.5 reference spectrum ("Spectra 1.5" in
-the thesis, ERRATA 9), global-tilt column, shipped for 600-1100 nm as
+the thesis, docs/thesis-notes.md N9), global-tilt column, shipped for 600-1100 nm as
 ``device/model/data/astm_g173_global_600_1100nm.csv`` (extracted from pvlib's copy of the
 table; pvlib itself is not a dependency). SI units: W/m^2, metres; wavelengths in nm.
 
 Eq. 3.46 compares the laser power spread over its projected line with the solar irradiance
-passed by the bandpass filter; ERRATA 9 fixes its units (mW, mW/cm^2, cm). Written in SI the
+passed by the bandpass filter; docs/thesis-notes.md N9 fixes its units (mW, mW/cm^2, cm). Written in SI the
 equation is the same, since the ratio P / (E * area) is unit-free.
 """
 

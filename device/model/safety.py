@@ -4,21 +4,21 @@ Pure functions, scalars in, scalars out. Units: SI at the interface (seconds, me
 joules) except where a name says otherwise: the wavelength is in nm and angular subtenses are
 in mrad, because the standard's formulas are written in those units.
 
-Readings of the thesis used here (see ERRATA.md and the notes on each function):
+Readings of the thesis used here (see docs/thesis-notes.md and the notes on each function):
 
-* ERRATA 1: the repetitive-pulse condition *multiplies* the single-pulse AEL by C5 (<= 1):
+* docs/thesis-notes.md N1: the repetitive-pulse condition *multiplies* the single-pulse AEL by C5 (<= 1):
   ``AEL_s.p.train = AEL_single x C5``; the thesis's eq. 3.34 divides.
-* ERRATA 2: the ``alpha`` of eq. 3.20-3.23 and 3.35-3.36 is the angular subtense of the
+* docs/thesis-notes.md N2: the ``alpha`` of eq. 3.20-3.23 and 3.35-3.36 is the angular subtense of the
   apparent source (eq. 3.21), not the camera tilt of the triangulation model. Here it is
   always called ``subtense_mrad``.
-* Eq. 3.40-3.42 as printed put H_mpe in the numerator of the NOHD, which is dimensionally
+* docs/thesis-notes.md N13: eq. 3.40-3.42 as printed put H_mpe in the numerator of the NOHD, which is dimensionally
   wrong (an area cannot be fluence x energy). The NOHD here is the exact inverse of
   eq. 3.45 (max power for a given NOHD), which is dimensionally right:
   ``nohd = P t / (H_mpe 2 tan(phi/2) y)``.
-* Where the beam at the viewing distance is smaller than the pupil, the whole pulse enters
+* docs/thesis-notes.md N13: where the beam at the viewing distance is smaller than the pupil, the whole pulse enters
   the eye; eq. 3.44 would let the power grow without bound as the area shrinks, so the
   fraction of the pulse reaching the eye is capped at 1.
-* Condition 2 (average over T) evaluates every duration-dependent factor (alpha_max inside
+* docs/thesis-notes.md N14: condition 2 (average over T) evaluates every duration-dependent factor (alpha_max inside
   C6) at the duration T, as IEC 60825-1 does for "the AEL of a single pulse of duration T".
 """
 
@@ -84,7 +84,7 @@ def c4(wavelength_nm: float) -> float:
 def angular_subtense_mrad(source_diameter_m: float, distance_m: float = SUBTENSE_DISTANCE_M) -> float:
     """Angular subtense of the apparent source in mrad, eq. 3.21: 2000 atan(d / 2r), r = 100 mm.
 
-    Named apart from the camera tilt alpha of the triangulation model (ERRATA 2).
+    Named apart from the camera tilt alpha of the triangulation model (docs/thesis-notes.md N2).
     """
     source_diameter_m = _check_finite_positive("source diameter", source_diameter_m)
     distance_m = _check_finite_positive("viewing distance", distance_m)
@@ -207,7 +207,7 @@ class PulseEnergyLimit:
 
     single_pulse_j: condition 1, eq. 3.27. average_power_j: condition 2, eq. 3.31
     (AEL over T = 100 s shared by the N pulses in T). pulse_train_j: condition 3,
-    AEL_single x C5 (ERRATA 1). ``limit_j`` is the smallest and ``limiting_condition`` names it.
+    AEL_single x C5 (docs/thesis-notes.md N1). ``limit_j`` is the smallest and ``limiting_condition`` names it.
     """
 
     subtense_mrad: float
@@ -239,7 +239,7 @@ class PulseEnergyLimit:
 
 
 def pulse_energy_limit(laser: PulsedLineLaser, averaging_time_s: float = AVERAGING_TIME_S) -> PulseEnergyLimit:
-    """Largest energy per pulse that keeps ``laser`` Class 1, eq. 3.18-3.37 with ERRATA 1-2."""
+    """Largest energy per pulse that keeps ``laser`` Class 1, eq. 3.18-3.37 with docs/thesis-notes.md N1, N2."""
     subtense = angular_subtense_mrad(laser.source_diameter_m)
     single = ael_j(laser.pulse_s, laser.wavelength_nm, subtense)
     n_t = pulses_in_window(averaging_time_s, laser.rate_hz)

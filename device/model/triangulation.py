@@ -3,9 +3,9 @@
 
 The laser plane is kept in Hessian normal form ``n . X = d`` (unit normal n pointing away from the
 camera side, d > 0 the distance from the optical centre to the plane, metres) in the OpenCV
-camera frame (ERRATA 4). The thesis writes it as ``z = a_c x + b_c y + c_c`` (eq. 3.16); that
+camera frame (docs/thesis-notes.md N4). The thesis writes it as ``z = a_c x + b_c y + c_c`` (eq. 3.16); that
 form cannot represent a plane parallel to the optical axis (b_c -> inf), which is exactly one
-of the hard cases, so it is only used at the edges (config files, the `plane` command).
+of the hard cases, so it is only used at the edges (config files, the `plane` command; docs/thesis-notes.md N16).
 
 Ray/plane intersection (eq. 3.17 / D.67):  for a normalised pixel p = (x_n, y_n, 1),
 ``X = t p`` with ``t = d / (n . p)``; with n = (-a, -b, 1)/N and d = c/N this is exactly
@@ -136,7 +136,7 @@ def intersect_plane(
 ) -> Triangulation:
     """Normalised coordinates (..., 2) -> 3-D points on the laser plane (eq. 3.13, 3.17 / D.67).
 
-    ``min_depth``/``max_depth`` bound z (metres), as Algorithm 2's 1..10000 mm filter (ERRATA 3).
+    ``min_depth``/``max_depth`` bound z (metres), as Algorithm 2's 1..10000 mm filter (docs/thesis-notes.md N3).
     A point at or beyond the horizon is never returned as a distance: its status says why.
     """
     xy = np.asarray(xy, dtype=np.float64)
@@ -202,7 +202,7 @@ def plane_from_params(p: TriangulationParams) -> tuple[float, float, float]:
     """(a_c, b_c, c_c) of the plane implied by the ideal model (inverse of section 3.2.2).
 
     Matching eq. 3.12 term by term with eq. 3.17 gives c = s sin(beta)/sin(theta),
-    b = -cot(theta) (OpenCV frame, ERRATA 4) and a = -cot(psi)/sin(theta).
+    b = -cot(theta) (OpenCV frame, docs/thesis-notes.md N4) and a = -cot(psi)/sin(theta).
     """
     th = p.theta
     if not (0 < th < math.pi) or math.isclose(math.sin(th), 0.0, abs_tol=1e-12):
@@ -221,10 +221,10 @@ def plane_from_params(p: TriangulationParams) -> tuple[float, float, float]:
 def params_from_plane(a: float, b: float, c: float, beta: float) -> TriangulationParams:
     """Triangulation parameters from a calibrated plane, section 3.2.2 / D.2.2, for a known beta.
 
-    theta = atan(1/|b_c|) (ERRATA 4), alpha = pi - (beta + theta) (D.72),
+    theta = atan(1/|b_c|) (docs/thesis-notes.md N4), alpha = pi - (beta + theta) (D.72),
     s = sin(theta) c_c / sin(beta) (D.71), psi = pi/2 - atan(-a_c sin(theta)).
 
-    Note on psi: D.75 writes the unit-step offset as -a_c cos(theta). That disagrees with eq. 3.12
+    Note on psi (docs/thesis-notes.md N11): D.75 writes the unit-step offset as -a_c cos(theta). That disagrees with eq. 3.12
     (D.22), whose x_n/tan(psi) term the plane form must reproduce: equating 3.12 and 3.17 gives
     a_c = -1/(tan(psi) sin(theta)). Rolling the laser by delta about its axis (direction at theta
     to the optical axis) tilts the plane's x-slope by tan(delta)/sin(theta), which confirms it.

@@ -10,7 +10,7 @@ Composed of narrow interfaces so that the same orchestration runs on a Pi and in
   on the scan's angles; a device.vision pipeline through ScanPipeline.
 
 ``SensorSource`` joins them into the ScanSource the link server (protocol/server.py) streams from.
-It pairs each lit frame with its neighbouring unlit frame (frame differencing, ERRATA 10) into
+It pairs each lit frame with its neighbouring unlit frame (frame differencing, docs/thesis-notes.md N10) into
 one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
 ``status()`` (HEALTH.errors, codes protocol.messages.ErrorCode, and HEALTH's fault counters) and
 ``LinkSupervisor.health()`` (device/link/supervisor.py) instead:

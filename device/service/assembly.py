@@ -9,7 +9,7 @@ the simulated hardware of device/sim:
 * the Pi's clock and the co-MCU: the shipped firmware ELF in the simavr harness behind a pty
   (device/sim/hardware.py's SimulatedHardware), opened by CoMcu through pyserial as on a Pi.
 
-Operating point (both): 20 frames/s, every other frame lit (ERRATA 10), so 10 scans/s; exposure
+Operating point (both): 20 frames/s, every other frame lit (docs/thesis-notes.md N10), so 10 scans/s; exposure
 ``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
 can land) and so the pulse, which must fit the firmware's compiled-in eye-safety envelope.
 """

@@ -31,7 +31,7 @@ ACQUIRING; an MCU drift beyond ``max_drift_ppm`` is the ERROR state: the laser i
 than run on a schedule that cannot be trusted, and ``reason`` says why.
 
 Which frames are lit follows ``pattern`` on the camera's sequence number
-(``lit = pattern[sequence % len(pattern)]``, e.g. every other frame for differencing, ERRATA 10);
+(``lit = pattern[sequence % len(pattern)]``, e.g. every other frame for differencing, docs/thesis-notes.md N10);
 the controller's ``FrameLabel`` for each frame carries it (None while not locked).
 """
 
@@ -532,7 +532,7 @@ def thesis_error_s(t_pts_s: float, t_pwm_s: float, period_s: float, delta_s: flo
 class ThesisController:
     """Baseline: P controller on the camera frame rate against the predicted pulse train (open loop in drift).
 
-    With a pattern (ERRATA 10) a frame is labelled lit if the slot eq. 5.1 assigns it is lit.
+    With a pattern (docs/thesis-notes.md N10) a frame is labelled lit if the slot eq. 5.1 assigns it is lit.
     """
 
     def __init__(self, cfg: SyncConfig, camera: FrameDurationControl, t_pwm_ns: int, interval_ns: int,

@@ -8,7 +8,7 @@ the pulse that lights every one of those rows for its whole exposure, and nothin
     start = T - E + row_min * line_time
     end   = T + row_max * line_time        width = E + (row_max - row_min) * line_time
 
-The thesis (Table B.3, section B.3) instead kept the laser on for the whole 17.4 ms readout of
+The thesis (Table B.3, section B.3; docs/thesis-notes.md N18) instead kept the laser on for the whole 17.4 ms readout of
 the 922 rows of mode 5, which is what set its Class 1 power to 25 mW. Any timing uncertainty is
 covered by a guard on both sides (chosen by the controller from the clock map's uncertainty);
 the guard is part of the reported pulse width.
@@ -59,7 +59,7 @@ def check_separation(frame_duration_s: float, exposure_s: float, line_time_s: fl
                      guard_s: float = 0.0) -> None:
     """Raise ValueError if a pulse lighting one frame's ROI would also light the next frame's ROI.
 
-    Frame differencing needs unlit frames (ERRATA 10): the ROI window of frame k must end before
+    Frame differencing needs unlit frames (docs/thesis-notes.md N10): the ROI window of frame k must end before
     that of frame k+1 begins, i.e. ``E + (row_max - row_min) * line_time + 2 guard < frame duration``.
     """
     width = exposure_s + (row_max - row_min) * line_time_s + 2 * guard_s
@@ -113,7 +113,7 @@ def pulse_budget(exposure_s: float, line_time_s: float, row_min: int, row_max: i
 def class1_power_w(pulse_s: float, rate_hz: float, laser: LaserSpec | None = None, closest_eye_m: float = 0.01) -> float:
     """Largest Class 1 peak power (W) of the configured line laser at this pulse width and rate.
 
-    Calls the project's eye-safety model (``device.model.safety``, thesis 3.3 with ERRATA 1-2);
+    Calls the project's eye-safety model (``device.model.safety``, thesis 3.3 with docs/thesis-notes.md N1, N2);
     ``laser`` defaults to the thesis's 808 nm, 120 deg, 4 mm line, 1 mm source (Table 4.2) and
     ``closest_eye_m`` to the thesis's 10 mm (section B.3).
     """

@@ -38,7 +38,7 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
                     exposure_us: float = EXPOSURE_US, analog_gain: float | None = None,
                     pulse_us: float | None = None) -> list[FramePair]:
     """``count`` (lit, unlit) pairs of a simulated scene: the camera free-runs, the laser fires
-    on every other frame (ERRATA 10), centred on the frame's common exposure window
+    on every other frame (docs/thesis-notes.md N10), centred on the frame's common exposure window
     (:func:`device.sim.pulses.frame_aligned_train`). Speckle is static (same scene), sensor
     noise differs per frame."""
     from ..sim.camera import SimulatedCamera

@@ -34,7 +34,7 @@ Per frame pair:
    of the neighbours past a depth jump. A line seen but not measurable is REJECTED (NaN), never
    "no return". The effective angular resolution is the fit window
    (:attr:`FastPipeline.resolution_deg`).
-6. Triangulation by the per-column ray table, post-calibration (ERRATA 8), scan angle/range.
+6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
 ``track_margin`` (one rectangle of whole blocks over all columns; the noise level is still taken

@@ -1,4 +1,4 @@
-"""Post-calibration of the depth, thesis eq. 6.5 in a well-conditioned form (ERRATA 8).
+"""Post-calibration of the depth, thesis eq. 6.5 in a well-conditioned form (docs/thesis-notes.md N8).
 
 ``z_corrected = z - sum_k c_k X^i_k Z^j_k`` with ``X = x / x_scale_m`` and
 ``Z = (z - z_offset_m) / z_scale_m`` (:class:`device.config.PostCalibration`), x and z the

@@ -1,13 +1,13 @@
 """The thesis's image pipeline, steps 1-7 of section 6.1.2 and Algorithm 2, as the baseline.
 
-Implemented as written (with ERRATA 3 and 7); every improvement in :mod:`device.vision.fast` is
+Implemented as written (with docs/thesis-notes.md N3 and N7); every improvement in :mod:`device.vision.fast` is
 measured against it. The GPU stages (steps 2-4) run on the whole frame, as the thesis's OpenGL
 shaders did; OpenCV's ``filter2D`` stands in for the blur shader. Values are on the 8-bit scale
 (0..255) and clamped there after every stage, like the shaders' 8-bit render targets.
 
 Choices where the text leaves room, and why:
 
-* Step 2 far-row gain (ERRATA 7): the far returns land next to the laser plane's horizon in the
+* Step 2 far-row gain (docs/thesis-notes.md N7): the far returns land next to the laser plane's horizon in the
   image. The side of the image nearer the horizon is found from the geometry (the depth of the
   principal column at the top and bottom rows); the 20 % of rows on that side get a gain rising
   linearly from 1 (inner boundary) to 10 (image edge).
@@ -18,9 +18,9 @@ Choices where the text leaves room, and why:
   one measurement per even column.
 * Algorithm 2's blob walk stops at the first pixel not above 70 % of the maximum and the weighted
   average runs over [m, n] including those two boundary pixels, as the pseudo-code does; the
-  weight test is on the blob's total weight (ERRATA 3).
+  weight test is on the blob's total weight (docs/thesis-notes.md N3).
 * Step 7: backward projection by the 5-iteration Heikkila scheme (``undistort_fixed``), plane
-  intersection, the 1..10000 mm filter on z (ERRATA 3, from ``[range]``), then eq. 6.5 with the
+  intersection, the 1..10000 mm filter on z (docs/thesis-notes.md N3, from ``[range]``), then eq. 6.5 with the
   configuration's post-calibration.
 """
 
@@ -150,7 +150,7 @@ class ReferencePipeline:
         weight = w.sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
             j_laser = (w * rows).sum(axis=0) / weight  # lines 15-19
-        found &= weight >= p.min_weight  # noise threshold 2 (ERRATA 3)
+        found &= weight >= p.min_weight  # noise threshold 2 (docs/thesis-notes.md N3)
         status = np.where(found, ColumnStatus.OK, ColumnStatus.NO_RETURN).astype(np.uint8)
         row = np.where(found, j_laser, np.nan)
         # step 7: backward projection (5-iteration Heikkila) and the plane (lines 22-28)

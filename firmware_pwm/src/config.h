@@ -8,7 +8,7 @@
  * exposure, parameter t of sections 4.1.1/4.2; appendix B NOHD analysis: 25 mW keeps the NOHD
  * under 10 mm with 17.4 ms pulses), and 20 % maximum duty, just above the thesis operating
  * point (17.4 ms at 10 Hz = 17.4 %).  The sensor-model issue (device/model eye safety, IEC
- * 60825-1 AEL with the C5 reduction of errata note 1) computes the envelope for other lasers
+ * 60825-1 AEL with the C5 reduction, docs/thesis-notes.md N1) computes the envelope for other lasers
  * and configurations; rebuild with its numbers.
  */
 #ifndef LASERPI_CONFIG_H
