@@ -12,7 +12,8 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     active_width = 1640
     active_height = 922
 
-    [camera]           # eq. 3.2-3.4; model "brown-conrady" (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4)
+    [camera]           # eq. 3.2-3.4; model: a name in device.model.camera.LENS_MODELS, "brown-conrady"
+                       # (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4); distortion in that order
     model = "brown-conrady"
     fx = 592.139
     fy = 590.933
@@ -70,7 +71,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .model.camera import BrownConrady, CameraModel, Intrinsics, KannalaBrandt
+from .model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
 
 SCHEMA_VERSION = 1
@@ -211,16 +212,14 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     coeffs = _take(cam, "[camera]", "distortion", list, default=[])
     if not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in coeffs):
         raise ConfigError(f"[camera]: 'distortion' must be a list of finite numbers, got {coeffs!r}")
-    if model == "brown-conrady":
-        if len(coeffs) > 5:
-            raise ConfigError(f"[camera]: brown-conrady takes up to 5 coefficients k1 k2 k3 p1 p2, got {len(coeffs)}")
-        dist = BrownConrady(*[float(c) for c in coeffs])
-    elif model == "kannala-brandt":
-        if len(coeffs) > 4:
-            raise ConfigError(f"[camera]: kannala-brandt takes up to 4 coefficients k1..k4, got {len(coeffs)}")
-        dist = KannalaBrandt(*[float(c) for c in coeffs])
-    else:
-        raise ConfigError(f"[camera]: model must be 'brown-conrady' or 'kannala-brandt', got {model!r}")
+    try:
+        lens = lens_model_named(model)
+    except ValueError as exc:
+        raise ConfigError(f"[camera]: {exc}") from None
+    names = lens.coefficient_names
+    if len(coeffs) > len(names):
+        raise ConfigError(f"[camera]: {model} takes up to {len(names)} coefficients {' '.join(names)}, got {len(coeffs)}")
+    dist = lens.distortion(*[float(c) for c in coeffs])
     _no_extra(cam, "[camera]")
 
     plane_t, tri_t = _table(doc, "laser_plane", required=False), _table(doc, "triangulation", required=False)
@@ -315,10 +314,8 @@ def load_preset(name: str) -> SensorConfig:
 def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
     """The TOML document of a configuration (always in the [laser_plane] form)."""
     k, d = cfg.camera.intrinsics, cfg.camera.distortion
-    if isinstance(d, BrownConrady):
-        model, coeffs = "brown-conrady", [d.k1, d.k2, d.k3, d.p1, d.p2]
-    else:
-        model, coeffs = "kannala-brandt", [d.k1, d.k2, d.k3, d.k4]
+    lens = lens_model(d)
+    model, coeffs = lens.name, [getattr(d, n) for n in lens.coefficient_names]
     a, b, c = cfg.plane.to_abc()
     doc: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "name": cfg.name}
     doc["image"] = {"width": cfg.width, "height": cfg.height}
