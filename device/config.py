@@ -11,6 +11,9 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     height = 928
     active_width = 1640
     active_height = 922
+    sensor_mode = "1640x1232"  # the active area is cut from this mode (device/camera/modes.py) ...
+    mode_left = 0      # ... starting this many of the mode's output columns ...
+    mode_top = 155     # ... and rows in (ScalerCrop): image row r is the mode's row 155 + r
 
     [camera]           # eq. 3.2-3.4; model: a name in device.model.camera.LENS_MODELS, "brown-conrady"
                        # (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4); distortion in that order
@@ -60,6 +63,11 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     z_offset_m = 0.0
     z_scale_m = 1.0
 
+Every table and key added after schema_version 1 was first written is optional, with the value
+it replaced as its default (``[image]`` sensor_mode/mode_left/mode_top),
+so that every file written before still loads and means what it meant; the version goes up only
+when a key changes meaning or becomes required.
+
 Presets (``device/presets/*.toml``) hold the thesis's inputs only, never its results.
 """
 
@@ -71,6 +79,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .camera.modes import MODE5, ImageWindow, sensor_mode_named
 from .model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
 
@@ -135,6 +144,16 @@ class SensorConfig:
     optics: Optics = field(default_factory=Optics)
     range: RangeLimits = field(default_factory=RangeLimits)
     post_calibration: PostCalibration | None = None
+    sensor_mode: str = MODE5.mode.name
+    mode_left: int = MODE5.left
+    mode_top: int = MODE5.top
+
+    @property
+    def window(self) -> ImageWindow:
+        """The active area as a crop of the sensor mode (device/camera/modes.py): the mode's
+        line time and frame-rate limits, and where each image row is read."""
+        return ImageWindow(sensor_mode_named(self.sensor_mode), self.mode_left, self.mode_top,
+                           self.active_width or self.width, self.active_height or self.height)
 
 
 # ---------------------------------------------------------------- reading
@@ -193,10 +212,17 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     height = _take(img, "[image]", "height", int, positive=True)
     active_w = _take(img, "[image]", "active_width", int, default=None)
     active_h = _take(img, "[image]", "active_height", int, default=None)
+    mode_name = _take(img, "[image]", "sensor_mode", str, default=MODE5.mode.name)
+    mode_left = _take(img, "[image]", "mode_left", int, default=MODE5.left)
+    mode_top = _take(img, "[image]", "mode_top", int, default=MODE5.top)
     _no_extra(img, "[image]")
     for key, v, lim in (("active_width", active_w, width), ("active_height", active_h, height)):
         if v is not None and not 0 < v <= lim:
             raise ConfigError(f"[image]: '{key}' = {v} must be in 1..{lim}")
+    try:
+        window = ImageWindow(sensor_mode_named(mode_name), mode_left, mode_top, active_w or width, active_h or height)
+    except ValueError as exc:
+        raise ConfigError(f"[image]: {exc} (sensor_mode, mode_left, mode_top)") from None
 
     cam = _table(doc, "camera")
     model = _take(cam, "[camera]", "model", str, default="brown-conrady")
@@ -253,7 +279,8 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
         raise ConfigError(f"[range]: max_m ({limits.max_m}) must exceed min_m ({limits.min_m})")
     post = _read_post_calibration(_table(doc, "post_calibration", required=False))
     _no_extra(doc, "top level")
-    return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post)
+    return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post,
+                        mode_name, mode_left, mode_top)
 
 
 def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:
@@ -323,6 +350,7 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
         doc["image"]["active_width"] = cfg.active_width
     if cfg.active_height is not None:
         doc["image"]["active_height"] = cfg.active_height
+    doc["image"].update(sensor_mode=cfg.sensor_mode, mode_left=cfg.mode_left, mode_top=cfg.mode_top)
     doc["camera"] = {"model": model, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "skew": k.skew, "distortion": coeffs}
     doc["laser_plane"] = {"a": a, "b": b, "c_m": c, "beta_deg": math.degrees(cfg.beta_rad)}
     for name in ("laser", "optics", "range"):

@@ -77,3 +77,38 @@ def test_save_leaves_no_half_file(tmp_path, monkeypatch):
         save_config(cfg, target)
     assert target.read_text() == "previous"
     assert dumps_config(cfg).startswith("schema_version = 1")
+
+
+
+def test_files_without_the_sensor_mode_load_as_mode5():
+    # [image] sensor_mode/mode_left/mode_top came after the first files: without them a file
+    # means what it meant (the thesis's mode 5)
+    from device.camera.modes import MODE5
+
+    doc = _doc()
+    for key in ("sensor_mode", "mode_left", "mode_top"):
+        doc["image"].pop(key)
+    cfg = config_from_dict(doc, "old.toml")
+    assert cfg.window == MODE5 == load_preset("thesis-calibrated").window
+
+
+def test_sensor_mode_round_trips(tmp_path):
+    doc = _doc()
+    doc["image"].update(sensor_mode="1920x1080", mode_left=10, mode_top=20)
+    cfg = config_from_dict(doc, "s.toml")
+    assert (cfg.window.mode.name, cfg.window.left, cfg.window.top) == ("1920x1080", 10, 20)
+    save_config(cfg, tmp_path / "s.toml")
+    assert load_config(tmp_path / "s.toml").window == cfg.window
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d["image"].__setitem__("sensor_mode", "1640x922"), r"\[image\]: sensor mode must be one of"),
+    (lambda d: d["image"].__setitem__("mode_top", 400), r"\[image\]: a 1640x922 image at \(0, 400\) does not fit"),
+    (lambda d: d["image"].__setitem__("mode_left", -1), "does not fit"),
+    (lambda d: d["image"].__setitem__("sensor_mode", "640x480"), "does not fit the 640x480"),
+])
+def test_crops_that_do_not_fit_their_mode_name_the_field(mutate, message):
+    doc = _doc()
+    mutate(doc)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(doc, "sensor.toml")

@@ -63,7 +63,7 @@ def offline_error_pct(frames: int = 3) -> float:
     pipe = ScanPipeline(make_pipeline(PIPELINE, cfg, *RANGE_M), POINTS)
     g = pipe.pipeline.geometry
     renderer = SceneRenderer(cfg, get_scene("wall:distance=2"), SensorParams(analog_gain=ANALOG_GAIN), seed=7)
-    line_ns, t = 18904.0, 2_000_000_000
+    line_ns, t = cfg.window.mode.line_time_ns, 2_000_000_000
     pulse = (int(t - EXPOSURE_US * 1e3 + g.roi_lo.min() * line_ns), int(t + g.roi_hi.max() * line_ns))
     rng = np.random.default_rng(7)
     truth = scene_truth("wall", 2.0).ranges(pipe.angles)
