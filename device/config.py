@@ -56,6 +56,13 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     min_m = 0.001
     max_m = 10.0
 
+    [operating_point]  # how `laserpi serve` runs the sensor
+    scan_rate_hz = 10.0    # scans/s: a lit and an unlit frame each (ERRATA 10); at most [laser] rate_hz
+    exposure_us = 9200.0   # every frame's exposure, shorter than a frame (1 / (2 scan_rate_hz))
+    analog_gain = 4.0      # IMX219 analogue gain, 1..10.67
+    min_m = 0.4            # depths the line is searched for: their rows are the region of
+    max_m = 3.2            # interest (and the pulse covers their readout)
+
     [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, ERRATA 8)
     terms = [[0, 0], [1, 0], [0, 1]]
     coefficients = [0.0, 0.0, 0.0]
@@ -64,9 +71,9 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     z_scale_m = 1.0
 
 Every table and key added after schema_version 1 was first written is optional, with the value
-it replaced as its default (``[image]`` sensor_mode/mode_left/mode_top),
-so that every file written before still loads and means what it meant; the version goes up only
-when a key changes meaning or becomes required.
+it replaced as its default (``[image]`` sensor_mode/mode_left/mode_top, ``[operating_point]``:
+the constants device/sensor.py had), so that every file written before still loads and means
+what it meant; the version goes up only when a key changes meaning or becomes required.
 
 Presets (``device/presets/*.toml``) hold the thesis's inputs only, never its results.
 """
@@ -79,7 +86,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .camera.modes import MODE5, ImageWindow, sensor_mode_named
+from .camera.modes import IMX219_ANALOG_GAIN_MAX, IMX219_EXPOSURE_MARGIN_LINES, MODE5, ImageWindow, sensor_mode_named
 from .model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
 
@@ -116,6 +123,20 @@ class RangeLimits:
 
 
 @dataclass(frozen=True)
+class OperatingPoint:
+    """How ``laserpi serve`` runs the sensor: scans per second (a lit and an unlit frame each,
+    ERRATA 10), every frame's exposure and analogue gain, and the depths the line is searched
+    for, whose rows form the region of interest (narrower than ``RangeLimits``, the
+    triangulation's filter)."""
+
+    scan_rate_hz: float = 10.0
+    exposure_us: float = 9200.0
+    analog_gain: float = 4.0
+    min_m: float = 0.4
+    max_m: float = 3.2
+
+
+@dataclass(frozen=True)
 class PostCalibration:
     """z_corrected = z - sum_k c_k X^i_k Z^j_k with X = x / x_scale_m, Z = (z - z_offset_m) / z_scale_m.
 
@@ -147,6 +168,7 @@ class SensorConfig:
     sensor_mode: str = MODE5.mode.name
     mode_left: int = MODE5.left
     mode_top: int = MODE5.top
+    operating_point: OperatingPoint = field(default_factory=OperatingPoint)
 
     @property
     def window(self) -> ImageWindow:
@@ -278,9 +300,31 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     if not limits.max_m > limits.min_m:
         raise ConfigError(f"[range]: max_m ({limits.max_m}) must exceed min_m ({limits.min_m})")
     post = _read_post_calibration(_table(doc, "post_calibration", required=False))
+    op = _read_dataclass(doc, "operating_point", OperatingPoint)
+    _check_operating_point(op, laser, window)
     _no_extra(doc, "top level")
     return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post,
-                        mode_name, mode_left, mode_top)
+                        mode_name, mode_left, mode_top, op)
+
+
+def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWindow) -> None:
+    where, mode = "[operating_point]", window.mode
+    if not op.max_m > op.min_m:
+        raise ConfigError(f"{where}: max_m ({op.max_m}) must exceed min_m ({op.min_m})")
+    if op.scan_rate_hz > laser.rate_hz:
+        raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} exceeds [laser] rate_hz = {laser.rate_hz:g}, "
+                          "the pulse rate the laser's eye-safety envelope is built for")
+    frame_s = 0.5 / op.scan_rate_hz
+    if not mode.min_frame_duration_s <= frame_s <= mode.max_frame_duration_s:
+        raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} needs {2 * op.scan_rate_hz:g} frames/s; the "
+                          f"{mode.name} sensor mode runs at {1 / mode.max_frame_duration_s:.3g} to "
+                          f"{mode.max_frame_rate_hz:.2f} frames/s")
+    longest_s = frame_s - IMX219_EXPOSURE_MARGIN_LINES * mode.line_time_s  # the driver's exposure limit
+    if op.exposure_us * 1e-6 > longest_s:
+        raise ConfigError(f"{where}: exposure_us = {op.exposure_us:g} is longer than a frame ({frame_s * 1e6:g} us "
+                          f"at {op.scan_rate_hz:g} scans/s) less {IMX219_EXPOSURE_MARGIN_LINES} lines")
+    if not 1.0 <= op.analog_gain <= IMX219_ANALOG_GAIN_MAX:
+        raise ConfigError(f"{where}: analog_gain = {op.analog_gain:g} is outside the IMX219's 1..{IMX219_ANALOG_GAIN_MAX:.2f}")
 
 
 def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:
@@ -353,7 +397,7 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
     doc["image"].update(sensor_mode=cfg.sensor_mode, mode_left=cfg.mode_left, mode_top=cfg.mode_top)
     doc["camera"] = {"model": model, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "skew": k.skew, "distortion": coeffs}
     doc["laser_plane"] = {"a": a, "b": b, "c_m": c, "beta_deg": math.degrees(cfg.beta_rad)}
-    for name in ("laser", "optics", "range"):
+    for name in ("laser", "optics", "range", "operating_point"):
         obj = getattr(cfg, name)
         doc[name] = {f: getattr(obj, f) for f in obj.__dataclass_fields__}
     if cfg.post_calibration is not None:

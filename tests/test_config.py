@@ -112,3 +112,43 @@ def test_crops_that_do_not_fit_their_mode_name_the_field(mutate, message):
     mutate(doc)
     with pytest.raises(ConfigError, match=message):
         config_from_dict(doc, "sensor.toml")
+
+
+def test_files_without_an_operating_point_get_the_constants_device_sensor_had():
+    from device.config import OperatingPoint
+
+    doc = _doc()
+    assert "operating_point" not in doc
+    assert config_from_dict(doc, "old.toml").operating_point == OperatingPoint(
+        scan_rate_hz=10.0, exposure_us=9200.0, analog_gain=4.0, min_m=0.4, max_m=3.2)
+
+
+def test_operating_point_round_trips(tmp_path):
+    from device.config import OperatingPoint
+
+    doc = _doc()
+    doc["operating_point"] = {"scan_rate_hz": 5.0, "exposure_us": 20000, "analog_gain": 8.0, "min_m": 0.3, "max_m": 2.0}
+    cfg = config_from_dict(doc, "s.toml")
+    assert cfg.operating_point == OperatingPoint(5.0, 20000.0, 8.0, 0.3, 2.0)
+    save_config(cfg, tmp_path / "s.toml")
+    assert load_config(tmp_path / "s.toml").operating_point == cfg.operating_point
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 20.0}), r"exceeds \[laser\] rate_hz"),
+    (lambda d: (d["laser"].__setitem__("rate_hz", 25.0), d["laser"].__setitem__("pulse_s", 0.01),
+                d.__setitem__("operating_point", {"scan_rate_hz": 25.0})), "1640x1232 sensor mode runs at .* to 41.85 frames/s"),
+    (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 0.1}), "needs 0.2 frames/s"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": 60000.0}), "longer than a frame"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": 49950.0}), "less 4 lines"),
+    (lambda d: d.__setitem__("operating_point", {"analog_gain": 12.0}), "outside the IMX219's 1..10.67"),
+    (lambda d: d.__setitem__("operating_point", {"analog_gain": 0.5}), "analog_gain"),
+    (lambda d: d.__setitem__("operating_point", {"min_m": 3.0, "max_m": 2.0}), r"\[operating_point\]: max_m"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": -5.0}), "positive"),
+    (lambda d: d.__setitem__("operating_point", {"gain": 4.0}), "unknown key"),
+])
+def test_bad_operating_points_name_the_field(mutate, message):
+    doc = _doc()
+    mutate(doc)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(doc, "sensor.toml")
