@@ -11,8 +11,12 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     height = 928
     active_width = 1640
     active_height = 922
+    sensor_mode = "1640x1232"  # the active area is cut from this mode (device/camera/modes.py) ...
+    mode_left = 0      # ... starting this many of the mode's output columns ...
+    mode_top = 155     # ... and rows in (ScalerCrop): image row r is the mode's row 155 + r
 
-    [camera]           # eq. 3.2-3.4; model "brown-conrady" (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4)
+    [camera]           # eq. 3.2-3.4; model: a name in device.model.camera.LENS_MODELS, "brown-conrady"
+                       # (k1 k2 k3 p1 p2) or "kannala-brandt" (k1..k4); distortion in that order
     model = "brown-conrady"
     fx = 592.139
     fy = 590.933
@@ -52,12 +56,24 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     min_m = 0.001
     max_m = 10.0
 
+    [operating_point]  # how `laserpi serve` runs the sensor
+    scan_rate_hz = 10.0    # scans/s: a lit and an unlit frame each (docs/thesis-notes.md N10); at most [laser] rate_hz
+    exposure_us = 9200.0   # every frame's exposure, shorter than a frame (1 / (2 scan_rate_hz))
+    analog_gain = 4.0      # IMX219 analogue gain, 1..10.67
+    min_m = 0.4            # depths the line is searched for: their rows are the region of
+    max_m = 3.2            # interest (and the pulse covers their readout)
+
     [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, docs/thesis-notes.md N8)
     terms = [[0, 0], [1, 0], [0, 1]]
     coefficients = [0.0, 0.0, 0.0]
     x_scale_m = 1.0
     z_offset_m = 0.0
     z_scale_m = 1.0
+
+Every table and key added after schema_version 1 was first written is optional, with the value
+it replaced as its default (``[image]`` sensor_mode/mode_left/mode_top, ``[operating_point]``:
+the constants device/sensor.py had), so that every file written before still loads and means
+what it meant; the version goes up only when a key changes meaning or becomes required.
 
 Presets (``device/presets/*.toml``) hold the thesis's inputs only, never its results.
 """
@@ -70,7 +86,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .model.camera import BrownConrady, CameraModel, Intrinsics, KannalaBrandt
+from .camera.modes import IMX219_ANALOG_GAIN_MAX, IMX219_EXPOSURE_MARGIN_LINES, MODE5, ImageWindow, sensor_mode_named
+from .model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
 
 SCHEMA_VERSION = 1
@@ -106,6 +123,20 @@ class RangeLimits:
 
 
 @dataclass(frozen=True)
+class OperatingPoint:
+    """How ``laserpi serve`` runs the sensor: scans per second (a lit and an unlit frame each,
+    docs/thesis-notes.md N10), every frame's exposure and analogue gain, and the depths the line is searched
+    for, whose rows form the region of interest (narrower than ``RangeLimits``, the
+    triangulation's filter)."""
+
+    scan_rate_hz: float = 10.0
+    exposure_us: float = 9200.0
+    analog_gain: float = 4.0
+    min_m: float = 0.4
+    max_m: float = 3.2
+
+
+@dataclass(frozen=True)
 class PostCalibration:
     """z_corrected = z - sum_k c_k X^i_k Z^j_k with X = x / x_scale_m, Z = (z - z_offset_m) / z_scale_m.
 
@@ -134,6 +165,17 @@ class SensorConfig:
     optics: Optics = field(default_factory=Optics)
     range: RangeLimits = field(default_factory=RangeLimits)
     post_calibration: PostCalibration | None = None
+    sensor_mode: str = MODE5.mode.name
+    mode_left: int = MODE5.left
+    mode_top: int = MODE5.top
+    operating_point: OperatingPoint = field(default_factory=OperatingPoint)
+
+    @property
+    def window(self) -> ImageWindow:
+        """The active area as a crop of the sensor mode (device/camera/modes.py): the mode's
+        line time and frame-rate limits, and where each image row is read."""
+        return ImageWindow(sensor_mode_named(self.sensor_mode), self.mode_left, self.mode_top,
+                           self.active_width or self.width, self.active_height or self.height)
 
 
 # ---------------------------------------------------------------- reading
@@ -192,10 +234,17 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     height = _take(img, "[image]", "height", int, positive=True)
     active_w = _take(img, "[image]", "active_width", int, default=None)
     active_h = _take(img, "[image]", "active_height", int, default=None)
+    mode_name = _take(img, "[image]", "sensor_mode", str, default=MODE5.mode.name)
+    mode_left = _take(img, "[image]", "mode_left", int, default=MODE5.left)
+    mode_top = _take(img, "[image]", "mode_top", int, default=MODE5.top)
     _no_extra(img, "[image]")
     for key, v, lim in (("active_width", active_w, width), ("active_height", active_h, height)):
         if v is not None and not 0 < v <= lim:
             raise ConfigError(f"[image]: '{key}' = {v} must be in 1..{lim}")
+    try:
+        window = ImageWindow(sensor_mode_named(mode_name), mode_left, mode_top, active_w or width, active_h or height)
+    except ValueError as exc:
+        raise ConfigError(f"[image]: {exc} (sensor_mode, mode_left, mode_top)") from None
 
     cam = _table(doc, "camera")
     model = _take(cam, "[camera]", "model", str, default="brown-conrady")
@@ -211,16 +260,14 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     coeffs = _take(cam, "[camera]", "distortion", list, default=[])
     if not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in coeffs):
         raise ConfigError(f"[camera]: 'distortion' must be a list of finite numbers, got {coeffs!r}")
-    if model == "brown-conrady":
-        if len(coeffs) > 5:
-            raise ConfigError(f"[camera]: brown-conrady takes up to 5 coefficients k1 k2 k3 p1 p2, got {len(coeffs)}")
-        dist = BrownConrady(*[float(c) for c in coeffs])
-    elif model == "kannala-brandt":
-        if len(coeffs) > 4:
-            raise ConfigError(f"[camera]: kannala-brandt takes up to 4 coefficients k1..k4, got {len(coeffs)}")
-        dist = KannalaBrandt(*[float(c) for c in coeffs])
-    else:
-        raise ConfigError(f"[camera]: model must be 'brown-conrady' or 'kannala-brandt', got {model!r}")
+    try:
+        lens = lens_model_named(model)
+    except ValueError as exc:
+        raise ConfigError(f"[camera]: {exc}") from None
+    names = lens.coefficient_names
+    if len(coeffs) > len(names):
+        raise ConfigError(f"[camera]: {model} takes up to {len(names)} coefficients {' '.join(names)}, got {len(coeffs)}")
+    dist = lens.distortion(*[float(c) for c in coeffs])
     _no_extra(cam, "[camera]")
 
     plane_t, tri_t = _table(doc, "laser_plane", required=False), _table(doc, "triangulation", required=False)
@@ -253,8 +300,31 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     if not limits.max_m > limits.min_m:
         raise ConfigError(f"[range]: max_m ({limits.max_m}) must exceed min_m ({limits.min_m})")
     post = _read_post_calibration(_table(doc, "post_calibration", required=False))
+    op = _read_dataclass(doc, "operating_point", OperatingPoint)
+    _check_operating_point(op, laser, window)
     _no_extra(doc, "top level")
-    return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post)
+    return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post,
+                        mode_name, mode_left, mode_top, op)
+
+
+def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWindow) -> None:
+    where, mode = "[operating_point]", window.mode
+    if not op.max_m > op.min_m:
+        raise ConfigError(f"{where}: max_m ({op.max_m}) must exceed min_m ({op.min_m})")
+    if op.scan_rate_hz > laser.rate_hz:
+        raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} exceeds [laser] rate_hz = {laser.rate_hz:g}, "
+                          "the pulse rate the laser's eye-safety envelope is built for")
+    frame_s = 0.5 / op.scan_rate_hz
+    if not mode.min_frame_duration_s <= frame_s <= mode.max_frame_duration_s:
+        raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} needs {2 * op.scan_rate_hz:g} frames/s; the "
+                          f"{mode.name} sensor mode runs at {1 / mode.max_frame_duration_s:.3g} to "
+                          f"{mode.max_frame_rate_hz:.2f} frames/s")
+    longest_s = frame_s - IMX219_EXPOSURE_MARGIN_LINES * mode.line_time_s  # the driver's exposure limit
+    if op.exposure_us * 1e-6 > longest_s:
+        raise ConfigError(f"{where}: exposure_us = {op.exposure_us:g} is longer than a frame ({frame_s * 1e6:g} us "
+                          f"at {op.scan_rate_hz:g} scans/s) less {IMX219_EXPOSURE_MARGIN_LINES} lines")
+    if not 1.0 <= op.analog_gain <= IMX219_ANALOG_GAIN_MAX:
+        raise ConfigError(f"{where}: analog_gain = {op.analog_gain:g} is outside the IMX219's 1..{IMX219_ANALOG_GAIN_MAX:.2f}")
 
 
 def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:
@@ -315,10 +385,8 @@ def load_preset(name: str) -> SensorConfig:
 def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
     """The TOML document of a configuration (always in the [laser_plane] form)."""
     k, d = cfg.camera.intrinsics, cfg.camera.distortion
-    if isinstance(d, BrownConrady):
-        model, coeffs = "brown-conrady", [d.k1, d.k2, d.k3, d.p1, d.p2]
-    else:
-        model, coeffs = "kannala-brandt", [d.k1, d.k2, d.k3, d.k4]
+    lens = lens_model(d)
+    model, coeffs = lens.name, [getattr(d, n) for n in lens.coefficient_names]
     a, b, c = cfg.plane.to_abc()
     doc: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "name": cfg.name}
     doc["image"] = {"width": cfg.width, "height": cfg.height}
@@ -326,9 +394,10 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
         doc["image"]["active_width"] = cfg.active_width
     if cfg.active_height is not None:
         doc["image"]["active_height"] = cfg.active_height
+    doc["image"].update(sensor_mode=cfg.sensor_mode, mode_left=cfg.mode_left, mode_top=cfg.mode_top)
     doc["camera"] = {"model": model, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "skew": k.skew, "distortion": coeffs}
     doc["laser_plane"] = {"a": a, "b": b, "c_m": c, "beta_deg": math.degrees(cfg.beta_rad)}
-    for name in ("laser", "optics", "range"):
+    for name in ("laser", "optics", "range", "operating_point"):
         obj = getattr(cfg, name)
         doc[name] = {f: getattr(obj, f) for f in obj.__dataclass_fields__}
     if cfg.post_calibration is not None:

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from device.camera.frame import Frame
+from device.camera.modes import MODE5
 from device.laser.base import LaserError
 from protocol.server import ScanGeometry
 
@@ -68,7 +69,7 @@ class FakeCamera:
         with self.rig.lock:
             lit = self.rig.lit_parity is not None and self.seq % 2 == self.rig.lit_parity
         image = np.full((self.height, N_POINTS), 200 if lit else 10, dtype=np.uint8)
-        frame = Frame(image, self.seq, time.monotonic_ns(), 1000.0, self.rig.period_s * 1e6, 18904.0, lit)
+        frame = Frame(image, self.seq, time.monotonic_ns(), 1000.0, self.rig.period_s * 1e6, MODE5.mode.line_time_ns, lit)
         self.seq += 1
         return frame
 

@@ -12,6 +12,7 @@ from device.calibration.simulate import scaled_config, simulate_capture
 from device.calibration.target import BoardSpec
 from device.camera.base import EndOfRecording
 from device.camera.frame import Frame
+from device.camera.modes import MODE5
 from device.cli import main
 from device.config import load_config, load_preset
 
@@ -66,7 +67,7 @@ class FakeCamera:
     """Plays frames from a list, as a camera backend would deliver them."""
 
     def __init__(self, frames, width, height):
-        self.frames, self.width, self.height, self.line_time_ns = list(frames), width, height, 18904.0
+        self.frames, self.width, self.height, self.line_time_ns = list(frames), width, height, MODE5.mode.line_time_ns
         self.started = self.stopped = False
 
     def start(self):
@@ -82,7 +83,7 @@ class FakeCamera:
 
 
 def _frame(img, seq, lit):
-    return Frame(img, seq, seq * 50_000_000, 40000.0, 50000.0, 18904.0, lit)
+    return Frame(img, seq, seq * 50_000_000, 40000.0, 50000.0, MODE5.mode.line_time_ns, lit)
 
 
 def test_capture_keeps_still_new_poses_only(capture):

@@ -5,7 +5,8 @@ import pytest
 
 from device.camera.base import Camera, CameraError, CaptureTimeout, EndOfRecording
 from device.camera.frame import Frame
-from device.camera.picamera2_camera import MODE5_SCALER_CROP, Picamera2Camera
+from device.camera.modes import MODE5
+from device.camera.picamera2_camera import Picamera2Camera
 from device.camera.replay import ReplayCamera, save_recording
 from device.config import load_preset
 from device.sim.camera import SimulatedCamera
@@ -15,15 +16,16 @@ from device.sim.scene import wall_scene
 from device.sim.timing import CameraTimingConfig, quantise_frame_duration
 
 CFG = load_preset("thesis-calibrated")
+LINE_NS = CFG.window.mode.line_time_ns
 FAST = RenderOptions(ray_samples=4096, background_step=4)
 
 
 EXACT = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.04, timestamp_jitter_s=0.0, drop_probability=0.0)
-FRAME_NS = quantise_frame_duration(0.05, 0.04, EXACT) * 18904.0  # whole lines
+FRAME_NS = quantise_frame_duration(0.05, 0.04, EXACT) * LINE_NS  # whole lines
 
 
 def sim_camera(pulses=None, timing=EXACT, **kw):
-    train = pulses or frame_aligned_train(10**9, FRAME_NS / 1e3, 40000.0, 18904.0, CFG.height, 17400.0, every=2)
+    train = pulses or frame_aligned_train(10**9, FRAME_NS / 1e3, 40000.0, LINE_NS, CFG.height, 17400.0, every=2)
     return SimulatedCamera(CFG, wall_scene(1.5), train, timing=timing, options=FAST, **kw)
 
 
@@ -47,7 +49,7 @@ def test_simulated_camera_lights_frames_from_the_pulse_timing():
     # a new frame duration applies two frames after the last one seen (IMX219 control delay)
     cam.set_frame_duration(60000.0)  # seen: frame 3; frame 4 keeps 50 ms, frame 5 has 60 ms
     ts = [out[-1][0].sensor_timestamp_ns] + [cam.capture().sensor_timestamp_ns for _ in range(3)]
-    assert np.diff(ts).tolist() == pytest.approx([FRAME_NS, 60e6, 60e6], abs=18904)
+    assert np.diff(ts).tolist() == pytest.approx([FRAME_NS, 60e6, 60e6], abs=LINE_NS)
     with pytest.raises(ValueError):
         cam.set_frame_duration(-1.0)
 
@@ -74,15 +76,15 @@ def test_simulated_camera_is_dark_without_pulses_and_partial_when_the_pulse_is_s
     assert f.lit is False and not t.lit_rows.any()
     # a late 2 ms pulse (10 ms after T) lights only the rows still exposing then
     short = sim_camera(PulseTrain(10**9 + 10_000_000, 10**9, 2_000_000))
-    exposure_ns = round(0.04 / 18904e-9) * 18904.0  # line-quantised
+    exposure_ns = round(0.04 / (LINE_NS / 1e9)) * LINE_NS  # line-quantised
     short.start()
     f, t = short.capture_with_truth()
     lit = np.nonzero(t.lit_rows)[0]
     assert f.lit and 0 < lit.size < CFG.height
     # rows r with T - E + r t_line < on + width and T + r t_line > on
     r = np.arange(CFG.height)
-    start = 10**9 - exposure_ns + r * 18904.0
-    end = 10**9 + r * 18904.0
+    start = 10**9 - exposure_ns + r * LINE_NS
+    end = 10**9 + r * LINE_NS
     expected = np.nonzero((start < 10**9 + 12_000_000) & (end > 10**9 + 10_000_000))[0]
     assert expected[0] > 500
     assert np.array_equal(lit, expected)
@@ -91,7 +93,7 @@ def test_simulated_camera_is_dark_without_pulses_and_partial_when_the_pulse_is_s
 @pytest.mark.parametrize("kind", ["npz", "folder"])
 def test_replay_round_trip(tmp_path, kind):
     rng = np.random.default_rng(0)
-    frames = [Frame(rng.integers(0, 256, (30, 40), dtype=np.uint8), k, 10**9 + k * 5000, 400.0, 5000.0, 18904.0,
+    frames = [Frame(rng.integers(0, 256, (30, 40), dtype=np.uint8), k, 10**9 + k * 5000, 400.0, 5000.0, LINE_NS,
                     [True, False, None][k % 3]) for k in range(5)]
     path = tmp_path / ("rec.npz" if kind == "npz" else "rec")
     save_recording(path, frames)
@@ -156,7 +158,7 @@ def test_picamera2_configures_mode5_fixed_exposure(fake_picamera2):
     controls = pc.set_controls.call_args.args[0]
     assert controls["AeEnable"] is False and controls["AwbEnable"] is False
     assert controls["ExposureTime"] == 30000 and controls["AnalogueGain"] == 4.0
-    assert controls["FrameDurationLimits"] == (50000, 50000) and controls["ScalerCrop"] == MODE5_SCALER_CROP
+    assert controls["FrameDurationLimits"] == (50000, 50000) and controls["ScalerCrop"] == MODE5.scaler_crop
     pc.start.assert_called_once()
     cam.set_frame_duration(40000)
     assert pc.set_controls.call_args.args[0] == {"FrameDurationLimits": (40000, 40000)}
@@ -216,14 +218,14 @@ def test_picamera2_missing_module_is_a_clear_error(mocker):
 
 
 def test_simulated_camera_from_plain_timing_values():
-    train = frame_aligned_train(2 * 10**9, FRAME_NS / 1e3, 30000.0, 18904.0, CFG.height, 17400.0, every=2)
+    train = frame_aligned_train(2 * 10**9, FRAME_NS / 1e3, 30000.0, LINE_NS, CFG.height, 17400.0, every=2)
     cam = SimulatedCamera(CFG, wall_scene(1.5), train, exposure_us=30000.0, frame_duration_us=50000.0,
-                          start_ns=2 * 10**9, line_time_ns=18904.0, options=FAST)
+                          start_ns=2 * 10**9, line_time_ns=LINE_NS, options=FAST)
     cam.start()
     frames = [cam.capture() for _ in range(3)]
     assert [f.sensor_timestamp_ns for f in frames] == [round(2 * 10**9 + k * FRAME_NS) for k in range(3)]  # no jitter
     assert [f.lit for f in frames] == [True, False, True]
-    assert frames[0].exposure_us == pytest.approx(30000.0, abs=18.904)  # line-quantised
+    assert frames[0].exposure_us == pytest.approx(30000.0, abs=LINE_NS / 1e3)  # line-quantised
     with pytest.raises(ValueError, match="not both"):
         SimulatedCamera(CFG, wall_scene(1.5), train, timing=EXACT, exposure_us=30000.0)
     with pytest.raises(ValueError, match="exceeds the frame duration"):

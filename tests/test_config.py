@@ -77,3 +77,78 @@ def test_save_leaves_no_half_file(tmp_path, monkeypatch):
         save_config(cfg, target)
     assert target.read_text() == "previous"
     assert dumps_config(cfg).startswith("schema_version = 1")
+
+
+
+def test_files_without_the_sensor_mode_load_as_mode5():
+    # [image] sensor_mode/mode_left/mode_top came after the first files: without them a file
+    # means what it meant (the thesis's mode 5)
+    from device.camera.modes import MODE5
+
+    doc = _doc()
+    for key in ("sensor_mode", "mode_left", "mode_top"):
+        doc["image"].pop(key)
+    cfg = config_from_dict(doc, "old.toml")
+    assert cfg.window == MODE5 == load_preset("thesis-calibrated").window
+
+
+def test_sensor_mode_round_trips(tmp_path):
+    doc = _doc()
+    doc["image"].update(sensor_mode="1920x1080", mode_left=10, mode_top=20)
+    cfg = config_from_dict(doc, "s.toml")
+    assert (cfg.window.mode.name, cfg.window.left, cfg.window.top) == ("1920x1080", 10, 20)
+    save_config(cfg, tmp_path / "s.toml")
+    assert load_config(tmp_path / "s.toml").window == cfg.window
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d["image"].__setitem__("sensor_mode", "1640x922"), r"\[image\]: sensor mode must be one of"),
+    (lambda d: d["image"].__setitem__("mode_top", 400), r"\[image\]: a 1640x922 image at \(0, 400\) does not fit"),
+    (lambda d: d["image"].__setitem__("mode_left", -1), "does not fit"),
+    (lambda d: d["image"].__setitem__("sensor_mode", "640x480"), "does not fit the 640x480"),
+])
+def test_crops_that_do_not_fit_their_mode_name_the_field(mutate, message):
+    doc = _doc()
+    mutate(doc)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(doc, "sensor.toml")
+
+
+def test_files_without_an_operating_point_get_the_constants_device_sensor_had():
+    from device.config import OperatingPoint
+
+    doc = _doc()
+    assert "operating_point" not in doc
+    assert config_from_dict(doc, "old.toml").operating_point == OperatingPoint(
+        scan_rate_hz=10.0, exposure_us=9200.0, analog_gain=4.0, min_m=0.4, max_m=3.2)
+
+
+def test_operating_point_round_trips(tmp_path):
+    from device.config import OperatingPoint
+
+    doc = _doc()
+    doc["operating_point"] = {"scan_rate_hz": 5.0, "exposure_us": 20000, "analog_gain": 8.0, "min_m": 0.3, "max_m": 2.0}
+    cfg = config_from_dict(doc, "s.toml")
+    assert cfg.operating_point == OperatingPoint(5.0, 20000.0, 8.0, 0.3, 2.0)
+    save_config(cfg, tmp_path / "s.toml")
+    assert load_config(tmp_path / "s.toml").operating_point == cfg.operating_point
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 20.0}), r"exceeds \[laser\] rate_hz"),
+    (lambda d: (d["laser"].__setitem__("rate_hz", 25.0), d["laser"].__setitem__("pulse_s", 0.01),
+                d.__setitem__("operating_point", {"scan_rate_hz": 25.0})), "1640x1232 sensor mode runs at .* to 41.85 frames/s"),
+    (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 0.1}), "needs 0.2 frames/s"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": 60000.0}), "longer than a frame"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": 49950.0}), "less 4 lines"),
+    (lambda d: d.__setitem__("operating_point", {"analog_gain": 12.0}), "outside the IMX219's 1..10.67"),
+    (lambda d: d.__setitem__("operating_point", {"analog_gain": 0.5}), "analog_gain"),
+    (lambda d: d.__setitem__("operating_point", {"min_m": 3.0, "max_m": 2.0}), r"\[operating_point\]: max_m"),
+    (lambda d: d.__setitem__("operating_point", {"exposure_us": -5.0}), "positive"),
+    (lambda d: d.__setitem__("operating_point", {"gain": 4.0}), "unknown key"),
+])
+def test_bad_operating_points_name_the_field(mutate, message):
+    doc = _doc()
+    mutate(doc)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(doc, "sensor.toml")

@@ -54,17 +54,19 @@ def offline_error_pct(frames: int = 3) -> float:
     with an ideally placed pulse: what the device process may not make worse."""
     from device.camera.frame import Frame
     from device.scan.pipeline import ScanPipeline
-    from device.service.assembly import ANALOG_GAIN, EXPOSURE_US, PIPELINE, RANGE_M, sensor_config
+    from device.service.assembly import PIPELINE, sensor_config
     from device.sim.render import FrameTiming, SceneRenderer
     from device.sim.scene import get_scene
     from device.sim.sensor import SensorParams
     from device.vision.pipelines import make_pipeline
 
     cfg = sensor_config(None, "thesis-calibrated")
-    pipe = ScanPipeline(make_pipeline(PIPELINE, cfg, *RANGE_M), POINTS)
+    op = cfg.operating_point
+    EXPOSURE_US = op.exposure_us
+    pipe = ScanPipeline(make_pipeline(PIPELINE, cfg, op.min_m, op.max_m), POINTS)
     g = pipe.pipeline.geometry
-    renderer = SceneRenderer(cfg, get_scene("wall:distance=2"), SensorParams(analog_gain=ANALOG_GAIN), seed=7)
-    line_ns, t = 18904.0, 2_000_000_000
+    renderer = SceneRenderer(cfg, get_scene("wall:distance=2"), SensorParams(analog_gain=op.analog_gain), seed=7)
+    line_ns, t = cfg.window.mode.line_time_ns, 2_000_000_000
     pulse = (int(t - EXPOSURE_US * 1e3 + g.roi_lo.min() * line_ns), int(t + g.roi_hi.max() * line_ns))
     rng = np.random.default_rng(7)
     truth = scene_truth("wall", 2.0).ranges(pipe.angles)

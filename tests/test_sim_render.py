@@ -12,7 +12,7 @@ from device.sim.scene import get_scene, wall_scene
 
 CFG = load_preset("thesis-calibrated")
 QUIET = RenderOptions().without("noise", "speckle", "ambient")
-LINE_NS = 18904.0
+LINE_NS = CFG.window.mode.line_time_ns
 
 
 def full_pulse(exposure_us=40000.0, t=10**9):

@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from device.camera.modes import MODE5
 from device.sim.mcu import McuConfig
 from device.sync.control import (FrameInfo, SyncConfig, SyncController, SyncState, ThesisController,
                                  algorithm1_start_estimate, thesis_error_s)
@@ -32,7 +33,7 @@ def test_targets_over_three_minutes():
     assert m["p99_error_us_settled"] <= 20.0
     assert m["median_error_us"] <= 12.0
     assert m["drift_ppm_estimated"] == pytest.approx(100.0, abs=1.0)
-    # the pulse is the ROI window (5 ms + 400 rows x 18.904 us) plus a guard of microseconds
+    # the pulse is the ROI window (5 ms + 400 rows x the 18.904 us line time) plus a guard of microseconds
     assert 12561.6 < m["pulse_us"] < 12561.6 + 40
 
 
@@ -159,7 +160,7 @@ class _Recorder:
 def test_controller_waits_for_a_clock_map_and_labels_unknown_until_locked():
     rec = _Recorder()
     ctrl = SyncController(SyncConfig(row_min=300, row_max=700, frame_duration_s=0.05), rec)
-    lab = ctrl.on_frame(FrameInfo(0, 1_000_000_000, 0.005, 18904e-9, 0.05), now_ns=1_020_000_000)
+    lab = ctrl.on_frame(FrameInfo(0, 1_000_000_000, 0.005, MODE5.mode.line_time_s, 0.05), now_ns=1_020_000_000)
     assert lab.lit is None and lab.state is SyncState.ACQUIRING and "clock" in lab.reason
     assert rec.calls == []
 
@@ -169,6 +170,6 @@ def test_thesis_p_controller_gain_is_0_233_f():
     cfg = SyncConfig(row_min=300, row_max=700, frame_duration_s=1 / 30)
     ctrl = ThesisController(cfg, rec, t_pwm_ns=0, interval_ns=0, delta_s=0.0, pattern=(True,))
     p = 1 / 30
-    ctrl.on_frame(FrameInfo(0, int((10 * p + 0.1 * p) * 1e9), 0.005, 18904e-9, p), 0)
+    ctrl.on_frame(FrameInfo(0, int((10 * p + 0.1 * p) * 1e9), 0.005, MODE5.mode.line_time_s, p), 0)
     f = 1 / rec.calls[-1][1]
     assert f == pytest.approx(30 + 7 * 0.1, rel=1e-6)  # P = 7 at 30 Hz on e/p = 0.1

@@ -8,9 +8,12 @@ import types
 import numpy as np
 import pytest
 
+from device.camera.modes import MODE5
 from device.sync.clock_map import ClockEstimate, LineFit
 from device.sync.placement import (THESIS_PULSE_S, check_separation, class1_power_w, pulse_budget,
                                    roi_exposure_window, window_to_ticks)
+
+LT = MODE5.mode.line_time_s
 
 
 def _fake_gpiod(mocker, events):
@@ -61,22 +64,21 @@ def test_gpio_edge_source_without_gpiod_says_what_to_install(mocker):
 
 
 def test_roi_window_is_the_exposure_of_exactly_those_rows():
-    lt = 18904e-9
-    s, e = roi_exposure_window(1.0, 0.005, lt, 200, 400)
-    assert s == pytest.approx(1.0 - 0.005 + 200 * lt) and e == pytest.approx(1.0 + 400 * lt)
+    s, e = roi_exposure_window(1.0, 0.005, LT, 200, 400)
+    assert s == pytest.approx(1.0 - 0.005 + 200 * LT) and e == pytest.approx(1.0 + 400 * LT)
     # per-frame ROI rows broadcast
-    s, e = roi_exposure_window(np.array([1.0, 2.0]), 0.005, lt, np.array([100, 150]), np.array([500, 600]))
-    assert np.allclose(e - s, 0.005 + np.array([400, 450]) * lt)
+    s, e = roi_exposure_window(np.array([1.0, 2.0]), 0.005, LT, np.array([100, 150]), np.array([500, 600]))
+    assert np.allclose(e - s, 0.005 + np.array([400, 450]) * LT)
     with pytest.raises(ValueError, match="ROI rows"):
-        roi_exposure_window(1.0, 0.005, lt, 400, 200)
+        roi_exposure_window(1.0, 0.005, LT, 400, 200)
     with pytest.raises(ValueError, match="positive"):
-        roi_exposure_window(1.0, 0.0, lt, 200, 400)
+        roi_exposure_window(1.0, 0.0, LT, 200, 400)
 
 
 def test_separation_check_names_the_problem():
-    check_separation(0.05, 0.005, 18904e-9, 300, 700, guard_s=10e-6)
+    check_separation(0.05, 0.005, LT, 300, 700, guard_s=10e-6)
     with pytest.raises(ValueError, match="does not fit"):
-        check_separation(0.03, 0.02, 18904e-9, 0, 900)
+        check_separation(0.03, 0.02, LT, 0, 900)
 
 
 def test_window_to_ticks_never_covers_less_than_asked():
@@ -92,14 +94,14 @@ def test_window_to_ticks_never_covers_less_than_asked():
 
 
 def test_pulse_budget_and_class1_power_against_the_thesis_pulse():
-    b = pulse_budget(0.005, 18904e-9, 300, 700, 0.05, (True, False), guard_s=10e-6)
-    assert b.pulse_s == pytest.approx(0.005 + 400 * 18904e-9 + 20e-6)
+    b = pulse_budget(0.005, LT, 300, 700, 0.05, (True, False), guard_s=10e-6)
+    assert b.pulse_s == pytest.approx(0.005 + 400 * LT + 20e-6)
     assert b.pulse_rate_hz == 10.0 and b.duty == pytest.approx(b.pulse_s * 10)
     assert b.thesis_pulse_s == THESIS_PULSE_S and b.width_ratio > 1.3
     ours, thesis = class1_power_w(b.pulse_s, 10.0), class1_power_w(THESIS_PULSE_S, 10.0)
     assert ours > thesis  # a shorter pulse is allowed more peak power
     with pytest.raises(ValueError, match="pattern"):
-        pulse_budget(0.005, 18904e-9, 300, 700, 0.05, (False,))
+        pulse_budget(0.005, LT, 300, 700, 0.05, (False,))
 
 
 def test_sync_sim_cli_json_and_side_by_side_report():

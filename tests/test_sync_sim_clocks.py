@@ -8,14 +8,15 @@ import numpy as np
 import pytest
 
 from device.sim.mcu import McuConfig, ScheduleRefused, SimulatedMcu
-from device.sim.timing import (ACTIVE_ROWS_MODE5, LINE_TIME_MODE5_S, CameraClock, CameraTimingConfig,
-                               quantise_frame_duration)
+from device.sim.timing import CameraClock, CameraTimingConfig, quantise_frame_duration
+
+LINE_TIME_S = CameraTimingConfig.line_time_s  # the default: mode 5's (device/camera/modes.py MODE5)
 
 
 def test_mode5_line_time_matches_table_b3():
     # Table B.3: 18904 ns per line; 922 rows -> the 17.4 ms capture time
-    assert LINE_TIME_MODE5_S == 18904e-9
-    assert ACTIVE_ROWS_MODE5 * LINE_TIME_MODE5_S == pytest.approx(17.4e-3, abs=0.05e-3)
+    assert LINE_TIME_S == 18904e-9
+    assert CameraTimingConfig.active_rows * LINE_TIME_S == pytest.approx(17.4e-3, abs=0.05e-3)
 
 
 def test_free_running_period_is_line_quantised_and_timestamps_late_only():
@@ -24,7 +25,7 @@ def test_free_running_period_is_line_quantised_and_timestamps_late_only():
     frames = [cam.next_frame() for _ in range(2000)]
     t = np.array([f.true_start_s for f in frames])
     lines = quantise_frame_duration(0.05, cfg.exposure_s, cfg)
-    assert np.allclose(np.diff(t), lines * LINE_TIME_MODE5_S, atol=1e-12)
+    assert np.allclose(np.diff(t), lines * LINE_TIME_S, atol=1e-12)
     lat = np.array([f.sensor_timestamp_ns for f in frames]) * 1e-9 - t
     assert lat.min() > -1e-9  # an interrupt timestamp is never early
     assert lat.mean() == pytest.approx(10e-6, rel=0.1)
@@ -49,7 +50,7 @@ def test_frame_duration_request_takes_effect_two_frames_later():
         if i == 2:
             cam.request(frame_duration_s=0.04)
     old, new = durations[0], durations[-1]
-    assert new == pytest.approx(round(0.04 / LINE_TIME_MODE5_S) * LINE_TIME_MODE5_S)
+    assert new == pytest.approx(round(0.04 / LINE_TIME_S) * LINE_TIME_S)
     assert durations[3] == old and durations[4] == new  # seen frame 2 -> effective at frame 4
     with pytest.raises(ValueError, match="frame duration"):
         cam.request(frame_duration_s=-1.0)

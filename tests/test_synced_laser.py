@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from device.camera.frame import Frame
+from device.camera.modes import MODE5
 from device.laser.base import LaserError
 from device.laser.comcu import CoMcuTimeout, PingResult
 from device.laser.synced import SyncedLaser
@@ -58,7 +59,7 @@ def laser_and_mcu():
     return laser, fake
 
 
-FRAME = Frame(np.zeros((2, 2), np.uint8), 0, 0, 1000.0, 50_000.0, 18904.0)
+FRAME = Frame(np.zeros((2, 2), np.uint8), 0, 0, 1000.0, 50_000.0, MODE5.mode.line_time_ns)
 
 
 def test_a_fresh_link_is_no_reset_even_when_the_mcu_announces_its_boot(laser_and_mcu):

@@ -154,3 +154,52 @@ def test_padded_centre_of_mass_is_identical_to_refine_peaks():
         assert got.plateau.any() and got.valid.any() and not got.valid.all()
         for name in ("row", "peak", "argmax", "valid", "plateau", "spread"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+@pytest.mark.parametrize("half_width", [1, 2, 4, 6])
+def test_refinement_reads_no_row_past_the_estimators_reach(estimator, half_width):
+    # distinct values (no flat top, whose walk reads on): rows further than rows_read() from the
+    # maximum, changed at random, change nothing
+    from device.vision.peaks import refine_peaks, rows_read
+
+    rng = np.random.default_rng(7)
+    k = np.full(W, H // 2)
+    img = gaussian_image(k + rng.uniform(-0.5, 0.5, W), sigma=rng.uniform(0.8, 2.0, W)) + rng.uniform(0, 3, (H, W))
+    reach = rows_read(estimator, half_width)
+    far = np.abs(np.arange(H) - H // 2) > reach
+    other = img.copy()
+    other[far] = rng.uniform(0, 400, (far.sum(), W))
+    want = refine_peaks(img, k, estimator, half_width=half_width)
+    got = refine_peaks(other, k, estimator, half_width=half_width)
+    assert want.valid.any()
+    for name in ("row", "peak", "argmax", "valid", "plateau", "spread"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+@pytest.mark.parametrize("estimator, half_width", [("blais-rioux", 1), ("com", 5), ("gaussian", 1)])
+def test_the_reach_is_not_larger_than_needed(estimator, half_width):
+    # the row rows_read() away from the maximum matters: the derivative filter's outer sample,
+    # the centre-of-mass window's edge, the flat-top test's second sample
+    from device.vision.peaks import refine_peaks, rows_read
+
+    reach = rows_read(estimator, half_width)
+    col = np.array([0, 0, 0, 0, 10, 40, 80, 100, 100, 30, 5, 0, 0, 0, 0, 0], float)  # maximum at row 7
+    k = np.array([7])
+    changed = col.copy()
+    changed[7 + reach] = 100.0 if estimator == "gaussian" else col[7 + reach] + 20.0
+    a = refine_peaks(col[:, None], k, estimator, half_width=half_width)
+    b = refine_peaks(changed[:, None], k, estimator, half_width=half_width)
+    assert (a.row[0], a.plateau[0]) != (b.row[0], b.plateau[0]) or a.valid[0] != b.valid[0]
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+@pytest.mark.parametrize("half_width", [1, 2, 4])
+def test_fast_pipeline_pads_by_the_estimators_reach(estimator, half_width):
+    from device.config import load_preset
+    from device.vision.fast import FastParams, FastPipeline
+    from device.vision.peaks import rows_read
+
+    pipe = FastPipeline(load_preset("thesis-calibrated"), FastParams(estimator=estimator, half_width=half_width), 0.4, 3.2)
+    assert pipe._pad == rows_read(estimator, half_width) >= half_width
+    assert pipe._padded(pipe.rows).shape[0] == pipe.rows + 2 * rows_read(estimator, half_width)

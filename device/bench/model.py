@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from ..model.camera import (
-    BrownConrady, CameraModel, Intrinsics, KannalaBrandt, Unprojection, pixel_grid, undistort_fixed,
+    BrownConrady, CameraModel, Intrinsics, KannalaBrandt, Unprojection, lens_model, pixel_grid, undistort_fixed,
     undistort_robust,
 )
 
@@ -96,13 +96,9 @@ def _opencv(cam: CameraModel, iterations: int) -> Callable[[np.ndarray], np.ndar
     import cv2
 
     crit = (cv2.TERM_CRITERIA_COUNT, iterations, 0.0)
+    undistort = lens_model(cam.distortion).opencv_undistort
     k, d = cam.intrinsics.matrix, cam.distortion.opencv_coefficients()
-    if isinstance(cam.distortion, KannalaBrandt):
-        return lambda pix: cv2.fisheye.undistortPoints(pix.reshape(-1, 1, 2), k, d, criteria=crit).reshape(pix.shape)
-    fn = getattr(cv2, "undistortPointsIter", None)  # OpenCV 4 name; OpenCV 5 takes criteria in undistortPoints
-    if fn:
-        return lambda pix: fn(pix.reshape(-1, 1, 2), k, d, None, None, criteria=crit).reshape(pix.shape)
-    return lambda pix: cv2.undistortPoints(pix.reshape(-1, 1, 2), k, d, criteria=crit).reshape(pix.shape)
+    return lambda pix: undistort(pix, k, d, crit)
 
 
 def variants(cam: CameraModel) -> dict[str, Callable[[np.ndarray], np.ndarray | Unprojection]]:

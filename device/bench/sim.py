@@ -31,11 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true")
 
 
-def _timing():
-    from device.camera.base import IMX219_LINE_TIME_NS
+def _timing(cfg):
+    """Thesis timing (17.4 ms pulse inside a 40 ms exposure) at the line time of ``cfg``'s sensor mode."""
     from device.sim.render import FrameTiming
 
-    t, e_us, lt = 10**9, 40000.0, IMX219_LINE_TIME_NS
+    t, e_us, lt = 10**9, 40000.0, cfg.window.mode.line_time_ns
     centre = int(t + (927 * lt - e_us * 1e3) / 2)
     return FrameTiming(t, e_us, lt, ((centre - 8_700_000, centre + 8_700_000),)), FrameTiming(t, e_us, lt)
 
@@ -44,7 +44,7 @@ def _ms_per_pair(renderer, pairs: int) -> tuple[float, float]:
     """(min, median) ms per lit + unlit pair; the minimum is the code's cost on a shared machine."""
     import numpy as np
 
-    lit, dark = _timing()
+    lit, dark = _timing(renderer.cfg)
     rng = np.random.default_rng(0)
     renderer.render(lit, rng)  # warm caches (noise table)
     times = []
@@ -59,7 +59,7 @@ def _ms_per_pair(renderer, pairs: int) -> tuple[float, float]:
 def _truth_error_px(renderer) -> float:
     import numpy as np
 
-    lit, _ = _timing()
+    lit, _ = _timing(renderer.cfg)
     quiet = renderer.options.without("noise", "speckle", "ambient", "texture")
     from device.sim.render import SceneRenderer
 
@@ -89,7 +89,7 @@ def budget() -> list[dict]:
     from device.sim.scene import wall_scene
 
     cfg = load_preset("thesis-calibrated")
-    lit, dark = _timing()
+    lit, dark = _timing(cfg)
     out = []
     for ambient in ("indoor", "sunlight"):
         for rho in (0.9, 0.1):
@@ -127,7 +127,7 @@ def measure_wall(reflectivity: float, distance_m: float, ambient: str = "indoor"
     from device.vision.reference import ReferencePipeline
 
     cfg = load_preset("thesis-calibrated")
-    lit_t, dark_t = _timing()
+    lit_t, dark_t = _timing(cfg)
     r = SceneRenderer(cfg, wall_scene(distance_m, 0.0, reflectivity, ambient=ambient),
                       options=options or RenderOptions(), seed=seed)
     pipe = ReferencePipeline(cfg)
@@ -151,7 +151,7 @@ def centroid_scatter_px(cfg, options, seeds=(1, 2), distance_m: float = 2.0, hal
     from device.sim.scene import wall_scene
 
     t = 10**9  # a pulse over every row's whole exposure: no rolling-shutter weighting of the rows
-    lit = FrameTiming(t, 40000.0, 18904.0, ((t - 40_000_000, t + 40_000_000),))
+    lit = FrameTiming(t, 40000.0, cfg.window.mode.line_time_ns, ((t - 40_000_000, t + 40_000_000),))
     out = []
     for seed in seeds:
         r = SceneRenderer(cfg, wall_scene(distance_m), options=options, seed=seed)

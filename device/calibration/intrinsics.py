@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
-from ..model.camera import BrownConrady, CameraModel, Intrinsics, KannalaBrandt
+from ..model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +39,10 @@ FISHEYE_MARGIN = 0.8
 #: A weak coefficient is kept only if dropping it raises the held-out error by more than this (relative).
 HELDOUT_TOLERANCE = 0.005
 
+#: The Brown-Conrady coefficients model selection keeps or drops (p1 and p2 together).
 BC_NAMES = ("k1", "k2", "p1p2", "k3")
+#: The fisheye fit estimates all of its coefficients.
+KB_NAMES = lens_model_named("kannala-brandt").coefficient_names
 
 
 class CalibrationError(ValueError):
@@ -157,58 +161,101 @@ def _bc_flags(kept: tuple[str, ...]) -> int:
 
 
 def _fit(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, int], model: str, kept: tuple[str, ...], k0: np.ndarray | None = None):
-    """One OpenCV calibration -> (rms, K, D, rvecs, tvecs, std dict, per-view rms).
+    """One OpenCV calibration with lens model ``model`` -> (rms, K, D, rvecs, tvecs, std dict, per-view rms)."""
+    return _calibration(model).fit(obj, img, size, kept, k0)
 
-    The fisheye fit starts from ``k0`` (a Brown-Conrady K): OpenCV 5's ``fisheye.calibrate``
-    fails its extrinsic initialisation from its own default guess on wide-angle views, and wants
-    points as (1, N, 3) / (1, N, 2) float32.
-    """
+
+def _criteria():
     import cv2
 
-    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    if model == "brown-conrady":
-        o32, i32 = [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img]
-        # Staged start: OpenCV's LM from its zero-distortion start can stop in a local minimum on
-        # a wide-angle lens (seen in simulation: 0.45 px RMS where the truth gives 0.07 px); a
-        # k1-only fit first, then the full model from there, reaches it. The better of the two wins.
-        stage1 = cv2.calibrateCamera(o32, i32, size, None, None, flags=cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, criteria=crit)
-        d0 = np.zeros(5)
-        if "k1" in kept:
-            d0[0] = stage1[2].ravel()[0]
-        best = None
-        for k_init, d_init, extra in ((None, None, 0), (stage1[1], d0, cv2.CALIB_USE_INTRINSIC_GUESS)):
-            out = cv2.calibrateCameraExtended(o32, i32, size, k_init, d_init, flags=_bc_flags(kept) | extra, criteria=crit)
-            if best is None or out[0] < best[0]:
-                best = out
-        rms, k, d, rv, tv, std_i, _, per_view = best
-        s = std_i.ravel()
-        std = {"fx": s[0], "fy": s[1], "cx": s[2], "cy": s[3], "k1": s[4], "k2": s[5], "p1": s[6], "p2": s[7], "k3": s[8]}
-        return rms, k, d.ravel()[:5], rv, tv, std, per_view.ravel()
+    return (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+def _fit_brown_conrady(obj, img, size, kept, k0):
+    """``cv2.calibrateCameraExtended`` with the coefficients not in ``kept`` fixed at 0 (starts
+    from OpenCV's own guess, not ``k0``)."""
+    import cv2
+
+    crit = _criteria()
+    o32, i32 = [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img]
+    # Staged start: OpenCV's LM from its zero-distortion start can stop in a local minimum on
+    # a wide-angle lens (seen in simulation: 0.45 px RMS where the truth gives 0.07 px); a
+    # k1-only fit first, then the full model from there, reaches it. The better of the two wins.
+    stage1 = cv2.calibrateCamera(o32, i32, size, None, None, flags=cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, criteria=crit)
+    d0 = np.zeros(5)
+    if "k1" in kept:
+        d0[0] = stage1[2].ravel()[0]
+    best = None
+    for k_init, d_init, extra in ((None, None, 0), (stage1[1], d0, cv2.CALIB_USE_INTRINSIC_GUESS)):
+        out = cv2.calibrateCameraExtended(o32, i32, size, k_init, d_init, flags=_bc_flags(kept) | extra, criteria=crit)
+        if best is None or out[0] < best[0]:
+            best = out
+    rms, k, d, rv, tv, std_i, _, per_view = best
+    s = std_i.ravel()
+    std = {"fx": s[0], "fy": s[1], "cx": s[2], "cy": s[3], "k1": s[4], "k2": s[5], "p1": s[6], "p2": s[7], "k3": s[8]}
+    return rms, k, d.ravel()[:5], rv, tv, std, per_view.ravel()
+
+
+def _fit_fisheye(obj, img, size, kept, k0):
+    """``cv2.fisheye.calibrate`` of all four coefficients, from ``k0`` (a Brown-Conrady K; fitted
+    here when not given): OpenCV 5's ``fisheye.calibrate`` fails its extrinsic initialisation
+    from its own default guess on wide-angle views, and wants points as (1, N, 3) / (1, N, 2)
+    float32."""
+    import cv2
+
     if k0 is None:
         k0 = _fit(obj, img, size, "brown-conrady", BC_NAMES)[1]
     flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW | cv2.CALIB_USE_INTRINSIC_GUESS
     rms, k, d, rv, tv = cv2.fisheye.calibrate(
         [o.reshape(1, -1, 3).astype(np.float32) for o in obj], [i.reshape(1, -1, 2).astype(np.float32) for i in img], size,
-        np.array(k0, dtype=np.float64), np.zeros((4, 1)), flags=flags, criteria=crit,
+        np.array(k0, dtype=np.float64), np.zeros((4, 1)), flags=flags, criteria=_criteria(),
     )
     per_view = np.array([_view_rms(o, i, k, d, r, t, "kannala-brandt") for o, i, r, t in zip(obj, img, rv, tv)])
     return rms, k, d.ravel()[:4], rv, tv, {}, per_view
 
 
-def _view_rms(obj, img, k, d, rvec, tvec, model) -> float:
+def _pose_brown_conrady(obj, img, k, d):
     import cv2
 
-    if model == "brown-conrady":
-        proj = cv2.projectPoints(obj.astype(np.float64), rvec, tvec, k, d)[0].reshape(-1, 2)
-    else:
-        proj = cv2.fisheye.projectPoints(obj.reshape(1, -1, 3).astype(np.float64), np.asarray(rvec, float).reshape(3, 1), np.asarray(tvec, float).reshape(3, 1), k, d)[0].reshape(-1, 2)
+    return cv2.solvePnP(obj, img, k, d)
+
+
+def _pose_fisheye(obj, img, k, d):
+    """solvePnP has no fisheye model: on the corners undistorted to normalised coordinates."""
+    import cv2
+
+    undist = cv2.fisheye.undistortPoints(img.reshape(-1, 1, 2).astype(np.float64), k, d).reshape(-1, 2)
+    return cv2.solvePnP(obj.astype(np.float64), undist, np.eye(3), None)
+
+
+@dataclass(frozen=True)
+class _OpenCvCalibration:
+    """How OpenCV calibrates one lens model of device.model.camera.LENS_MODELS."""
+
+    fit: Callable  # (obj, img, size, kept, k0) -> (rms, K, D in OpenCV's order, rvecs, tvecs, std dict, per-view rms)
+    pose: Callable  # (obj, img, K, D) -> (ok, rvec, tvec): a held-out view's pose with fitted intrinsics
+
+
+_CALIBRATIONS = {
+    "brown-conrady": _OpenCvCalibration(_fit_brown_conrady, _pose_brown_conrady),
+    "kannala-brandt": _OpenCvCalibration(_fit_fisheye, _pose_fisheye),
+}
+
+
+def _calibration(model: str) -> _OpenCvCalibration:
+    try:
+        return _CALIBRATIONS[model]
+    except KeyError:
+        raise ValueError(f"no OpenCV calibration for lens model {model!r}; calibrated: {', '.join(_CALIBRATIONS)}") from None
+
+
+def _view_rms(obj, img, k, d, rvec, tvec, model) -> float:
+    proj = lens_model_named(model).opencv_project(obj, rvec, tvec, k, d)
     return float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
 
 
 def _heldout_rms(obj, img, size, model, kept, folds: int = 5, k0=None) -> float:
     """k-fold over views: calibrate on the rest, re-solve each held-out pose, RMS of its corners."""
-    import cv2
-
     n = len(obj)
     folds = min(folds, n)
     sq = []
@@ -219,11 +266,7 @@ def _heldout_rms(obj, img, size, model, kept, folds: int = 5, k0=None) -> float:
             continue
         _, k, d, *_ = _fit([obj[i] for i in train], [img[i] for i in train], size, model, kept, k0)
         for i in test:
-            if model == "brown-conrady":
-                ok, rv, tv = cv2.solvePnP(obj[i], img[i], k, d)
-            else:
-                undist = cv2.fisheye.undistortPoints(img[i].reshape(-1, 1, 2).astype(np.float64), k, d).reshape(-1, 2)
-                ok, rv, tv = cv2.solvePnP(obj[i].astype(np.float64), undist, np.eye(3), None)
+            ok, rv, tv = _calibration(model).pose(obj[i], img[i], k, d)
             if ok:
                 sq.append(_view_rms(obj[i], img[i], k, d, rv, tv, model) ** 2)
     return float(np.sqrt(np.mean(sq))) if sq else float("inf")
@@ -275,10 +318,7 @@ def calibrate_intrinsics(
                     f"focal length not determined: {key} = {getattr(intr, key):.1f} +- {std[key]:.1f} px ({100 * rel:.1f} %); "
                     "the views are too alike - tilt the board +-30 deg about both axes and vary its distance"
                 )
-    if chosen_model == "brown-conrady":
-        dist = BrownConrady(k1=float(d[0]), k2=float(d[1]), p1=float(d[2]), p2=float(d[3]), k3=float(d[4]))
-    else:
-        dist = KannalaBrandt(*[float(c) for c in d])
+    dist = lens_model_named(chosen_model).from_opencv(d)
     import cv2
 
     poses = {u.name: (cv2.Rodrigues(np.asarray(r, float))[0], np.asarray(t, float).ravel()) for u, r, t in zip(used, rv, tv)}
@@ -326,25 +366,21 @@ def _fisheye_candidate(obj, img, size, selection, k0=None):
     if k0 is None:
         k0 = _fit(obj, img, size, "brown-conrady", BC_NAMES)[1]
     try:
-        rms, k, d, rv, tv, std, per_view = _fit(obj, img, size, "kannala-brandt", ("k1", "k2", "k3", "k4"), k0)
-        heldout = _heldout_rms(obj, img, size, "kannala-brandt", ("k1", "k2", "k3", "k4"), k0=k0)
+        rms, k, d, rv, tv, std, per_view = _fit(obj, img, size, "kannala-brandt", KB_NAMES, k0)
+        heldout = _heldout_rms(obj, img, size, "kannala-brandt", KB_NAMES, k0=k0)
     except cv2.error as exc:
         log.info("fisheye model could not be fitted (Brown-Conrady kept): %s", exc)
         return None
     selection.append({"model": "kannala-brandt", "rms_px": float(rms), "heldout_px": heldout, "values": [float(x) for x in d]})
-    return rms, k, d, rv, tv, std, per_view, ("k1", "k2", "k3", "k4"), "kannala-brandt", heldout
+    return rms, k, d, rv, tv, std, per_view, KB_NAMES, "kannala-brandt", heldout
 
 
 def refit(corners: list[np.ndarray], object_points: np.ndarray, image_size: tuple[int, int], camera: CameraModel, kept: tuple[str, ...]):
     """Calibrate again with the model already chosen (for resampling): -> (CameraModel, [(R, t)])."""
     import cv2
 
-    model = "brown-conrady" if isinstance(camera.distortion, BrownConrady) else "kannala-brandt"
-    _, k, d, rv, tv, _, _ = _fit([object_points.astype(np.float64)] * len(corners), corners, image_size, model, kept, camera.intrinsics.matrix)
+    lens = lens_model(camera.distortion)
+    _, k, d, rv, tv, _, _ = _fit([object_points.astype(np.float64)] * len(corners), corners, image_size, lens.name, kept, camera.intrinsics.matrix)
     w, h = image_size
     intr = Intrinsics(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=w, height=h)
-    if model == "brown-conrady":
-        dist = BrownConrady(k1=float(d[0]), k2=float(d[1]), p1=float(d[2]), p2=float(d[3]), k3=float(d[4]))
-    else:
-        dist = KannalaBrandt(*[float(c) for c in d])
-    return CameraModel(intr, dist), [(cv2.Rodrigues(np.asarray(r, float))[0], np.asarray(t, float).ravel()) for r, t in zip(rv, tv)]
+    return CameraModel(intr, lens.from_opencv(d)), [(cv2.Rodrigues(np.asarray(r, float))[0], np.asarray(t, float).ravel()) for r, t in zip(rv, tv)]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.camera import BrownConrady
+from ..model.camera import lens_model
 from .pipeline import CalibrationResult, plane_table, triangulation_table
 
 
@@ -18,7 +18,7 @@ def report_dict(result: CalibrationResult) -> dict:
     k, d = result.config.camera.intrinsics, result.config.camera.distortion
     return {
         "camera": {
-            "model": "brown-conrady" if isinstance(d, BrownConrady) else "kannala-brandt",
+            "model": lens_model(d).name,
             "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
             "distortion": [float(v) for v in (d.opencv_coefficients())],
             "kept_coefficients": list(intr.kept),

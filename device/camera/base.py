@@ -7,9 +7,6 @@ from typing import Protocol, runtime_checkable
 
 from .frame import Frame
 
-#: IMX219 line (row readout) time in sensor modes 4 and 5, thesis Table B.3.
-IMX219_LINE_TIME_NS = 18904.0
-
 
 class CameraError(RuntimeError):
     """A camera that cannot deliver frames; the message says why."""
@@ -28,7 +25,8 @@ class Camera(Protocol):
     """Luminance frames with their timing metadata.
 
     ``width``/``height`` are the frame buffer's size (e.g. 1664 x 928 in mode 5, the active
-    1640 x 922 pixels at the top left); ``line_time_ns`` the rolling-shutter row time.
+    1640 x 922 pixels at the top left); ``line_time_ns`` the rolling-shutter row time (the
+    sensor mode's, device/camera/modes.py).
     ``set_frame_duration``/``set_exposure`` request new values; a backend applies them as its
     hardware does (on the IMX219 two frames later) and each Frame reports what it got.
     """

@@ -1,12 +1,13 @@
 """Camera backend for a Raspberry Pi: picamera2 (libcamera), imported only when started.
 
-Configuration (thesis B.1.4, Table B.3, mode 5): the sensor runs its 2x2-binned 1640x1232 mode
-and the ISP crops the centre 3280x1844 sensor pixels (``ScalerCrop``, 310 rows off the top and
-bottom at full resolution) to a 1640x922 YUV420 ``main`` stream; only the luminance (Y) plane is
-used. Auto exposure and auto white balance are off; exposure time and analogue gain are fixed;
-the frame rate is set with ``FrameDurationLimits`` (min = max). Each frame's timestamp is the
-request metadata's ``SensorTimestamp`` (ns), taken, like the Frame record, as the start of the
-first row's readout; ``ExposureTime`` and ``FrameDuration`` come from the same metadata.
+Configuration (thesis B.1.4, Table B.3, mode 5; ``window`` = device/camera/modes.py MODE5): the
+sensor runs its 2x2-binned 1640x1232 mode and the ISP crops the centre 3280x1844 sensor pixels
+(``ScalerCrop``, 310 rows off the top and bottom at full resolution) to a 1640x922 YUV420
+``main`` stream; only the luminance (Y) plane is used. Auto exposure and auto white balance are
+off; exposure time and analogue gain are fixed; the frame rate is set with
+``FrameDurationLimits`` (min = max). Each frame's timestamp is the request metadata's
+``SensorTimestamp`` (ns), taken, like the Frame record, as the start of the first row's readout;
+``ExposureTime`` and ``FrameDuration`` come from the same metadata.
 
 The Y plane is placed at the top left of a zeroed buffer of the configured size (1664x928 for
 the thesis configuration, docs/thesis-notes.md N6), so that frames from a Pi and from the simulator have one
@@ -21,15 +22,11 @@ import threading
 
 import numpy as np
 
-from .base import IMX219_LINE_TIME_NS, CameraError, CaptureTimeout
+from .base import CameraError, CaptureTimeout
 from .frame import Frame
+from .modes import MODE5, ImageWindow
 
 log = logging.getLogger(__name__)
-
-#: Mode 5 from the IMX219's 1640x1232 binned mode: crop (x, y, w, h) in full-resolution pixels.
-MODE5_SENSOR_SIZE = (1640, 1232)
-MODE5_SCALER_CROP = (0, 310, 3280, 1844)
-MODE5_OUTPUT = (1640, 922)
 
 
 class Picamera2Camera:
@@ -37,16 +34,17 @@ class Picamera2Camera:
 
     def __init__(self, width: int = 1664, height: int = 928, exposure_us: float = 40000.0,
                  frame_duration_us: float = 50000.0, analogue_gain: float = 1.0, camera_num: int = 0,
-                 output_size: tuple[int, int] = MODE5_OUTPUT, sensor_size: tuple[int, int] = MODE5_SENSOR_SIZE,
-                 scaler_crop: tuple[int, int, int, int] = MODE5_SCALER_CROP, line_time_ns: float = IMX219_LINE_TIME_NS,
-                 buffer_count: int = 6):
+                 window: ImageWindow = MODE5, buffer_count: int = 6):
+        """``window``: the sensor mode and the crop of it that the stream delivers (SensorConfig.window)."""
+        output_size = (window.width, window.height)
         if output_size[0] > width or output_size[1] > height:
             raise ValueError(f"output {output_size} does not fit the {width}x{height} frame buffer")
         if not 0 < exposure_us <= frame_duration_us:
             raise ValueError(f"exposure_us {exposure_us} must be in (0, frame_duration_us = {frame_duration_us}]")
-        self.width, self.height, self.line_time_ns = width, height, line_time_ns
+        self.width, self.height, self.line_time_ns = width, height, window.mode.line_time_ns
         self._exposure_us, self._frame_duration_us, self._gain = float(exposure_us), float(frame_duration_us), analogue_gain
-        self._camera_num, self._output, self._sensor, self._crop = camera_num, output_size, sensor_size, scaler_crop
+        self._camera_num, self._output = camera_num, output_size
+        self._sensor, self._crop = (window.mode.width, window.mode.height), window.scaler_crop
         self._buffer_count = buffer_count
         self._cam = None
         self._pending = None  # capture job still outstanding after a timeout

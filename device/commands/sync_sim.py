@@ -42,12 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _params(args: argparse.Namespace, controller: str):
     from device.sim.mcu import McuConfig
-    from device.sim.timing import ACTIVE_ROWS_MODE5, CameraTimingConfig
+    from device.sim.timing import CameraTimingConfig
     from device.sync.simulate import SimParams
 
     rmin, rmax = args.roi_rows
-    if not 0 <= rmin <= rmax < ACTIVE_ROWS_MODE5:
-        args._parser.error(f"--roi-rows must satisfy 0 <= MIN <= MAX < {ACTIVE_ROWS_MODE5}, got {rmin} {rmax}")
+    rows = CameraTimingConfig.active_rows
+    if not 0 <= rmin <= rmax < rows:
+        args._parser.error(f"--roi-rows must satisfy 0 <= MIN <= MAX < {rows}, got {rmin} {rmax}")
     camera = CameraTimingConfig(frame_duration_s=1.0 / args.fps, exposure_s=args.exposure_us * 1e-6, clock_ppm=30.0,
                                 timestamp_jitter_s=args.camera_jitter_us * 1e-6, drop_probability=min(args.drop_prob, 0.5))
     mcu = McuConfig(drift_ppm=args.drift_ppm, wander_ppm=args.wander_ppm, gpio_jitter_s=args.gpio_jitter_us * 1e-6,

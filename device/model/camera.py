@@ -1,11 +1,17 @@
 """Camera projection and distortion, both ways (thesis section 3.1, appendix A.4).
 
-Two lens models share one interface:
+The lens models are the rows of one table, :data:`LENS_MODELS` (as mrcal's one table of lens
+models): per model its name (the configuration file's ``[camera] model``, the calibration
+report's), its coefficients (a dataclass; its fields are the names in the configuration file's
+order), OpenCV's order of the same coefficients, and its forward and backward projection
+functions, with OpenCV's counterparts of both. Every function here, the configuration file, the
+calibration and the benchmarks look a model up in that table; a model that is not in it is an
+error everywhere (:func:`lens_model`, :func:`lens_model_named`), never taken for another one.
 
-* :class:`BrownConrady` - pinhole + radial (k1, k2, k3) + tangential (p1, p2), eq. 3.1-3.4;
-  the same as OpenCV's 5-coefficient model.
-* :class:`KannalaBrandt` - equidistant fisheye with an odd polynomial in the incidence angle,
-  the same as OpenCV's ``cv2.fisheye``, for lenses past ~140 deg.
+* ``brown-conrady`` (:class:`BrownConrady`) - pinhole + radial (k1, k2, k3) + tangential
+  (p1, p2), eq. 3.1-3.4; the same as OpenCV's 5-coefficient model.
+* ``kannala-brandt`` (:class:`KannalaBrandt`) - equidistant fisheye with an odd polynomial in the
+  incidence angle, the same as OpenCV's ``cv2.fisheye``, for lenses past ~140 deg.
 
 Conventions: the OpenCV camera frame (x right, y down, z forward); *normalised* coordinates are
 ``(x/z, y/z)``; *pixel* coordinates have (0, 0) at the centre of the top-left pixel. Arrays have
@@ -26,9 +32,10 @@ returned as valid (the failure mode of OpenCV's and kornia's fixed-iteration und
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from dataclasses import dataclass
-from typing import Union
+from typing import Callable, Union
 
 import numpy as np
 
@@ -64,8 +71,16 @@ class Intrinsics:
         return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
 
+class _Coefficients:
+    """What every lens model's coefficient dataclass can do with its row of :data:`LENS_MODELS`."""
+
+    def opencv_coefficients(self) -> np.ndarray:
+        """The coefficients in the order OpenCV's functions take them (the row's ``opencv_order``)."""
+        return np.array([getattr(self, n) for n in lens_model(self).opencv_order])
+
+
 @dataclass(frozen=True)
-class BrownConrady:
+class BrownConrady(_Coefficients):
     """Radial (k1, k2, k3) and tangential (p1, p2) distortion of eq. 3.4 (OpenCV's order)."""
 
     k1: float = 0.0
@@ -73,10 +88,6 @@ class BrownConrady:
     k3: float = 0.0
     p1: float = 0.0
     p2: float = 0.0
-
-    def opencv_coefficients(self) -> np.ndarray:
-        """``[k1, k2, p1, p2, k3]``, the order ``cv2.projectPoints`` expects."""
-        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
 
     def radial_fold(self) -> float:
         """Smallest undistorted radius where d(r_d)/dr <= 0 (inf if the profile never turns back).
@@ -90,7 +101,7 @@ class BrownConrady:
 
 
 @dataclass(frozen=True)
-class KannalaBrandt:
+class KannalaBrandt(_Coefficients):
     """Equidistant fisheye: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8).
 
     theta is the angle of the ray to the optical axis; the distorted point is theta_d along the
@@ -101,9 +112,6 @@ class KannalaBrandt:
     k2: float = 0.0
     k3: float = 0.0
     k4: float = 0.0
-
-    def opencv_coefficients(self) -> np.ndarray:
-        return np.array([self.k1, self.k2, self.k3, self.k4])
 
     def theta_fold(self) -> float:
         """Smallest incidence angle where d(theta_d)/d(theta) <= 0 (inf if none)."""
@@ -174,32 +182,72 @@ def from_pixels(pixels: np.ndarray, k: Intrinsics) -> np.ndarray:
     return np.stack([x_d, y_d], axis=-1)
 
 
-# ---------------------------------------------------------------- distortion (eq. 3.4)
-def distort(xy: np.ndarray, dist: Distortion) -> np.ndarray:
-    """Undistorted normalised -> distorted normalised coordinates (eq. 3.4, or the fisheye model)."""
-    xy = _check_last_dim(xy, 2, "xy").astype(np.float64, copy=False)
+# ---------------------------------------------------------------- the lens models' table
+@dataclass(frozen=True)
+class LensModel:
+    """One row of :data:`LENS_MODELS`: everything the rest of the code knows about a lens model.
+
+    The functions work on arrays of shape (..., 2) or (..., 3) as the public functions below do,
+    ``dist`` being an instance of ``distortion``.
+    """
+
+    name: str  # in the configuration file ([camera] model) and the calibration report
+    distortion: type  # the frozen dataclass of its coefficients, fields in the configuration file's order
+    opencv_order: tuple[str, ...]  # the same coefficient names in the order OpenCV's functions take them
+    distort: Callable  # forward: (xy, dist) -> distorted normalised coordinates
+    project: Callable  # forward: (points (..., 3) in the camera frame, dist) -> distorted normalised, NaN where not imaged
+    undistort_fixed: Callable  # backward, fixed iterations: (xy_d, dist, iterations) -> (xy, status)
+    undistort_robust: Callable  # backward to a tolerance: (pixels, xy_d, cam, tol, tol_px, max_iterations) -> Unprojection
+    beyond_fold: Callable  # (r, dist) -> bool: a normalised point at radius r lies past the fold
+    newton_error: Callable  # (xy, xy_d, distort(xy), dist, f) -> the Newton correction xy still needs, x f (px)
+    opencv_project: Callable  # OpenCV's forward: (points (N, 3), rvec, tvec, K, D) -> pixels (N, 2)
+    opencv_undistort: Callable  # OpenCV's backward: (pixels (..., 2), K, D, criteria) -> normalised (..., 2)
+
+    @property
+    def coefficient_names(self) -> tuple[str, ...]:
+        """The coefficient names in the configuration file's order (the dataclass's fields)."""
+        return tuple(f.name for f in dataclasses.fields(self.distortion))
+
+    def from_opencv(self, values) -> Distortion:
+        """The coefficients from an array in OpenCV's order (``opencv_order``)."""
+        return self.distortion(**{n: float(v) for n, v in zip(self.opencv_order, values)})
+
+
+def lens_model(dist: Distortion) -> LensModel:
+    """The row of :data:`LENS_MODELS` of a coefficient object; ValueError for a model not in it."""
+    try:
+        return _BY_TYPE[type(dist)]
+    except KeyError:
+        raise ValueError(f"unknown lens model {type(dist).__name__}: not in LENS_MODELS "
+                         f"({', '.join(m.distortion.__name__ for m in LENS_MODELS.values())})") from None
+
+
+def lens_model_named(name: str) -> LensModel:
+    """The row of :data:`LENS_MODELS` called ``name``; ValueError naming the known ones otherwise."""
+    try:
+        return LENS_MODELS[name]
+    except KeyError:
+        raise ValueError(f"lens model must be one of {', '.join(map(repr, LENS_MODELS))}, got {name!r}") from None
+
+
+# ---------------------------------------------------------------- Brown-Conrady (eq. 3.1-3.11)
+def _bc_distort(xy: np.ndarray, d: BrownConrady) -> np.ndarray:
+    """Eq. 3.4: radial and tangential distortion of undistorted normalised coordinates."""
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
-    if isinstance(dist, BrownConrady):
-        radial = 1.0 + r2 * (dist.k1 + r2 * (dist.k2 + r2 * dist.k3))
-        xd = x * radial + 2 * dist.p1 * x * y + dist.p2 * (r2 + 2 * x * x)
-        yd = y * radial + dist.p1 * (r2 + 2 * y * y) + 2 * dist.p2 * x * y
-        return np.stack([xd, yd], axis=-1)
-    r = np.sqrt(r2)
-    theta = np.arctan(r)
-    return xy * _kb_scale(theta, r, dist)[..., None]
+    radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))
+    xd = x * radial + 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x)
+    yd = y * radial + d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y
+    return np.stack([xd, yd], axis=-1)
 
 
-def _kb_theta_d(theta: np.ndarray, d: KannalaBrandt) -> np.ndarray:
-    t2 = theta * theta
-    return theta * (1.0 + t2 * (d.k1 + t2 * (d.k2 + t2 * (d.k3 + t2 * d.k4))))
-
-
-def _kb_scale(theta: np.ndarray, r: np.ndarray, d: KannalaBrandt) -> np.ndarray:
-    """theta_d / r, with its limit 1 at r -> 0."""
+def _bc_project(points: np.ndarray, d: BrownConrady) -> np.ndarray:
+    """Pinhole (eq. 3.1; NaN for z <= 0), then eq. 3.4."""
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
-        s = _kb_theta_d(theta, d) / r
-    return np.where(r > 1e-12, s, 1.0)
+        xy = np.stack([x / z, y / z], axis=-1)
+    xy = np.where((z > 0)[..., None], xy, np.nan)
+    return _bc_distort(xy, d)
 
 
 def _brown_jacobian(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> tuple[np.ndarray, ...]:
@@ -214,150 +262,37 @@ def _brown_jacobian(x: np.ndarray, y: np.ndarray, d: BrownConrady) -> tuple[np.n
     return j11, j12, j21, j22
 
 
-# ---------------------------------------------------------------- forward projection
-def project_normalized(xy: np.ndarray, cam: CameraModel) -> np.ndarray:
-    """Undistorted normalised coordinates (..., 2) -> pixels (..., 2) (eq. 3.2-3.4)."""
-    return to_pixels(distort(xy, cam.distortion), cam.intrinsics)
+def _bc_newton_error(xy, xy_d, dist_xy, d: BrownConrady, f: float) -> np.ndarray:
+    """J^-1 times the residual in distorted coordinates, times f; inf where J is singular."""
+    rx, ry = dist_xy[..., 0] - xy_d[..., 0], dist_xy[..., 1] - xy_d[..., 1]
+    j11, j12, j21, j22 = _brown_jacobian(xy[..., 0], xy[..., 1], d)
+    det = j11 * j22 - j12 * j21
+    error = np.hypot(j22 * rx - j12 * ry, -j21 * rx + j11 * ry) / np.abs(det) * f
+    return np.where(det > 0, error, np.inf)
 
 
-def project_points(points: np.ndarray, cam: CameraModel) -> np.ndarray:
-    """3-D points in the camera frame (..., 3) -> pixels (..., 2) (eq. 3.1-3.4).
-
-    Points with z <= 0 give NaN for the pinhole model. The fisheye model projects any direction
-    up to its fold angle (incidence angle from atan2, so rays at or past 90 deg are allowed).
-    """
-    points = _check_last_dim(points, 3, "points").astype(np.float64, copy=False)
-    x, y, z = points[..., 0], points[..., 1], points[..., 2]
-    if isinstance(cam.distortion, KannalaBrandt):
-        r = np.hypot(x, y)
-        theta = np.arctan2(r, z)
-        theta_d = _kb_theta_d(theta, cam.distortion)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            scale = np.where(r > 1e-300, theta_d / r, 0.0)
-        xy_d = np.stack([x * scale, y * scale], axis=-1)
-        xy_d = np.where((theta < cam.distortion.theta_fold())[..., None], xy_d, np.nan)
-        return to_pixels(xy_d, cam.intrinsics)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        xy = np.stack([x / z, y / z], axis=-1)
-    xy = np.where((z > 0)[..., None], xy, np.nan)
-    return project_normalized(xy, cam)
+def _bc_beyond_fold(r: np.ndarray, d: BrownConrady) -> np.ndarray:
+    return r >= d.radial_fold()
 
 
-# ---------------------------------------------------------------- backward projection
-def _result(cam: CameraModel, pixels: np.ndarray, xy: np.ndarray, status: np.ndarray, tol_px: float, iters: int) -> Unprojection:
-    """Measure the solution and finish its status.
-
-    ``residual_px`` is the reprojection residual. Validity is judged on ``error_px``, the Newton
-    correction the solution still needs (J^-1 times the residual in distorted coordinates, or
-    d(theta) for the fisheye) times the focal length: near the fold J is nearly singular, so a
-    tiny reprojection residual can hide a large error in the ray, and only this measure sees it.
-    """
-    d = cam.distortion
-    f = max(cam.intrinsics.fx, cam.intrinsics.fy)
-    xy_d = from_pixels(pixels, cam.intrinsics)
+def _bc_undistort_fixed(xy_d: np.ndarray, d: BrownConrady, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Heikkila's iteration, eq. 3.8-3.11, from p_n = p_d."""
     with np.errstate(all="ignore"):
-        dist_xy = distort(xy, d)
-        reproj = to_pixels(dist_xy, cam.intrinsics)
-        residual = np.hypot(reproj[..., 0] - pixels[..., 0], reproj[..., 1] - pixels[..., 1])
-        rx, ry = dist_xy[..., 0] - xy_d[..., 0], dist_xy[..., 1] - xy_d[..., 1]
-        if isinstance(d, BrownConrady):
-            j11, j12, j21, j22 = _brown_jacobian(xy[..., 0], xy[..., 1], d)
-            det = j11 * j22 - j12 * j21
-            error = np.hypot(j22 * rx - j12 * ry, -j21 * rx + j11 * ry) / np.abs(det) * f
-            error = np.where(det > 0, error, np.inf)
-        else:
-            theta = np.arctan(np.hypot(xy[..., 0], xy[..., 1]))
-            t2 = theta * theta
-            slope = 1.0 + t2 * (3 * d.k1 + t2 * (5 * d.k2 + t2 * (7 * d.k3 + t2 * 9 * d.k4)))
-            error = np.abs(_kb_theta_d(theta, d) - np.hypot(xy_d[..., 0], xy_d[..., 1])) / slope * f
-            error = np.where(slope > 0, error, np.inf)
-    status = status.copy()
-    status[~np.isfinite(residual) & (status == UnprojectStatus.OK)] = UnprojectStatus.NOT_FINITE
-    status[(status == UnprojectStatus.OK) & ~(error <= tol_px)] = UnprojectStatus.NOT_CONVERGED
-    valid = status == UnprojectStatus.OK
-    residual = np.where(np.isfinite(residual), residual, np.inf)
-    error = np.where(np.isfinite(error), error, np.inf)
-    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, error, status, iters)
+        xd, yd = xy_d[..., 0], xy_d[..., 1]
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            r2 = x * x + y * y  # step 1 (eq. 3.8)
+            dr = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))  # step 2 (eq. 3.9)
+            dtx = 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x)  # step 3 (eq. 3.10)
+            dty = d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y
+            x, y = (xd - dtx) / dr, (yd - dty) / dr  # step 4 (eq. 3.11)
+        xy = np.stack([x, y], axis=-1)
+    return xy, _fold_status(xy, d)
 
 
-def _fold_status(xy: np.ndarray, dist: Distortion) -> np.ndarray:
-    status = np.full(xy.shape[:-1], UnprojectStatus.OK, dtype=np.uint8)
-    r = np.hypot(xy[..., 0], xy[..., 1])
-    if isinstance(dist, BrownConrady):
-        status[r >= dist.radial_fold()] = UnprojectStatus.BEYOND_FOLD
-    else:
-        status[np.arctan(r) >= dist.theta_fold()] = UnprojectStatus.BEYOND_FOLD
-    status[~np.isfinite(r)] = UnprojectStatus.NOT_FINITE
-    return status
-
-
-def undistort_fixed(pixels: np.ndarray, cam: CameraModel, iterations: int = 5, tol_px: float = 0.01) -> Unprojection:
-    """Heikkila's fixed-iteration backward projection, eq. 3.5-3.11 (thesis: 5 iterations).
-
-    Runs exactly ``iterations`` steps of  p_n <- (p_d - d_t(p_n)) / d_r(p_n)  from p_n = p_d.
-    For the fisheye model the same fixed-point idea is applied to theta = theta_d / (1 + ...).
-    Unlike the thesis (and OpenCV/kornia; docs/thesis-notes.md N15), the result is checked: a point whose estimated error
-    (see :class:`Unprojection`) exceeds ``tol_px`` is returned invalid, never as a wrong point.
-    """
-    if iterations < 1:
-        raise ValueError(f"iterations must be >= 1, got {iterations}")
-    pixels = _check_last_dim(pixels, 2, "pixels").astype(np.float64, copy=False)
-    xy_d = from_pixels(pixels, cam.intrinsics)
+def _bc_undistort_robust(pixels, xy_d, cam: CameraModel, tol, tol_px, max_iterations) -> Unprojection:
+    """Damped Newton with the 2x2 Jacobian of eq. 3.4 (see :func:`undistort_robust`)."""
     d = cam.distortion
-    with np.errstate(all="ignore"):
-        if isinstance(d, BrownConrady):
-            xd, yd = xy_d[..., 0], xy_d[..., 1]
-            x, y = xd.copy(), yd.copy()
-            for _ in range(iterations):
-                r2 = x * x + y * y  # step 1 (eq. 3.8)
-                dr = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3))  # step 2 (eq. 3.9)
-                dtx = 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x)  # step 3 (eq. 3.10)
-                dty = d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y
-                x, y = (xd - dtx) / dr, (yd - dty) / dr  # step 4 (eq. 3.11)
-            xy = np.stack([x, y], axis=-1)
-        else:
-            theta_d = np.hypot(xy_d[..., 0], xy_d[..., 1])
-            theta = theta_d.copy()
-            for _ in range(iterations):
-                t2 = theta * theta
-                theta = theta_d / (1.0 + t2 * (d.k1 + t2 * (d.k2 + t2 * (d.k3 + t2 * d.k4))))
-            xy = _fisheye_xy(xy_d, theta_d, theta)
-    status = _fold_status(xy, d)
-    if isinstance(d, KannalaBrandt):
-        status[(theta >= np.pi / 2) & (status == UnprojectStatus.OK)] = UnprojectStatus.BEYOND_90_DEG
-    return _result(cam, pixels, xy, status, tol_px, iterations)
-
-
-def _fisheye_xy(xy_d: np.ndarray, theta_d: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Normalised point at incidence angle theta along the azimuth of xy_d."""
-    with np.errstate(all="ignore"):
-        scale = np.where(theta_d > 1e-15, np.tan(theta) / theta_d, 1.0)
-        xy = xy_d * scale[..., None]
-    return np.where((theta < np.pi / 2)[..., None], xy, np.nan)
-
-
-def undistort_robust(
-    pixels: np.ndarray, cam: CameraModel, tol_px: float = DEFAULT_TOL_PX, max_iterations: int = 50
-) -> Unprojection:
-    """Backward projection to a stated tolerance, with per-point convergence and residual.
-
-    Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
-    fisheye), warm-started by three Heikkila steps (or at p_d, pulled inside the fold, where
-    those land outside it), with step halving whenever a step does not reduce the residual.
-    A point stops iterating once its full Newton step, times the focal length, is below
-    ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
-    near a fold it is much larger than the reprojection residual. A solution is valid only if it
-    converged *and* lies inside the radial fold, where the forward model is one-to-one.
-    """
-    if tol_px <= 0:
-        raise ValueError(f"tol_px must be positive, got {tol_px}")
-    pixels = _check_last_dim(pixels, 2, "pixels").astype(np.float64, copy=False)
-    xy_d = from_pixels(pixels, cam.intrinsics)
-    d = cam.distortion
-    scale_px = max(cam.intrinsics.fx, cam.intrinsics.fy)
-    tol = tol_px / scale_px / 4  # iterate a little past the pixel tolerance
-    if isinstance(d, KannalaBrandt):
-        return _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations)
     shape = xy_d.shape[:-1]
     xd, yd = xy_d[..., 0].ravel(), xy_d[..., 1].ravel()
     fold = d.radial_fold()
@@ -424,7 +359,97 @@ def _residual_xy(x, y, xd, yd, d: BrownConrady):
     return ex, ey
 
 
-def _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations) -> Unprojection:
+def _bc_opencv_project(points, rvec, tvec, k, d) -> np.ndarray:
+    import cv2
+
+    return cv2.projectPoints(points.astype(np.float64), rvec, tvec, k, d)[0].reshape(-1, 2)
+
+
+def _bc_opencv_undistort(pixels, k, d, criteria) -> np.ndarray:
+    import cv2
+
+    fn = getattr(cv2, "undistortPointsIter", None)  # OpenCV 4 name; OpenCV 5 takes criteria in undistortPoints
+    if fn:
+        return fn(pixels.reshape(-1, 1, 2), k, d, None, None, criteria=criteria).reshape(pixels.shape)
+    return cv2.undistortPoints(pixels.reshape(-1, 1, 2), k, d, criteria=criteria).reshape(pixels.shape)
+
+
+# ---------------------------------------------------------------- Kannala-Brandt (eq. A.18)
+def _kb_theta_d(theta: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    t2 = theta * theta
+    return theta * (1.0 + t2 * (d.k1 + t2 * (d.k2 + t2 * (d.k3 + t2 * d.k4))))
+
+
+def _kb_slope(theta: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    """d(theta_d)/d(theta)."""
+    t2 = theta * theta
+    return 1.0 + t2 * (3 * d.k1 + t2 * (5 * d.k2 + t2 * (7 * d.k3 + t2 * 9 * d.k4)))
+
+
+def _kb_scale(theta: np.ndarray, r: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    """theta_d / r, with its limit 1 at r -> 0."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = _kb_theta_d(theta, d) / r
+    return np.where(r > 1e-12, s, 1.0)
+
+
+def _kb_distort(xy: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    """A normalised point at incidence angle theta = atan(r) moved to radius theta_d."""
+    x, y = xy[..., 0], xy[..., 1]
+    r = np.sqrt(x * x + y * y)
+    theta = np.arctan(r)
+    return xy * _kb_scale(theta, r, d)[..., None]
+
+
+def _kb_project(points: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    """Any direction up to the fold angle (incidence angle from atan2, so rays at or past 90 deg
+    are imaged); NaN past the fold."""
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    r = np.hypot(x, y)
+    theta = np.arctan2(r, z)
+    theta_d = _kb_theta_d(theta, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(r > 1e-300, theta_d / r, 0.0)
+    xy_d = np.stack([x * scale, y * scale], axis=-1)
+    return np.where((theta < d.theta_fold())[..., None], xy_d, np.nan)
+
+
+def _kb_newton_error(xy, xy_d, dist_xy, d: KannalaBrandt, f: float) -> np.ndarray:
+    """The Newton correction d(theta) the solution still needs, times f; inf where the slope is not positive."""
+    theta = np.arctan(np.hypot(xy[..., 0], xy[..., 1]))
+    slope = _kb_slope(theta, d)
+    error = np.abs(_kb_theta_d(theta, d) - np.hypot(xy_d[..., 0], xy_d[..., 1])) / slope * f
+    return np.where(slope > 0, error, np.inf)
+
+
+def _kb_beyond_fold(r: np.ndarray, d: KannalaBrandt) -> np.ndarray:
+    return np.arctan(r) >= d.theta_fold()
+
+
+def _fisheye_xy(xy_d: np.ndarray, theta_d: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Normalised point at incidence angle theta along the azimuth of xy_d."""
+    with np.errstate(all="ignore"):
+        scale = np.where(theta_d > 1e-15, np.tan(theta) / theta_d, 1.0)
+        xy = xy_d * scale[..., None]
+    return np.where((theta < np.pi / 2)[..., None], xy, np.nan)
+
+
+def _kb_undistort_fixed(xy_d: np.ndarray, d: KannalaBrandt, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fixed-point idea of eq. 3.11 on the angle: theta = theta_d / (1 + k1 theta^2 + ...)."""
+    with np.errstate(all="ignore"):
+        theta_d = np.hypot(xy_d[..., 0], xy_d[..., 1])
+        theta = theta_d.copy()
+        for _ in range(iterations):
+            t2 = theta * theta
+            theta = theta_d / (1.0 + t2 * (d.k1 + t2 * (d.k2 + t2 * (d.k3 + t2 * d.k4))))
+        xy = _fisheye_xy(xy_d, theta_d, theta)
+    status = _fold_status(xy, d)
+    status[(theta >= np.pi / 2) & (status == UnprojectStatus.OK)] = UnprojectStatus.BEYOND_90_DEG
+    return xy, status
+
+
+def _kb_undistort_robust(pixels, xy_d, cam: CameraModel, tol, tol_px, max_iterations) -> Unprojection:
+    """1-D Newton on theta, kept inside the fold angle (see :func:`undistort_robust`)."""
     d: KannalaBrandt = cam.distortion
     theta_d = np.hypot(xy_d[..., 0], xy_d[..., 1])
     fold = min(d.theta_fold(), np.pi)
@@ -432,9 +457,8 @@ def _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations) ->
     it = 0
     with np.errstate(all="ignore"):
         for it in range(1, max_iterations + 1):
-            t2 = theta * theta
             f = _kb_theta_d(theta, d) - theta_d
-            df = 1.0 + t2 * (3 * d.k1 + t2 * (5 * d.k2 + t2 * (7 * d.k3 + t2 * 9 * d.k4)))
+            df = _kb_slope(theta, d)
             step = np.where(df > 0, f / df, 0.0)
             theta_new = np.clip(theta - step, 0.0, fold)
             done = np.abs(theta_new - theta) < tol
@@ -447,6 +471,126 @@ def _undistort_robust_fisheye(pixels, xy_d, cam, tol, tol_px, max_iterations) ->
     status[(theta >= np.pi / 2) & (status == UnprojectStatus.OK)] = UnprojectStatus.BEYOND_90_DEG
     status[~np.isfinite(theta_d)] = UnprojectStatus.NOT_FINITE
     return _result(cam, pixels, xy, status, tol_px, it)
+
+
+def _kb_opencv_project(points, rvec, tvec, k, d) -> np.ndarray:
+    import cv2
+
+    return cv2.fisheye.projectPoints(points.reshape(1, -1, 3).astype(np.float64), np.asarray(rvec, float).reshape(3, 1),
+                                     np.asarray(tvec, float).reshape(3, 1), k, d)[0].reshape(-1, 2)
+
+
+def _kb_opencv_undistort(pixels, k, d, criteria) -> np.ndarray:
+    import cv2
+
+    return cv2.fisheye.undistortPoints(pixels.reshape(-1, 1, 2), k, d, criteria=criteria).reshape(pixels.shape)
+
+
+#: The lens models, by name. Adding one: its coefficient dataclass (add it to ``Distortion``),
+#: its functions and one row here; tests/test_lens_models.py then checks it against OpenCV.
+LENS_MODELS: dict[str, LensModel] = {m.name: m for m in (
+    LensModel("brown-conrady", BrownConrady, ("k1", "k2", "p1", "p2", "k3"), _bc_distort, _bc_project,
+              _bc_undistort_fixed, _bc_undistort_robust, _bc_beyond_fold, _bc_newton_error, _bc_opencv_project,
+              _bc_opencv_undistort),
+    LensModel("kannala-brandt", KannalaBrandt, ("k1", "k2", "k3", "k4"), _kb_distort, _kb_project,
+              _kb_undistort_fixed, _kb_undistort_robust, _kb_beyond_fold, _kb_newton_error, _kb_opencv_project,
+              _kb_opencv_undistort),
+)}
+_BY_TYPE = {m.distortion: m for m in LENS_MODELS.values()}
+
+
+# ---------------------------------------------------------------- forward projection
+def distort(xy: np.ndarray, dist: Distortion) -> np.ndarray:
+    """Undistorted normalised -> distorted normalised coordinates (eq. 3.4, or the fisheye model)."""
+    xy = _check_last_dim(xy, 2, "xy").astype(np.float64, copy=False)
+    return lens_model(dist).distort(xy, dist)
+
+
+def project_normalized(xy: np.ndarray, cam: CameraModel) -> np.ndarray:
+    """Undistorted normalised coordinates (..., 2) -> pixels (..., 2) (eq. 3.2-3.4)."""
+    return to_pixels(distort(xy, cam.distortion), cam.intrinsics)
+
+
+def project_points(points: np.ndarray, cam: CameraModel) -> np.ndarray:
+    """3-D points in the camera frame (..., 3) -> pixels (..., 2) (eq. 3.1-3.4).
+
+    Points with z <= 0 give NaN for the pinhole model. The fisheye model projects any direction
+    up to its fold angle (incidence angle from atan2, so rays at or past 90 deg are allowed).
+    """
+    points = _check_last_dim(points, 3, "points").astype(np.float64, copy=False)
+    return to_pixels(lens_model(cam.distortion).project(points, cam.distortion), cam.intrinsics)
+
+
+# ---------------------------------------------------------------- backward projection
+def _result(cam: CameraModel, pixels: np.ndarray, xy: np.ndarray, status: np.ndarray, tol_px: float, iters: int) -> Unprojection:
+    """Measure the solution and finish its status.
+
+    ``residual_px`` is the reprojection residual. Validity is judged on ``error_px``, the Newton
+    correction the solution still needs (J^-1 times the residual in distorted coordinates, or
+    d(theta) for the fisheye) times the focal length: near the fold J is nearly singular, so a
+    tiny reprojection residual can hide a large error in the ray, and only this measure sees it.
+    """
+    d = cam.distortion
+    f = max(cam.intrinsics.fx, cam.intrinsics.fy)
+    xy_d = from_pixels(pixels, cam.intrinsics)
+    with np.errstate(all="ignore"):
+        dist_xy = distort(xy, d)
+        reproj = to_pixels(dist_xy, cam.intrinsics)
+        residual = np.hypot(reproj[..., 0] - pixels[..., 0], reproj[..., 1] - pixels[..., 1])
+        error = lens_model(d).newton_error(xy, xy_d, dist_xy, d, f)
+    status = status.copy()
+    status[~np.isfinite(residual) & (status == UnprojectStatus.OK)] = UnprojectStatus.NOT_FINITE
+    status[(status == UnprojectStatus.OK) & ~(error <= tol_px)] = UnprojectStatus.NOT_CONVERGED
+    valid = status == UnprojectStatus.OK
+    residual = np.where(np.isfinite(residual), residual, np.inf)
+    error = np.where(np.isfinite(error), error, np.inf)
+    return Unprojection(np.where(valid[..., None], xy, np.nan), valid, residual, error, status, iters)
+
+
+def _fold_status(xy: np.ndarray, dist: Distortion) -> np.ndarray:
+    status = np.full(xy.shape[:-1], UnprojectStatus.OK, dtype=np.uint8)
+    r = np.hypot(xy[..., 0], xy[..., 1])
+    status[lens_model(dist).beyond_fold(r, dist)] = UnprojectStatus.BEYOND_FOLD
+    status[~np.isfinite(r)] = UnprojectStatus.NOT_FINITE
+    return status
+
+
+def undistort_fixed(pixels: np.ndarray, cam: CameraModel, iterations: int = 5, tol_px: float = 0.01) -> Unprojection:
+    """Heikkila's fixed-iteration backward projection, eq. 3.5-3.11 (thesis: 5 iterations).
+
+    Runs exactly ``iterations`` steps of  p_n <- (p_d - d_t(p_n)) / d_r(p_n)  from p_n = p_d.
+    For the fisheye model the same fixed-point idea is applied to theta = theta_d / (1 + ...).
+    Unlike the thesis (and OpenCV/kornia; docs/thesis-notes.md N15), the result is checked: a point whose estimated error
+    (see :class:`Unprojection`) exceeds ``tol_px`` is returned invalid, never as a wrong point.
+    """
+    if iterations < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations}")
+    pixels = _check_last_dim(pixels, 2, "pixels").astype(np.float64, copy=False)
+    xy_d = from_pixels(pixels, cam.intrinsics)
+    xy, status = lens_model(cam.distortion).undistort_fixed(xy_d, cam.distortion, iterations)
+    return _result(cam, pixels, xy, status, tol_px, iterations)
+
+
+def undistort_robust(
+    pixels: np.ndarray, cam: CameraModel, tol_px: float = DEFAULT_TOL_PX, max_iterations: int = 50
+) -> Unprojection:
+    """Backward projection to a stated tolerance, with per-point convergence and residual.
+
+    Damped Newton on  distort(p_n) = p_d  (2x2 Jacobian of eq. 3.4; 1-D Newton on theta for the
+    fisheye), warm-started by three Heikkila steps (or at p_d, pulled inside the fold, where
+    those land outside it), with step halving whenever a step does not reduce the residual.
+    A point stops iterating once its full Newton step, times the focal length, is below
+    ``tol_px`` / 4: that step is the error estimate validity is judged on (:func:`_result`), and
+    near a fold it is much larger than the reprojection residual. A solution is valid only if it
+    converged *and* lies inside the radial fold, where the forward model is one-to-one.
+    """
+    if tol_px <= 0:
+        raise ValueError(f"tol_px must be positive, got {tol_px}")
+    pixels = _check_last_dim(pixels, 2, "pixels").astype(np.float64, copy=False)
+    xy_d = from_pixels(pixels, cam.intrinsics)
+    scale_px = max(cam.intrinsics.fx, cam.intrinsics.fy)
+    tol = tol_px / scale_px / 4  # iterate a little past the pixel tolerance
+    return lens_model(cam.distortion).undistort_robust(pixels, xy_d, cam, tol, tol_px, max_iterations)
 
 
 def unproject(pixels: np.ndarray, cam: CameraModel, method: str = "robust", **kwargs) -> Unprojection:

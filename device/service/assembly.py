@@ -9,8 +9,9 @@ the simulated hardware of device/sim:
 * the Pi's clock and the co-MCU: the shipped firmware ELF in the simavr harness behind a pty
   (device/sim/hardware.py's SimulatedHardware), opened by CoMcu through pyserial as on a Pi.
 
-Operating point (both): 20 frames/s, every other frame lit (docs/thesis-notes.md N10), so 10 scans/s; exposure
-``EXPOSURE_US``; the range limits ``RANGE_M`` narrow the region of interest (rows where the line
+Operating point (both), from the configuration's ``[operating_point]`` (device/config.py): by
+default 20 frames/s, every other frame lit (docs/thesis-notes.md N10), so 10 scans/s; the
+exposure and analogue gain; the depth range narrows the region of interest (rows where the line
 can land) and so the pulse, which must fit the firmware's compiled-in eye-safety envelope.
 """
 
@@ -35,12 +36,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-SCAN_RATE_HZ = 10.0
-FRAME_DURATION_S = 0.5 / SCAN_RATE_HZ  # a lit and an unlit frame per scan
-EXPOSURE_US = 9200.0
-RANGE_M = (0.4, 3.2)
 PIPELINE = "fast-com-track"
-ANALOG_GAIN = 4.0  # analogue gain, on a Pi and simulated (device/sim/sensor.py): at 1 the 3 m line is a few 8-bit levels (1.0 % at 3 m); 4 and 8 give 0.4 %
 COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
 
 
@@ -54,7 +50,7 @@ def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.0
     (device/model/safety.py, eq. 3.45 with the thesis's 1 cm closest eye)."""
     from device.model.safety import PulsedLineLaser, max_power_w
 
-    laser = PulsedLineLaser(cfg.laser.wavelength_m * 1e9, pulse_s, SCAN_RATE_HZ, cfg.laser.fan_angle_rad,
+    laser = PulsedLineLaser(cfg.laser.wavelength_m * 1e9, pulse_s, cfg.operating_point.scan_rate_hz, cfg.laser.fan_angle_rad,
                             cfg.laser.line_height_m, cfg.laser.source_diameter_m)
     return 1e3 * max_power_w(laser, closest_eye_m)
 
@@ -101,7 +97,9 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     from device.vision.pipelines import make_pipeline
 
     cfg = sensor_config(setup.config_path, setup.preset)
-    pipeline = make_pipeline(PIPELINE, cfg, *RANGE_M)
+    op = cfg.operating_point  # scan rate, exposure, gain, depth range ([operating_point])
+    frame_duration_s = 0.5 / op.scan_rate_hz  # a lit and an unlit frame per scan
+    pipeline = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
     count = setup.points or cfg.active_width or cfg.width
     scan = ScanPipeline(pipeline, count)
     g = pipeline.geometry
@@ -111,8 +109,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     # it, i.e. a scan). Exposure + ROI span + 2 x 1.3 x the 2 ms guard ceiling = 17.3 ms stays
     # inside the firmware's 17.4 ms pulse envelope.
     # (SyncConfig's PING/PONG minimum line times default to device.laser.comcu's 250000 baud.)
-    sync = SyncConfig(row_min, row_max, FRAME_DURATION_S, cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
-    pulse_s = EXPOSURE_US * 1e-6 + (row_max - row_min) * 18904e-9
+    sync = SyncConfig(row_min, row_max, frame_duration_s, cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
+    pulse_s = op.exposure_us * 1e-6 + (row_max - row_min) * cfg.window.mode.line_time_s
     limit = laser_limit_mw(cfg, max(pulse_s, cfg.laser.pulse_s))
     closers = []
     if setup.simulate:
@@ -124,9 +122,9 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         spec = f"wall:distance={setup.distance_m:g}" if setup.scene == "wall" else setup.scene
         hw = SimulatedHardware(seed=setup.seed)
         closers.append(hw.close)
-        timing = CameraTimingConfig(frame_duration_s=FRAME_DURATION_S, exposure_s=EXPOSURE_US * 1e-6)
+        timing = CameraTimingConfig(frame_duration_s=frame_duration_s, exposure_s=op.exposure_us * 1e-6)
         camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,
-                                 sensor=SensorParams(analog_gain=ANALOG_GAIN), hardware=hw)
+                                 sensor=SensorParams(analog_gain=op.analog_gain), hardware=hw)
         laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
@@ -142,7 +140,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         if importlib.util.find_spec("picamera2") is None:
             raise RuntimeError("no camera: picamera2 is not installed (on a Pi: sudo apt install python3-picamera2); "
                                "use --simulate to run the simulated sensor here")
-        camera = Picamera2Camera(exposure_us=EXPOSURE_US, frame_duration_us=FRAME_DURATION_S * 1e6, analogue_gain=ANALOG_GAIN)
+        camera = Picamera2Camera(exposure_us=op.exposure_us, frame_duration_us=frame_duration_s * 1e6,
+                                 analogue_gain=op.analog_gain, window=cfg.window)
 
         def open_comcu():
             try:
@@ -153,10 +152,10 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
         clock = time.monotonic
         faults, hw = {}, None
-    geometry = ScanGeometry(scan.angles.astype(np.float32), *RANGE_M)
+    geometry = ScanGeometry(scan.angles.astype(np.float32), op.min_m, op.max_m)
     source = SensorSource(camera, laser, scan, geometry, clock=clock)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
-    settings = m.ScanSettings(scan_rate_hz=SCAN_RATE_HZ, exposure_us=int(EXPOSURE_US), roi_first=0, roi_count=count,
+    settings = m.ScanSettings(scan_rate_hz=op.scan_rate_hz, exposure_us=int(op.exposure_us), roi_first=0, roi_count=count,
                               median_window=1, min_quality=0, laser_power_mw=power_mw)
     log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
              cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if setup.simulate else "on a Pi")

@@ -3,13 +3,15 @@
 What is modelled (and why):
 
 - **Line time.** Mode 5 (1640x922, 2x2 binned) reads one row in 18904 ns (thesis Table B.3;
-  the same figure follows from the IMX219 driver's line length of 3448 pixels at 182.4 MHz).
+  the IMX219 driver's line length of 3448 pixels at 182.4 MHz, device/camera/modes.py).
   922 rows therefore take 17.43 ms to read, the "17.4 ms" capture time of Table B.3.
 - **Rolling shutter.** ``T`` is the start of the readout of row 0 (libcamera's SensorTimestamp);
   row ``r`` is exposed during ``[T - E + r*line_time, T + r*line_time]``.
 - **Frame duration control** is quantised to whole lines (frame length lines, at least the active
   rows plus ``vblank_min_lines``), exposure too (coarse integration time, at most the frame
-  length minus 4 lines). Changes take effect ``control_delay_frames`` = 2 frames after the frame
+  length minus 4 lines). The floor counts the image's 922 rows, as the thesis's sensor-cropped
+  mode 5 read them; the 1640x1232 mode picamera2 runs reads all 1232 (its
+  ``SensorMode.min_frame_lines``), which matters only above 41.85 frames/s. Changes take effect ``control_delay_frames`` = 2 frames after the frame
   the controller last saw, as libcamera's sensor delays for the IMX219 (exposure and vertical
   blanking delay 2). The thesis observed this delay as a lag in the step response (Figure 5.3).
 - **Camera oscillator** error ``clock_ppm`` against CLOCK_MONOTONIC: every duration of the
@@ -33,19 +35,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-LINE_TIME_MODE5_S = 18904e-9
-ACTIVE_ROWS_MODE5 = 922
-VBLANK_MIN_LINES = 32
-EXPOSURE_MARGIN_LINES = 4
+from ..camera.modes import IMX219_EXPOSURE_MARGIN_LINES, IMX219_VBLANK_MIN_LINES, MODE5
 
 
 @dataclass(frozen=True)
 class CameraTimingConfig:
+    """The simulated camera's timing; the defaults are the thesis's mode 5 (device/camera/modes.py MODE5)."""
+
     frame_duration_s: float = 0.05
     exposure_s: float = 0.005
-    line_time_s: float = LINE_TIME_MODE5_S
-    active_rows: int = ACTIVE_ROWS_MODE5
-    vblank_min_lines: int = VBLANK_MIN_LINES
+    line_time_s: float = MODE5.mode.line_time_s
+    active_rows: int = MODE5.height
+    vblank_min_lines: int = IMX219_VBLANK_MIN_LINES
     control_delay_frames: int = 2
     clock_ppm: float = 0.0
     timestamp_jitter_s: float = 10e-6
@@ -86,7 +87,7 @@ def quantise_frame_duration(duration_s: float, exposure_s: float, cfg: CameraTim
     """Frame length in lines that the sensor uses for a requested frame duration."""
     lines = int(round(duration_s / cfg.line_time_s))
     exposure_lines = int(round(exposure_s / cfg.line_time_s))
-    return max(lines, cfg.active_rows + cfg.vblank_min_lines, exposure_lines + EXPOSURE_MARGIN_LINES)
+    return max(lines, cfg.active_rows + cfg.vblank_min_lines, exposure_lines + IMX219_EXPOSURE_MARGIN_LINES)
 
 
 class CameraClock:
@@ -143,7 +144,7 @@ class CameraClock:
                 else:
                     keep.append(p)
             self._pending = keep
-        self._exp_lines = min(self._exp_lines, self._fll - EXPOSURE_MARGIN_LINES)
+        self._exp_lines = min(self._exp_lines, self._fll - IMX219_EXPOSURE_MARGIN_LINES)
         lt = self.cfg.line_time_s * self._scale
         duration = self._fll * lt
         self._t += duration

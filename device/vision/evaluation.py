@@ -51,7 +51,7 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
         raise ValueError(f"count must be >= 1, got {count}")
     frame_us = 50000.0
     start_ns = 1_000_000_000
-    cam_line_ns = 18904.0
+    cam_line_ns = config.window.mode.line_time_ns
     pulse = config.laser.pulse_s * 1e6 if pulse_us is None else pulse_us
     train = frame_aligned_train(start_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
     cam = SimulatedCamera(config, get_scene(scene_spec), train, exposure_us=exposure_us, frame_duration_us=frame_us,

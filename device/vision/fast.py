@@ -68,7 +68,7 @@ from ..config import SensorConfig
 from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .kernel import columns_kernel
-from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks
+from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
 
 #: Rows per block of the candidate search (``BLOCK_ROWS`` in _columns.c, which also fixes the
 #: detection blur at 5 columns x 3 rows).
@@ -169,7 +169,7 @@ class FastPipeline:
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
                                 params.jump_factor, params.min_peak, params.min_run, params.smooth_half,
                                 params.support_half, params.max_gap)
-        self._pad = max(params.half_width, 3)  # zero rows around the difference: every estimator's reach
+        self._pad = rows_read(params.estimator, params.half_width)  # zero rows around the difference
         # image-sized temporaries kept between frame pairs (a search uses their first rows): one
         # allocated per frame costs page faults whenever the allocator returns it to the system
         W = config.width

@@ -35,9 +35,35 @@ import numpy as np
 
 from .kernel import columns_kernel
 
-ESTIMATORS = ("com", "gaussian", "parabolic", "blais-rioux")
+
+@dataclass(frozen=True)
+class Estimator:
+    """One sub-pixel estimator of :data:`ESTIMATORS`. ``reach``: rows each side of the integer
+    maximum its own formula reads. The centre of mass reads its window, ``half_width`` rows each
+    side, which every estimator reads anyway (the spread, the flat-top refinement), so its own
+    reach is 0; :func:`rows_read` adds the window and the flat-top test."""
+
+    reach: int
+
+
+#: The sub-pixel estimators by name (the module docstring describes each).
+ESTIMATORS = {
+    "com": Estimator(reach=0),
+    "gaussian": Estimator(reach=1),  # f(k-1), f(k), f(k+1)
+    "parabolic": Estimator(reach=1),
+    "blais-rioux": Estimator(reach=3),  # g(k-1..k+1), each from f(i-2..i+2)
+}
+#: Rows after the maximum that the flat-top test reads (two more equal samples), for every estimator.
+PLATEAU_PROBE = 2
 #: Rows looked ahead per step when walking along a flat top (a saturated line is a few rows high).
 PLATEAU_STEP = 8
+
+
+def rows_read(estimator: str, half_width: int) -> int:
+    """Rows each side of a candidate that :func:`refine_peaks` reads with ``estimator`` (besides a
+    flat top's walk): its reach, the centre-of-mass window and the flat-top test. An image padded
+    with this many zero rows above and below needs no clamping (device.vision.fast)."""
+    return max(ESTIMATORS[estimator].reach, half_width, PLATEAU_PROBE)
 
 
 @dataclass(frozen=True)
@@ -174,9 +200,9 @@ def refine_peaks(
     cols = np.arange(width)
     empty = (hi <= lo) | (k < lo) | (k >= hi)
     k = np.where(empty, -1, k)
-    # one gather of every sample any estimator needs: rows k-reach..k+reach (fewer, larger
+    # one gather of every sample the estimator needs: rows k-reach..k+reach (fewer, larger
     # numpy calls than one gather per offset)
-    reach = max(half_width, 3 if estimator == "blais-rioux" else 2)
+    reach = rows_read(estimator, half_width)
     kk = np.maximum(k, 0)
     r = kk[None, :] + np.arange(-reach, reach + 1)[:, None]
     inside = (r >= lo) & (r < hi)
@@ -219,7 +245,7 @@ def refine_com_padded(padded: np.ndarray, pad: int, argmax: np.ndarray, cols: np
                       row_hi: np.ndarray, half_width: int = 4) -> ColumnPeaks:
     """:func:`refine_peaks` with ``estimator="com"``, ``pedestal=0``, ``background=0``,
     ``min_peak=1`` and ``plateau_min=255`` for columns ``cols`` of a uint8 image that is stored
-    as ``padded[pad:-pad]`` with ``pad >= max(half_width, 2)`` zero rows above and below it and
+    as ``padded[pad:-pad]`` with ``pad >= rows_read("com", half_width)`` zero rows above and below it and
     zeros outside each column's rows ``[row_lo, row_hi)`` (given per column of ``cols``, within
     the image): identical results, much cheaper. With those zeros the window needs no clamping
     or masking, and the moments of 8-bit samples are exact integers. Computed by the compiled
