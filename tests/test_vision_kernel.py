@@ -1,6 +1,6 @@
-"""The fast pipeline's compiled kernel (device/vision/_columns.c) on its own: its image passes
-against the OpenCV operations they fuse, its helpers against plain definitions, and clear errors
-for bad arguments. The pipeline's behaviour (targets, hard cases) is tested through FastPipeline
+"""The fast pipeline's compiled kernel (device/vision/columns/) through its Python binding: its
+image passes against the OpenCV operations they fuse, its helpers against plain definitions, and
+clear errors for bad arguments (each step on its own, in C: columns/test/test_columns.c). The pipeline's behaviour (targets, hard cases) is tested through FastPipeline
 in test_vision_pipelines.py and test_vision_simulated.py; its centre of mass against the general
 estimator in test_vision_peaks.py."""
 
