@@ -166,6 +166,7 @@ class FastPipeline:
         self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
         self._kernel = columns_kernel()
+        # the kernel's ColumnsResolveParams (device/vision/columns/columns.h), in its order
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
                                 params.jump_factor, params.min_peak, params.min_run, params.smooth_half,
                                 params.support_half, params.max_gap)
@@ -288,9 +289,10 @@ class FastPipeline:
         c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx]) if idx.size else _NO_PEAKS
         found, row, peak = np.empty(W, bool), np.empty(W), np.empty(W)
         status = np.empty(W, np.uint8)
-        seen = self._kernel.resolve(k, sv, thr, noise, c1.row, c1.peak, c1.valid, c1.spread, idx, c2.row, c2.peak,
-                                    c2.valid, c2.spread, self.geometry.inv_depth, self.geometry.top, self.top, t0, t1,
-                                    self._resolve_params, found, row, peak, status)
+        seen = self._kernel.resolve((k, sv), thr, noise, (c1.row, c1.peak, c1.valid, c1.spread),
+                                    (idx, c2.row, c2.peak, c2.valid, c2.spread),
+                                    (self.geometry.inv_depth, self.geometry.top), (self.top, t0, t1),
+                                    self._resolve_params, (found, row, peak, status))
         return found, row, peak, status, seen
 
     def _padded(self, n: int) -> np.ndarray:

@@ -8,7 +8,8 @@
  * Entry points (all outputs are caller-allocated arrays):
  *   candidates(sm, padded, pad, sep, k_out, s_out)
  *   refine_com(padded, pad, k, cols, lo, hi, half_width, row, peak, argmax, valid, plateau, spread)
- *   resolve(...) -> (seen_first, seen_last)
+ *   resolve((k, s), thr, noise, first, second, (inv_depth, inv_depth_top), (top, t0, t1), params,
+ *           (found, row, peak, status)) -> (seen_first, seen_last)
  *   running_median(x, found, out)
  *   noise_level(lit, unlit, out)
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
@@ -232,18 +233,19 @@ static PyObject *py_refine_com(PyObject *self, PyObject *args)
     return done(&vs, r, &err, NULL);
 }
 
-/* resolve(k, s, thr, noise, row1, peak1, valid1, spread1, idx2, row2, peak2, valid2, spread2,
- *         inv_depth, inv_depth_top, top, t0, t1, params, found, row, peak, status)
- * -> (seen_first, seen_last): columns_resolve; params the fields of ColumnsResolveParams in order. */
+/* resolve((k, s), thr, noise, (row1, peak1, valid1, spread1), (idx2, row2, peak2, valid2, spread2),
+ *         (inv_depth, inv_depth_top), (top, t0, t1), params, (found, row, peak, status))
+ * -> (seen_first, seen_last): columns_resolve, one tuple per part of its arguments
+ * (ColumnsResolveInput, ColumnsResolveParams' fields in order, ColumnsLine). */
 static PyObject *py_resolve(PyObject *self, PyObject *args)
 {
     PyObject *o_k, *o_s, *o_thr, *o_noise, *o_r1, *o_p1, *o_v1, *o_sp1, *o_idx, *o_r2, *o_p2, *o_v2, *o_sp2, *o_tab;
     PyObject *o_found, *o_row, *o_peak, *o_status;
     ColumnsResolveInput in;
     ColumnsResolveParams p;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOnnnn(ddddddnnnn)OOOO", &o_k, &o_s, &o_thr, &o_noise, &o_r1, &o_p1, &o_v1,
-                          &o_sp1, &o_idx, &o_r2, &o_p2, &o_v2, &o_sp2, &o_tab, &in.inv_depth.top, &in.top, &in.t0,
-                          &in.t1, &p.dim_peak_fraction, &p.own_peak_fraction, &p.max_spread_px, &p.jump_rel,
+    if (!PyArg_ParseTuple(args, "(OO)OO(OOOO)(OOOOO)(On)(nnn)(ddddddnnnn)(OOOO)", &o_k, &o_s, &o_thr, &o_noise, &o_r1,
+                          &o_p1, &o_v1, &o_sp1, &o_idx, &o_r2, &o_p2, &o_v2, &o_sp2, &o_tab, &in.inv_depth.top, &in.top,
+                          &in.t0, &in.t1, &p.dim_peak_fraction, &p.own_peak_fraction, &p.max_spread_px, &p.jump_rel,
                           &p.jump_factor, &p.min_peak, &p.min_run, &p.smooth_half, &p.support_half, &p.max_gap,
                           &o_found, &o_row, &o_peak, &o_status))
         return NULL;
@@ -312,7 +314,9 @@ static PyMethodDef methods[] = {
     {"candidates", py_candidates, METH_VARARGS, "candidates(sm, padded, pad, sep, k_out, s_out)"},
     {"refine_com", py_refine_com, METH_VARARGS,
      "refine_com(padded, pad, k, cols, lo, hi, half_width, row, peak, argmax, valid, plateau, spread)"},
-    {"resolve", py_resolve, METH_VARARGS, "resolve(...) -> (seen_first, seen_last); see device/vision/fast.py"},
+    {"resolve", py_resolve, METH_VARARGS,
+     "resolve((k, s), thr, noise, (row1, peak1, valid1, spread1), (idx2, row2, peak2, valid2, spread2), "
+     "(inv_depth, inv_depth_top), (top, t0, t1), params, (found, row, peak, status)) -> (seen_first, seen_last)"},
     {"running_median", py_running_median, METH_VARARGS, "running_median(x, found, out)"},
     {"noise_level", py_noise_level, METH_VARARGS, "noise_level(lit, unlit, out)"},
     {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
