@@ -10,9 +10,9 @@
  * replaced (bit-identical pipeline output, tools/golden_scenes.py).
  *
  * Types: indices and sizes are ptrdiff_t (numpy's intp); flags are bool (numpy's bool_, 0 or 1);
- * images are uint8_t rows x cols. Every function returns COLUMNS_DONE, or COLUMNS_BAD_ARGUMENT /
- * COLUMNS_NO_MEMORY having written nothing and, if `err` is not NULL, a message naming the call
- * and the argument into err->message. */
+ * images are uint8_t rows x cols. Every function with an `err` returns COLUMNS_DONE, or
+ * COLUMNS_BAD_ARGUMENT / COLUMNS_NO_MEMORY having written no output and, if `err` is not NULL, a
+ * message naming the call and the argument into err->message. */
 #ifndef LASERPI_COLUMNS_H
 #define LASERPI_COLUMNS_H
 
