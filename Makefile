@@ -2,7 +2,15 @@
 # Both install what they need first (tools/bootstrap.sh).
 PY := .venv/bin/python
 
-.PHONY: demo test firmware bootstrap clean
+# The fast pipeline's C kernel (device/vision/columns): its unit tests on the host, under
+# AddressSanitizer and UndefinedBehaviorSanitizer (any finding fails the run), with the
+# -ffp-contract=off that setup.py builds it with.
+KERNEL := device/vision/columns
+KERNEL_TEST := build/kernel/test_columns
+KERNEL_CFLAGS := -std=gnu11 -O1 -g -Wall -Wextra -Werror -ffp-contract=off -fsanitize=address,undefined \
+                 -fno-sanitize-recover=all
+
+.PHONY: demo test kernel-test firmware bootstrap clean
 
 bootstrap:
 	@./tools/bootstrap.sh
@@ -13,8 +21,15 @@ firmware: bootstrap
 demo: firmware
 	@$(PY) -m device.cli demo
 
-test: firmware
+test: firmware kernel-test
 	@$(PY) -m pytest -q
+
+kernel-test: $(KERNEL_TEST)
+	@$(KERNEL_TEST)
+
+$(KERNEL_TEST): $(KERNEL)/test/test_columns.c $(KERNEL)/columns.c $(KERNEL)/columns.h Makefile | bootstrap
+	@mkdir -p $(@D)
+	gcc $(KERNEL_CFLAGS) -I$(KERNEL) -o $@ $(KERNEL)/test/test_columns.c $(KERNEL)/columns.c -lm
 
 clean:
 	rm -rf .venv firmware_pwm/build .pytest_cache build device/vision/_columns*.so

@@ -1,6 +1,6 @@
-"""The fast pipeline's compiled kernel (device/vision/_columns.c) on its own: its image passes
-against the OpenCV operations they fuse, its helpers against plain definitions, and clear errors
-for bad arguments. The pipeline's behaviour (targets, hard cases) is tested through FastPipeline
+"""The fast pipeline's compiled kernel (device/vision/columns/) through its Python binding: its
+image passes against the OpenCV operations they fuse, its helpers against plain definitions, and
+clear errors for bad arguments (each step on its own, in C: columns/test/test_columns.c). The pipeline's behaviour (targets, hard cases) is tested through FastPipeline
 in test_vision_pipelines.py and test_vision_simulated.py; its centre of mass against the general
 estimator in test_vision_peaks.py."""
 
@@ -184,3 +184,26 @@ def test_no_second_candidate_on_the_flank_of_a_line_near_the_band_top():
     k, s = _candidates(sm)
     np.testing.assert_array_equal(k[:W], 3)
     np.testing.assert_array_equal(s[W:], 0)
+
+
+def _resolve(W=8, status_dtype=np.uint8, idx=()):
+    """The kernel's resolve on a straight line at band row 5 in every column (band from image
+    row 100, 1/z table of 20 rows from image row 90), second candidates in columns ``idx``."""
+    k, s = np.full(2 * W, 5, np.intp), np.full(2 * W, 50.0)
+    first = (np.full(W, 5.0), np.full(W, 50.0), np.ones(W, bool), np.ones(W))
+    m = len(idx)
+    second = (np.array(idx, np.intp), np.full(m, 5.0), np.full(m, 50.0), np.ones(m, bool), np.ones(m))
+    inv_depth = np.tile(np.linspace(0.1, 0.3, 20)[:, None], (1, W))
+    params = (0.1, 0.5, 2.5, 0.08, 3.0, 3.0, 5, 0, 4, 3)
+    out = (np.empty(W, bool), np.empty(W), np.empty(W), np.empty(W, status_dtype))
+    seen = K.resolve((k, s), np.full(W, 10.0), np.zeros(W), first, second, (inv_depth, 90), (100, 0, 16), params, out)
+    return seen, out
+
+
+def test_resolve_takes_its_arguments_grouped_as_the_kernels_structs():
+    seen, (found, row, peak, status) = _resolve()
+    assert seen == (5, 5) and found.all() and (row == 105.0).all() and (status == K.STATUS_OK).all()
+    with pytest.raises(ValueError, match="status has dtype"):
+        _resolve(status_dtype=np.int8)
+    with pytest.raises(ValueError, match=r"idx2 must be increasing columns in \[0, 8\)"):
+        _resolve(idx=(3, 3))

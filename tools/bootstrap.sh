@@ -24,17 +24,24 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.installed
-# reinstalled when the package's description or its compiled kernel (device/vision/_columns.c,
-# built in place by setup.py) changed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] \
-   || [ device/vision/_columns.c -nt "$stamp" ] || ! ls device/vision/_columns*.so >/dev/null 2>&1; then
+# reinstalled when the package's description or the sources of its compiled kernel
+# (device/vision/columns/*.c and *.h, built in place by setup.py) changed
+kernel_changed() {
+  local f
+  for f in device/vision/columns/*.c device/vision/columns/*.h; do
+    [ "$f" -nt "$stamp" ] && return 0
+  done
+  return 1
+}
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] || kernel_changed \
+   || ! ls device/vision/_columns*.so >/dev/null 2>&1; then
   echo "bootstrap: installing Python packages into .venv"
   .venv/bin/pip install -q --upgrade pip >/dev/null
   .venv/bin/pip install -q -e ".[device,ros,test]"
   # the kernel's build is optional for pip (a robot installing only the host SDK needs no
   # compiler), not for the device: say so here rather than in every test
   .venv/bin/python -c "import device.vision._columns" || {
-    echo "bootstrap: the fast pipeline's C kernel (device/vision/_columns.c) did not build; see pip's output above" >&2
+    echo "bootstrap: the fast pipeline's C kernel (device/vision/columns) did not build; see pip's output above" >&2
     exit 1; }
   touch "$stamp"
 fi

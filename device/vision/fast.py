@@ -19,7 +19,7 @@ Per frame pair:
    consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
    in a floor below the laser plane, or a secondary reflection off it, always appears farther
    from the horizon than the line that causes it and runs alongside it; the nearer line of an
-   occlusion edge continues alone on its side. See ``choose_second`` in ``_columns.c``.
+   occlusion edge continues alone on its side. See ``choose_second`` in ``columns/columns.c``.
 5. Speckle: the row of each column is replaced by a local linear fit over ``2 smooth_half + 1``
    columns, only within a run of columns whose rows are continuous (no depth jump: the 5-column
    running medians of adjacent columns differ by less than the row step of a ``jump_rel`` depth
@@ -50,7 +50,7 @@ the default 5). Steps 6-7 are unchanged.
    line, but their per-column maximum difference (one cheap reduction) is: a column with no
    line in range and a strong return there reports "too close" (-inf), never "no return".
 
-Steps 1-5 run in a compiled kernel, ``device/vision/_columns.c`` (its header says why C): the
+Steps 1-5 run in a compiled kernel, ``device/vision/columns/`` (columns.c says why C): the
 image passes (difference, detection blur, noise level: equal to the OpenCV operations they fuse,
 tested in ``tests/test_vision_kernel.py``) and one loop per column for each step after them; the
 sub-pixel estimators other than the centre of mass stay in :mod:`device.vision.peaks` (numpy).
@@ -70,13 +70,13 @@ from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, l
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
 
-#: Rows per block of the candidate search (``BLOCK_ROWS`` in _columns.c, which also fixes the
-#: detection blur at 5 columns x 3 rows).
+#: Rows per block of the candidate search (``COLUMNS_BLOCK_ROWS`` in columns/columns.h, which
+#: also fixes the detection blur at 5 columns x 3 rows).
 BLOCK_ROWS = 16
 #: Smallest difference at a saturated lit pixel for it to count as part of a saturated line.
 SATURATED_LINE_MIN = 24
 #: Largest centre-of-mass half width: the rows within half_width + 1 of the first candidate span
-#: at most two 16-row blocks, which the second candidate's search leaves out (_columns.c).
+#: at most two 16-row blocks, which the second candidate's search leaves out (columns/columns.c).
 MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2
 _NO_PEAKS = ColumnPeaks(*(np.empty(0, t) for t in (np.float64, np.float64, np.intp, bool, bool, np.float64)))
 
@@ -166,6 +166,7 @@ class FastPipeline:
         self.near_mask = np.where(near, 255, 0).astype(np.uint8)[::2].copy()
         self.cols = np.arange(config.width)
         self._kernel = columns_kernel()
+        # the kernel's ColumnsResolveParams (device/vision/columns/columns.h), in its order
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
                                 params.jump_factor, params.min_peak, params.min_run, params.smooth_half,
                                 params.support_half, params.max_gap)
@@ -288,9 +289,10 @@ class FastPipeline:
         c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx]) if idx.size else _NO_PEAKS
         found, row, peak = np.empty(W, bool), np.empty(W), np.empty(W)
         status = np.empty(W, np.uint8)
-        seen = self._kernel.resolve(k, sv, thr, noise, c1.row, c1.peak, c1.valid, c1.spread, idx, c2.row, c2.peak,
-                                    c2.valid, c2.spread, self.geometry.inv_depth, self.geometry.top, self.top, t0, t1,
-                                    self._resolve_params, found, row, peak, status)
+        seen = self._kernel.resolve((k, sv), thr, noise, (c1.row, c1.peak, c1.valid, c1.spread),
+                                    (idx, c2.row, c2.peak, c2.valid, c2.spread),
+                                    (self.geometry.inv_depth, self.geometry.top), (self.top, t0, t1),
+                                    self._resolve_params, (found, row, peak, status))
         return found, row, peak, status, seen
 
     def _padded(self, n: int) -> np.ndarray:

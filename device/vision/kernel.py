@@ -1,5 +1,7 @@
-"""The compiled kernel of the fast pipeline and the table triangulation, ``device/vision/_columns.c``
-(its header says why it is C), with a clear error where it was not built."""
+"""The compiled kernel of the fast pipeline and the table triangulation: the module
+``device.vision._columns``, built from ``device/vision/columns/`` (a plain C kernel, columns.c,
+whose header says why it is C, and its Python binding, binding.c), with a clear error where it
+was not built."""
 
 from __future__ import annotations
 

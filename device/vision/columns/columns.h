@@ -1,0 +1,162 @@
+/* The fast pipeline's per-column kernel as plain C: its image passes, the per-column steps 3-5
+ * of device/vision/fast.py and the table triangulation of device/vision/geometry.py (issues 7, 14).
+ * No Python here: every function works on pointers and sizes, row-major and contiguous, and
+ * checks the values it is given (not the buffers' lengths, which only the caller knows).
+ * device/vision/columns/binding.c is the Python module device.vision._columns around it;
+ * device/vision/columns/test/test_columns.c tests it on its own (`make test`).
+ *
+ * Build with -ffp-contract=off (setup.py and the Makefile do): no fused multiply-adds, so the
+ * doubles round alike on x86-64 and ARM64, in the order of the numpy formulation the kernel
+ * replaced (bit-identical pipeline output, tools/golden_scenes.py).
+ *
+ * Types: indices and sizes are ptrdiff_t (numpy's intp); flags are bool (numpy's bool_, 0 or 1);
+ * images are uint8_t rows x cols. Every function with an `err` returns COLUMNS_DONE, or
+ * COLUMNS_BAD_ARGUMENT / COLUMNS_NO_MEMORY having written no output and, if `err` is not NULL, a
+ * message naming the call and the argument into err->message. */
+#ifndef LASERPI_COLUMNS_H
+#define LASERPI_COLUMNS_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+/* Rows per block of the candidate search (device.vision.fast.BLOCK_ROWS, tested equal). */
+#define COLUMNS_BLOCK_ROWS 16
+
+/* device.vision.measurements.ColumnStatus values that columns_resolve writes (tested equal). */
+enum { COLUMNS_OK = 0, COLUMNS_NO_RETURN = 1, COLUMNS_UNLIT = 6, COLUMNS_REJECTED = 7 };
+
+typedef enum { COLUMNS_DONE = 0, COLUMNS_BAD_ARGUMENT = 1, COLUMNS_NO_MEMORY = 2 } ColumnsResult;
+
+typedef struct {
+    char message[256];
+} ColumnsError;
+
+/* A band's difference image (rows x cols) stored with `pad` rows above and below it: image row r
+ * is px + (pad + r) * cols, the buffer holds rows + 2 pad rows. The pad rows are the caller's
+ * (zero where columns_candidates and columns_refine_com read them). */
+typedef struct {
+    uint8_t *px;
+    ptrdiff_t rows, cols, pad;
+} ColumnsPadded;
+
+/* Sub-pixel estimates of m candidates, each array of m (device.vision.peaks.ColumnPeaks):
+ * row (NaN where not valid), peak (the difference at the candidate's row), argmax (that row, -1
+ * for an empty interval), valid, plateau (a flat top at 255 over >= 3 rows), spread (RMS width). */
+typedef struct {
+    double *row, *peak;
+    ptrdiff_t *argmax;
+    bool *valid, *plateau;
+    double *spread;
+} ColumnsPeaks;
+
+/* Per-column tables of `rows` x `cols` values for image rows top .. top + rows - 1
+ * (device.vision.geometry.ColumnGeometry): 1/z of each pixel's ray on the laser plane, and the
+ * rays' normalised coordinates xn, yn. */
+typedef struct {
+    const double *v;
+    ptrdiff_t rows, cols, top;
+} ColumnsInvDepth;
+
+typedef struct {
+    const double *xn, *yn;
+    ptrdiff_t rows, cols, top;
+} ColumnsRays;
+
+/* FastParams' fields that steps 3-5 use (device/vision/fast.py). */
+typedef struct {
+    double dim_peak_fraction, own_peak_fraction, max_spread_px, jump_rel, jump_factor, min_peak;
+    ptrdiff_t min_run, smooth_half, support_half, max_gap;
+} ColumnsResolveParams;
+
+/* What steps 3-5 start from, for a band of `cols` columns: the two candidates of each column
+ * (k: rows, first the W first ones then the W second ones; s: their smoothed peaks), the
+ * detection threshold and noise level (W each), the first candidates' estimates (W), the m
+ * second candidates that were refined (columns idx, increasing; estimates of m), the 1/z table,
+ * and where the searched rows [t0, t1) of the band lie in the band (which starts at image row
+ * `top`). The estimates are only read. */
+typedef struct {
+    ptrdiff_t cols;
+    const ptrdiff_t *k;
+    const double *s, *thr, *noise;
+    ColumnsPeaks first;
+    ptrdiff_t m;
+    const ptrdiff_t *idx;
+    ColumnsPeaks second;
+    ColumnsInvDepth inv_depth;
+    ptrdiff_t top, t0, t1;
+} ColumnsResolveInput;
+
+/* The line that steps 3-5 find, W columns each: found, row (image rows), peak (0 where a gap
+ * was filled), status (COLUMNS_*); seen_first / seen_last: the first and last band row of the
+ * line or of a run of second candidates, (t1, -1) if none. */
+typedef struct {
+    bool *found;
+    double *row, *peak;
+    uint8_t *status;
+    ptrdiff_t seen_first, seen_last;
+} ColumnsLine;
+
+/* The laser plane n . p = distance (camera frame), the depth limits, and the RangeStatus codes
+ * (device.model.triangulation) that columns_triangulate writes. */
+typedef struct {
+    double nx, ny, nz, distance;
+    double min_m, max_m, horizon_eps;
+    int ok, invalid_pixel, beyond_horizon, too_close, too_far;
+} ColumnsPlane;
+
+/* Step 1, noise: per column, the largest 5-column x 3-row box mean of max(unlit - lit, 0) over
+ * the rows x cols band: `cv2.blur(cv2.subtract(unlit, lit), (5, 3)).max(axis=0)` exactly, in
+ * one pass. Needs rows >= 1, cols >= 3. out: cols. */
+ColumnsResult columns_noise_level(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t rows, ptrdiff_t cols, double *out,
+                                  ColumnsError *err);
+
+/* Step 1, difference: d = max(lit - unlit, 0), 255 on both pixels of a vertical pair saturated
+ * in the lit frame and brightened by >= sat_min (a saturated line's flat top), then d &= mask,
+ * into the image rows of `diff` (its pad rows untouched); sm = cv2.blur(d, (5, 3)) exactly.
+ * lit, unlit, mask, sm: diff->rows x diff->cols. Needs rows >= 1, cols >= 3, pad >= 0,
+ * 0 <= sat_min <= 255. */
+ColumnsResult columns_band_difference(const uint8_t *lit, const uint8_t *unlit, const uint8_t *mask, ptrdiff_t sat_min,
+                                      const ColumnsPadded *diff, uint8_t *sm, ColumnsError *err);
+
+/* Step 2: per column of the smoothed difference sm (diff->rows x diff->cols), the row of its
+ * largest value and of the largest more than `sep` rows from it (first of equals), each moved
+ * to the largest of the unsmoothed difference at k-1, k, k+1; k[c], s[c] the first, k[W + c],
+ * s[W + c] the second (s: sm there; 0 with row 0 if there is no second). Through 16-row block
+ * maxima; the last block may be partial. Needs 1 to 65535 rows, pad >= 1 zero rows,
+ * 0 <= 2 sep + 1 <= 16. k, s: 2 cols. */
+ColumnsResult columns_candidates(const uint8_t *sm, const ColumnsPadded *diff, ptrdiff_t sep, ptrdiff_t *k, double *s,
+                                 ColumnsError *err);
+
+/* Step 2, sub-pixel: device.vision.peaks.refine_com_padded, the centre of mass of rows
+ * k[j] +- half_width in column cols[j] of the difference, within rows [lo[j], hi[j]) (zeros
+ * elsewhere, diff's pad rows zero), for j < m; a flat top at 255 by the plateau's middle. An
+ * all-zero window gives NaN (0 / 0) row and spread, as refine_peaks. Needs half_width >= 1,
+ * pad >= max(half_width, 2), rows >= 1, each column in the image, 0 <= lo, hi <= rows. */
+ColumnsResult columns_refine_com(const ColumnsPadded *diff, ptrdiff_t m, const ptrdiff_t *k, const ptrdiff_t *cols,
+                                 const ptrdiff_t *lo, const ptrdiff_t *hi, ptrdiff_t half_width, const ColumnsPeaks *out,
+                                 ColumnsError *err);
+
+/* Steps 3-5 (FastPipeline._search): detection, the choice between two candidates, continuity
+ * runs and outliers, the dim-column rule, the minimum run, the local line fit, gap filling and
+ * the statuses. Needs cols >= 2, min_run >= 1, support_half >= 1, smooth_half >= 0,
+ * max_gap >= 0, t1 > t0, idx increasing columns, an inv_depth table of `cols` columns. */
+ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolveParams *params, ColumnsLine *out,
+                              ColumnsError *err);
+
+/* Step 6: sub-pixel rows (n, one per column cols[i]) -> points (n x 3), depth, status: the ray
+ * interpolated between the table's two rows around the row, then its intersection with the
+ * plane (thesis eq. 3.13, 3.17), as ColumnGeometry.triangulate. Rows outside the table (or NaN)
+ * are invalid_pixel. Needs a table of >= 1 row, each column in it. */
+ColumnsResult columns_triangulate(const ColumnsRays *rays, const ColumnsPlane *plane, ptrdiff_t n,
+                                  const double *rows, const ptrdiff_t *cols, double *points, double *depth,
+                                  uint8_t *status, ColumnsError *err);
+
+/* The median of the found values of x within +-2 of each of n elements, NaN where not found
+ * (the middle one or the mean of the middle two); found values must be finite. */
+void columns_running_median(const double *x, const bool *found, ptrdiff_t n, double *med);
+
+/* The length of the run of true elements each of n elements belongs to (0 where false). */
+void columns_run_length(const bool *mask, ptrdiff_t n, ptrdiff_t *out);
+
+#endif
