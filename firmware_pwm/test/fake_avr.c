@@ -101,68 +101,69 @@ static void advance_to(uint64_t until)
     }
 }
 
-uint16_t fake_sfr_read(enum fake_sfr r)
+/* The byte registers that read back what was written (NULL: one with its own rules). */
+static uint8_t *plain_byte(enum fake_sfr r)
 {
     switch (r) {
+    case SFR_TCCR1A: return &fake.tccr1a;
+    case SFR_TCCR1B: return &fake.tccr1b;
+    case SFR_TIMSK1: return &fake.timsk1;
+    case SFR_TIFR1: return &fake.tifr1;
+    case SFR_PORTB: return &fake.portb;
+    case SFR_DDRB: return &fake.ddrb;
+    default: return NULL;
+    }
+}
+
+uint16_t fake_sfr_read(enum fake_sfr r)
+{
+    uint8_t *byte = plain_byte(r);
+    if (byte)
+        return *byte;
+    switch (r) {
     case SFR_SREG: return fake.sreg;
-    case SFR_TCCR1A: return fake.tccr1a;
-    case SFR_TCCR1B: return fake.tccr1b;
     case SFR_TCCR1C: return 0; /* FOC bits read as zero */
     case SFR_TCNT1:
         advance_to(fake.now + fake.tcnt_read_cost);
         return (uint16_t)timer_count();
     case SFR_OCR1A: return fake.ocr1a;
     case SFR_OCR1B: return fake.ocr1b;
-    case SFR_TIMSK1: return fake.timsk1;
-    case SFR_TIFR1: return fake.tifr1;
-    case SFR_PORTB: return fake.portb;
-    case SFR_DDRB: return fake.ddrb;
     case SFR_PINB: return (uint16_t)((fake.portb & (uint8_t)~_BV(PB1)) | (fake.pin << PB1));
+    default: abort();
     }
+}
+
+static void refuse(const char *what, uint16_t v)
+{
+    fprintf(stderr, "fake_avr: %s (0x%02x)\n", what, v);
     abort();
 }
 
 void fake_sfr_write(enum fake_sfr r, uint16_t v)
 {
+    if ((r == SFR_TCCR1A && (v & (_BV(WGM11) | _BV(WGM10)))) || (r == SFR_TCCR1B && (v & (_BV(WGM13) | _BV(WGM12)))))
+        refuse("only normal mode is modelled", v);
+    if (r == SFR_TCNT1 || r == SFR_PINB)
+        refuse("the firmware never writes TCNT1 (it would block a match) or PINB (it toggles PORTB)", v);
+    if (r == SFR_TIFR1) {
+        fake.tifr1 &= (uint8_t)~v; /* writing one clears a flag */
+        return;
+    }
+    uint8_t *byte = plain_byte(r);
+    if (byte)
+        *byte = (uint8_t)v;
     switch (r) {
-    case SFR_SREG:
-        fake.sreg = (uint8_t)v;
-        deliver();
-        return;
-    case SFR_TCCR1A:
-        if (v & (_BV(WGM11) | _BV(WGM10))) {
-            fprintf(stderr, "fake_avr: only normal mode is modelled (TCCR1A = 0x%02x)\n", v);
-            abort();
-        }
-        fake.tccr1a = (uint8_t)v;
-        update_pin(); /* the pin's source switches at once */
-        return;
-    case SFR_TCCR1B:
-        if (v & (_BV(WGM13) | _BV(WGM12))) {
-            fprintf(stderr, "fake_avr: only normal mode is modelled (TCCR1B = 0x%02x)\n", v);
-            abort();
-        }
-        fake.tccr1b = (uint8_t)v;
-        return;
+    case SFR_SREG: fake.sreg = (uint8_t)v; deliver(); break;
+    case SFR_TIMSK1: deliver(); break;
     case SFR_TCCR1C:
         if (v & _BV(FOC1A))
             compare_output_action(); /* no flag, no interrupt */
-        return;
-    case SFR_TCNT1:
-        fprintf(stderr, "fake_avr: the firmware never writes TCNT1 (it would block a match)\n");
-        abort();
-    case SFR_OCR1A: fake.ocr1a = v; return;
-    case SFR_OCR1B: fake.ocr1b = v; return;
-    case SFR_TIMSK1:
-        fake.timsk1 = (uint8_t)v;
-        deliver();
-        return;
-    case SFR_TIFR1: fake.tifr1 &= (uint8_t)~v; return; /* writing one clears a flag */
-    case SFR_PORTB: fake.portb = (uint8_t)v; update_pin(); return;
-    case SFR_DDRB: fake.ddrb = (uint8_t)v; update_pin(); return;
-    case SFR_PINB: return; /* (writing PINB toggles PORTB on this MCU; never done) */
+        break;
+    case SFR_OCR1A: fake.ocr1a = v; break;
+    case SFR_OCR1B: fake.ocr1b = v; break;
+    default: break;
     }
-    abort();
+    update_pin(); /* TCCR1A, PORTB and DDRB switch the pin at once */
 }
 
 void fake_cli(void) { fake.sreg &= (uint8_t)~_BV(SREG_I); }

@@ -281,6 +281,17 @@ static void schedule_payload(uint8_t *p, uint64_t first, uint32_t period, uint32
     p[21] = flags;
 }
 
+static frame_t command(core_t *c, uint8_t type, const uint8_t *payload, uint8_t len);
+
+/* sends a SCHEDULE and returns the reply */
+static frame_t schedule(core_t *c, uint64_t first, uint32_t period, uint32_t width, uint32_t mask, uint8_t n,
+                        uint8_t flags)
+{
+    uint8_t p[LEN_SCHEDULE];
+    schedule_payload(p, first, period, width, mask, n, flags);
+    return command(c, MSG_SCHEDULE, p, sizeof p);
+}
+
 /* sends a command and returns the reply frame (asserting there is one) */
 static frame_t command(core_t *c, uint8_t type, const uint8_t *payload, uint8_t len)
 {
@@ -314,11 +325,9 @@ static void test_schedule_pattern(void)
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
     uint64_t first = 200000;
     uint32_t period = 100000, width = 20000; /* 20 fps, every other frame lit: 10 Hz */
-    schedule_payload(p, first, period, width, 0x1, 2, 0);
-    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    frame_t r = schedule(&c, first, period, width, 0x1, 2, 0);
     CHECK(r.msg_type == MSG_ACK && r.payload[0] == MSG_SCHEDULE, "ack, got 0x%02x", r.msg_type);
     run_with_heartbeats(&c, first + 10 * period - 1);
     CHECK(fake.n_edges == 10, "5 pulses in 10 frames, got %u edges", fake.n_edges);
@@ -331,8 +340,7 @@ static void test_schedule_pattern(void)
     CHECK(exact, "edges on the exact ticks");
     /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w and >= MIN_PERIOD - w */
     begin_run(&c);
-    schedule_payload(p, first, 200000, 20000, 0x6, 3, 0);
-    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    r = schedule(&c, first, 200000, 20000, 0x6, 3, 0);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "first lit index 1");
     run_with_heartbeats(&c, first + 6 * 200000);
     CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 200000 + PIN_LAG && fake.edge_t[2] == first + 400000 + PIN_LAG &&
@@ -343,7 +351,6 @@ static void test_refusals(void)
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
     struct { uint64_t first; uint32_t period, width, mask; uint8_t n, reason; } cases[] = {
         {200000, 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
         {200000, 100000, 20001, 1, 1, NACK_ENVELOPE_DUTY},   /* 20.001 % */
@@ -360,8 +367,7 @@ static void test_refusals(void)
         {200000, MIN_PERIOD_TICKS - 1, 1000, 0x5, 3, NACK_ENVELOPE_RATE},    /* 101: slot 2 then slot 0 */
     };
     for (unsigned i = 0; i < sizeof cases / sizeof cases[0]; i++) {
-        schedule_payload(p, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
-        frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+        frame_t r = schedule(&c, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
         CHECK(r.msg_type == MSG_NACK && r.payload[1] == cases[i].reason, "case %u: reason %u", i,
               r.msg_type == MSG_NACK ? r.payload[1] : 0);
     }
@@ -369,10 +375,9 @@ static void test_refusals(void)
     fake_run(2000000);
     CHECK(fake.n_edges == 0, "refused schedules never light the laser");
     /* exactly at the envelope is accepted: the shortest period with the longest pulse */
-    schedule_payload(p, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
-    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    frame_t r = schedule(&c, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "MIN_PERIOD with MAX_PULSE accepted");
-    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    r = schedule(&c, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "busy while running");
     const uint8_t t[LEN_TRIM] = {0};
     core_init(&c, 0);
@@ -384,11 +389,9 @@ static void test_trim(void)
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
     uint64_t first = 100000;
     uint32_t period = 200000, width = 10000;
-    schedule_payload(p, first, period, width, 1, 1, 0);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, first, period, width, 1, 1, 0);
     run_with_heartbeats(&c, first + 5000); /* pulse 0 in flight */
     uint8_t t[LEN_TRIM];
     put_u32(t, (uint32_t)-3000); /* phase -1.5 ms */
@@ -441,9 +444,7 @@ static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, ui
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 100000, 10000, 1, 2, 0);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 100000, 10000, 1, 2, 0);
     run_with_heartbeats(&c, when);
     uint8_t t[LEN_TRIM];
     put_u32(t, 5000);
@@ -472,9 +473,7 @@ static void test_runtime_interlock(void)
      * run-time check on the actual edges still refuses to build a denser train. */
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
     run_with_heartbeats(&c, 105000);
     c.trim_pending = 1;
     c.trim_phase = -150000; /* next gap 30000 < 4 * 20000 */
@@ -485,8 +484,7 @@ static void test_runtime_interlock(void)
      * pulse, then 1 ms pulses.  Rise to rise stays >= MIN_PERIOD but fall to fall would not. */
     for (int k = 0; k < 2; k++) {
         begin_run(&c);
-        schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
-        command(&c, MSG_SCHEDULE, p, sizeof p);
+        schedule(&c, 100000, 200000, 30000, 1, 1, 0);
         run_with_heartbeats(&c, 100001);   /* pulse 0 in flight, its fall armed at 130000 */
         c.width = 2000;                     /* the next pulses are narrow */
         c.trim_pending = 1;
@@ -504,25 +502,20 @@ static void test_runtime_interlock(void)
     /* a pulse cut short by STOP counts with its actual width: SCHEDULE right after is checked on
      * the real edges (rise to rise and fall to fall) */
     begin_run(&c);
-    schedule_payload(p, 100000, 200000, 30000, 1, 1, 0);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 200000, 30000, 1, 1, 0);
     run_with_heartbeats(&c, 102000);
     command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~2000 ticks */
     uint64_t cut_rise = fake.edge_t[0] - PIN_LAG, cut_fall = fake.edge_t[1]; /* cut by software: no lag */
-    schedule_payload(p, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
-    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    frame_t r = schedule(&c, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: fall to fall");
-    schedule_payload(p, cut_rise + MIN_PERIOD_TICKS - 1, 200000, 1000, 1, 1, 0);
-    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS - 1, 200000, 1000, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: rise to rise");
-    schedule_payload(p, cut_rise + MIN_PERIOD_TICKS, 200000, (uint32_t)(cut_fall - cut_rise), 1, 1, 0);
-    r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS, 200000, (uint32_t)(cut_fall - cut_rise), 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "after a cut pulse: rises and falls exactly MIN_PERIOD apart accepted");
     command(&c, MSG_STOP, NULL, 0);
-    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
     /* width guard: a pulse seen high too long is cut */
     begin_run(&c);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
     run_with_heartbeats(&c, 100001);
     /* a stuck compare unit: the fall's match leaves the latch high and raises no interrupt */
     fake.tccr1a = (uint8_t)(_BV(COM1A1) | _BV(COM1A0));
@@ -542,9 +535,7 @@ static void test_heartbeat(void)
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
     uint64_t last_hb = fake.now;
     fake_run(100000 + 10000); /* mid pulse, heartbeats stop */
     fake_run(2000000);
@@ -553,7 +544,7 @@ static void test_heartbeat(void)
     CHECK(fake.pin == 0 && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
     CHECK(last_edge - last_hb < TICKS_PER_SECOND / 10, "off within 100 ms: %llu ticks",
           (unsigned long long)(last_edge - last_hb));
-    frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+    frame_t r = schedule(&c, 100000, 200000, 20000, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "fault must be cleared by STOP");
     r = command(&c, MSG_STOP, NULL, 0);
     CHECK(r.msg_type == MSG_ACK && c.state == STATE_IDLE && c.faults == 0, "stop clears");
@@ -591,9 +582,7 @@ static void test_stop_and_edges(void)
 {
     core_t c;
     begin_run(&c);
-    uint8_t p[LEN_SCHEDULE];
-    schedule_payload(p, 100000, 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
     run_with_heartbeats(&c, 310000); /* pulse 0 done, pulse 1 in flight */
     core_poll(&c);
     frame_t r;
@@ -616,28 +605,24 @@ static void test_stop_and_edges(void)
 static void test_cut_mid_pulse_then_schedule(void)
 {
     core_t c;
-    uint8_t p[LEN_SCHEDULE];
     for (int how = 0; how < 2; how++) {
         for (uint32_t cut = 1; cut < 20000; cut += 1999) {
             begin_run(&c);
             if (how == 0) { /* STOP */
-                schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
-                command(&c, MSG_SCHEDULE, p, sizeof p);
+                schedule(&c, 100000, 200000, 20000, 1, 1, 0);
                 run_with_heartbeats(&c, 100000 + cut);
                 CHECK(fake.pin == 1, "cut %u: mid pulse", cut);
                 command(&c, MSG_STOP, NULL, 0);
             } else { /* no heartbeat after the SCHEDULE: the guard at the Timer1 overflow at tick
                       * 131072 trips in the middle of the pulse */
-                schedule_payload(p, 131072 - 34800 + cut, 200000, 34800, 1, 1, 0);
-                command(&c, MSG_SCHEDULE, p, sizeof p);
+                schedule(&c, 131072 - 34800 + cut, 200000, 34800, 1, 1, 0);
                 fake_run(131072 + 10);
                 CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "cut %u: heartbeat fault", cut);
                 command(&c, MSG_STOP, NULL, 0);
             }
             CHECK(fake.pin == 0, "cut %u/%d: the pin is low after the cut", cut, how);
             uint64_t first = fake.now + MIN_PERIOD_TICKS + 100000;
-            schedule_payload(p, first, 200000, 20000, 1, 1, 0);
-            frame_t r = command(&c, MSG_SCHEDULE, p, sizeof p);
+            frame_t r = schedule(&c, first, 200000, 20000, 1, 1, 0);
             CHECK(r.msg_type == MSG_ACK, "cut %u/%d: schedule after the cut", cut, how);
             uint32_t before = fake.n_edges;
             run_with_heartbeats(&c, first + 3 * 200000 + 30000);
@@ -654,8 +639,7 @@ static void test_cut_mid_pulse_then_schedule(void)
     begin_run(&c);
     fake.tcnt_read_cost = 120;
     /* (a period 1 ms above the rate limit: a late fall brings the next fall closer than planned) */
-    schedule_payload(p, 100000, MIN_PERIOD_TICKS + 2000, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    command(&c, MSG_SCHEDULE, p, sizeof p);
+    schedule(&c, 100000, MIN_PERIOD_TICKS + 2000, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
     run_with_heartbeats(&c, 100000 + 3 * (MIN_PERIOD_TICKS + 2000) + 1000);
     CHECK(c.late == 4 && c.state == STATE_RUNNING && fake.n_edges == 8 &&
               fake.edge_t[6] == 100000 + 3 * (MIN_PERIOD_TICKS + 2000) + PIN_LAG,
@@ -671,14 +655,13 @@ static void test_cut_mid_pulse_then_schedule(void)
 static void test_trim_racing_the_armed_rise(void)
 {
     core_t c;
-    uint8_t p[LEN_SCHEDULE], t[LEN_TRIM];
+    uint8_t t[LEN_TRIM];
     int deferred = 0, immediate = 0;
     for (uint32_t lead = 2000; lead < 12000; lead += 17) {
         begin_run(&c);
         fake.tcnt_read_cost = 150;
         uint64_t first = 100000;
-        schedule_payload(p, first, MIN_PERIOD_TICKS, 2000, 1, 1, 0);
-        command(&c, MSG_SCHEDULE, p, sizeof p);
+        schedule(&c, first, MIN_PERIOD_TICKS, 2000, 1, 1, 0);
         run_with_heartbeats(&c, first + MIN_PERIOD_TICKS - lead);
         put_u32(t, 2000); /* +1 ms */
         put_u32(t + 4, 0);
@@ -705,12 +688,10 @@ static void test_trim_racing_the_armed_rise(void)
 static void test_reset_mid_pulse(void)
 {
     core_t c;
-    uint8_t p[LEN_SCHEDULE];
     const uint8_t causes[] = {0x01 /* PORF */, 0x04 /* BORF */, 0x08 /* WDRF */};
     for (unsigned k = 0; k < sizeof causes; k++) {
         begin_run(&c);
-        schedule_payload(p, 100000, 200000, 20000, 1, 1, 0);
-        command(&c, MSG_SCHEDULE, p, sizeof p);
+        schedule(&c, 100000, 200000, 20000, 1, 1, 0);
         run_with_heartbeats(&c, 110000);
         CHECK(fake.pin == 1, "mid pulse");
         intend_fall(fake.now); /* the reset ends it */
@@ -721,8 +702,7 @@ static void test_reset_mid_pulse(void)
         fake_run(fake.now + TICKS_PER_SECOND);
         CHECK(fake.n_edges == before, "reset 0x%02x: nothing after it", causes[k]);
         uint64_t first = hw_now() + MIN_PERIOD_TICKS;
-        schedule_payload(p, first, 200000, 20000, 1, 1, 0);
-        command(&c, MSG_SCHEDULE, p, sizeof p);
+        schedule(&c, first, 200000, 20000, 1, 1, 0);
         run_with_heartbeats(&c, model_time(first) + 200000 + 30000);
         CHECK(fake.n_edges == before + 4 && fake.edge_t[before] == model_time(first) + PIN_LAG &&
                   fake.edge_t[before + 1] == model_time(first) + 20000 + PIN_LAG,
@@ -742,13 +722,11 @@ static void test_random_commands_interlock(void)
         begin_run(&c);
         fake.tcnt_read_cost = trial % 2 ? rnd() % 161 : 0;
         for (int step = 0; step < 60; step++) {
-            uint8_t p[LEN_SCHEDULE];
             uint8_t t[LEN_TRIM];
             switch (rnd() % 6) {
             case 0:
-                schedule_payload(p, fake.now + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
+                schedule(&c, fake.now + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
                                  rnd() % (MAX_PULSE_TICKS + 5000), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
-                command(&c, MSG_SCHEDULE, p, sizeof p);
                 break;
             case 1: case 2:
                 put_u32(t, (uint32_t)((int32_t)(rnd() % 200000) - 100000));
