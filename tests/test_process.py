@@ -26,6 +26,14 @@ def make_source(rig: FakeRig, **kw) -> tuple[SensorSource, FakeCamera, FakeLaser
     return src, cam, laser, pipe
 
 
+def streaming(rig: FakeRig, warmup_s: float) -> tuple[SensorSource, FakeCamera, FakeLaser, FakePipeline]:
+    """A started source that has delivered scans for ``warmup_s``."""
+    parts = make_source(rig)
+    parts[0].start()
+    assert scans_for(parts[0], warmup_s)
+    return parts
+
+
 def settings(**kw) -> m.ScanSettings:
     base = dict(scan_rate_hz=20.0, exposure_us=1000, roi_first=0, roi_count=N_POINTS, median_window=1,
                 min_quality=0, laser_power_mw=4.0)
@@ -57,9 +65,7 @@ def test_pairs_lit_and_dark_frames_into_scans():
 
 def test_camera_stall_of_one_second_is_reported_and_the_stream_resumes():
     rig = FakeRig()
-    src, cam, laser, _ = make_source(rig)
-    src.start()
-    assert scans_for(src, 0.3)
+    src, cam, laser, _ = streaming(rig, 0.3)
     rig.stall_until = time.monotonic() + 1.0
     seen_fault = False
     while time.monotonic() < rig.stall_until:
@@ -78,9 +84,7 @@ def test_camera_stall_of_one_second_is_reported_and_the_stream_resumes():
 
 def test_camera_error_restarts_the_camera():
     rig = FakeRig()
-    src, cam, _, _ = make_source(rig)
-    src.start()
-    assert scans_for(src, 0.2)
+    src, cam, _, _ = streaming(rig, 0.2)
     rig.camera_raise = 1
     assert scans_for(src, 0.8)
     assert src.counters.camera_errors == 1 and src.counters.camera_restarts == 1 and cam.starts == 2
@@ -89,9 +93,7 @@ def test_camera_error_restarts_the_camera():
 
 def test_comcu_reset_mid_stream_turns_laser_off_reports_and_resyncs():
     rig = FakeRig()
-    src, _, laser, pipe = make_source(rig)
-    src.start()
-    assert scans_for(src, 0.3)
+    src, _, laser, pipe = streaming(rig, 0.3)
     rig.mcu_reset_pending = True
     deadline = time.monotonic() + 1.0
     while m.ErrorCode.LASER_FAULT not in src.status().errors and time.monotonic() < deadline:
@@ -107,9 +109,7 @@ def test_comcu_reset_mid_stream_turns_laser_off_reports_and_resyncs():
 
 def test_comcu_lost_for_a_while_retries_until_it_answers():
     rig = FakeRig()
-    src, _, laser, _ = make_source(rig)
-    src.start()
-    assert scans_for(src, 0.2)
+    src, _, laser, _ = streaming(rig, 0.2)
     rig.mcu_down_until = time.monotonic() + 0.7
     during = scans_for(src, 0.6)
     assert len(during) <= 1  # at most a pair completed before the loss was seen
@@ -200,21 +200,46 @@ def run_supervised(open_port, rig: FakeRig):
     return sup, stop, t
 
 
-def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
+def scanning_host(rig: FakeRig) -> tuple[LinkSupervisor, threading.Event, threading.Thread, Host]:
+    """A supervised source on an in-memory link, and a host that started it and read for 0.3 s."""
     host_end, dev_end = pipe_pair()
-    rig = FakeRig()
     sup, stop, t = run_supervised(lambda: dev_end, rig)
     host = Host(host_end)
     host.send(m.Start())
     host.pump(0.3)
+    return sup, stop, t, host
+
+
+def first_health_with(host: Host, error: m.ErrorCode, until: float):
+    """The first HEALTH reporting ``error`` before time.monotonic() reaches ``until``, else None."""
+    while time.monotonic() < until:
+        h = host.health()
+        if error in h.errors:
+            return h
+    return None
+
+
+def health_after_resuming(host: Host, scans_before: int, seconds: float):
+    """Reads until 4 more scans came and HEALTH is clear with the laser on (or ``seconds`` pass)."""
+    deadline = time.monotonic() + seconds
+    h = host.health()
+    while time.monotonic() < deadline and (len(host.scans) < scans_before + 4 or h.errors or not h.laser_on):
+        host.pump(0.2)
+        h = host.health()
+    return h
+
+
+def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
+    rig = FakeRig()
+    sup, stop, t, host = scanning_host(rig)
     before = len(host.scans)
     assert before >= 3
     h0 = host.health()
     assert h0.host_bytes_discarded == 0 and h0.host_frames_rejected == 0 and h0.host_sessions == 1
     rng = np.random.default_rng(1)
     half = encode_frame(m.MsgType.GET_INFO, 99, m.GetInfo().encode())[:6]
-    host_end.write(rng.integers(1, 256, 300, dtype=np.uint8).tobytes() + b"\x00" + half + b"\x00" + half)
-    host_end.write(b"\x00")
+    host.port.write(rng.integers(1, 256, 300, dtype=np.uint8).tobytes() + b"\x00" + half + b"\x00" + half)
+    host.port.write(b"\x00")
     host.pump(0.3)
     health = host.health()
     assert health.state == m.DeviceState.SCANNING and health.laser_on and health.errors == ()
@@ -232,27 +257,16 @@ def test_host_garbage_and_half_frames_are_counted_and_scanning_continues():
 
 
 def test_health_message_reports_a_camera_stall_while_it_lasts():
-    host_end, dev_end = pipe_pair()
     rig = FakeRig()
-    sup, stop, t = run_supervised(lambda: dev_end, rig)
-    host = Host(host_end)
-    host.send(m.Start())
-    host.pump(0.3)
+    sup, stop, t, host = scanning_host(rig)
     h0 = host.health()
     assert h0.camera_restarts == 0 and h0.errors == ()
     rig.stall_until = time.monotonic() + 1.0
-    seen = None
-    while seen is None and time.monotonic() < rig.stall_until:
-        h = host.health()
-        if m.ErrorCode.CAMERA_FAULT in h.errors:
-            seen = h
+    seen = first_health_with(host, m.ErrorCode.CAMERA_FAULT, rig.stall_until)
     assert seen is not None, "HEALTH never reported the stalled camera"
     assert not seen.laser_on
     n = len(host.scans)
-    deadline = time.monotonic() + 4.0
-    while time.monotonic() < deadline and (len(host.scans) < n + 4 or h.errors or not h.laser_on):
-        host.pump(0.2)
-        h = host.health()
+    h = health_after_resuming(host, n, 4.0)
     assert len(host.scans) >= n + 4, "the scan stream did not resume"
     assert h.errors == () and h.laser_on and h.state == m.DeviceState.SCANNING
     assert h.camera_restarts >= 1 and h.camera_restarts == sup.health().source.camera_restarts
@@ -262,28 +276,17 @@ def test_health_message_reports_a_camera_stall_while_it_lasts():
 
 
 def test_health_message_reports_a_comcu_reset_until_the_laser_is_resynchronised():
-    host_end, dev_end = pipe_pair()
     rig = FakeRig()
-    sup, stop, t = run_supervised(lambda: dev_end, rig)
-    host = Host(host_end)
-    host.send(m.Start())
-    host.pump(0.3)
+    sup, stop, t, host = scanning_host(rig)
     h0 = host.health()
     assert h0.comcu_resets == 0 and h0.errors == () and h0.laser_on
     rig.mcu_reset_pending = True
-    seen, deadline = None, time.monotonic() + 2.0
-    while seen is None and time.monotonic() < deadline:
-        h = host.health()
-        if m.ErrorCode.LASER_FAULT in h.errors:
-            seen = h
+    seen = first_health_with(host, m.ErrorCode.LASER_FAULT, time.monotonic() + 2.0)
     assert seen is not None, "HEALTH never reported the co-MCU reset"
     assert m.ErrorCode.SYNC_LOST in seen.errors and not seen.laser_on and not seen.sync_locked
     assert seen.comcu_resets == 1
     n = len(host.scans)
-    deadline = time.monotonic() + 3.0
-    while time.monotonic() < deadline and (len(host.scans) < n + 4 or h.errors or not h.laser_on):
-        host.pump(0.2)
-        h = host.health()
+    h = health_after_resuming(host, n, 3.0)
     assert h.errors == () and h.laser_on and h.sync_locked, "the code did not clear after the re-sync"
     assert len(host.scans) >= n + 4, "the scan stream did not resume"
     assert h.comcu_resets == 1 and h.comcu_lost == 0 and h.camera_restarts == 0

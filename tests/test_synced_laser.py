@@ -62,6 +62,13 @@ def laser_and_mcu():
 FRAME = Frame(np.zeros((2, 2), np.uint8), 0, 0, 1000.0, 50_000.0, MODE5.mode.line_time_ns)
 
 
+def frame_lit_error(laser) -> LaserError:
+    """The LaserError that ``frame_lit`` raises (the test fails if it raises none)."""
+    with pytest.raises(LaserError) as exc:
+        laser.frame_lit(FRAME)
+    return exc.value
+
+
 def test_a_fresh_link_is_no_reset_even_when_the_mcu_announces_its_boot(laser_and_mcu):
     laser, fake = laser_and_mcu
     fake.reboot(announced=True)  # its power-on announcement
@@ -75,9 +82,8 @@ def test_a_request_unanswered_after_a_boot_announcement_is_a_reset_not_a_loss(la
     laser.start(FRAME)
     fake.reboot(announced=True)
     fake.answering = False  # the request reached it while it restarted
-    with pytest.raises(LaserError) as exc:
-        laser.frame_lit(FRAME)
-    assert exc.value.reason == "reset" and "announced a new boot" in str(exc.value)
+    err = frame_lit_error(laser)
+    assert err.reason == "reset" and "announced a new boot" in str(err)
     fake.answering = True
     assert laser.start(FRAME) is False  # reported once, not again on the re-sync
 
@@ -86,9 +92,8 @@ def test_a_reboot_whose_announcement_was_garbled_is_found_by_its_clock_on_restar
     laser, fake = laser_and_mcu
     laser.start(FRAME)
     fake.answering = False
-    with pytest.raises(LaserError) as exc:
-        laser.frame_lit(FRAME)
-    assert exc.value.reason == "lost"
+    err = frame_lit_error(laser)
+    assert err.reason == "lost"
     fake.reboot(announced=False)
     fake.answering = True
     assert laser.start(FRAME) is True  # its clock went back: it rebooted during the outage
@@ -100,9 +105,8 @@ def test_a_clock_gone_back_while_answering_is_a_reset(laser_and_mcu):
     laser, fake = laser_and_mcu
     laser.start(FRAME)
     fake.reboot(announced=False)
-    with pytest.raises(LaserError) as exc:
-        laser.frame_lit(FRAME)
-    assert exc.value.reason == "reset" and "clock went back" in str(exc.value)
+    err = frame_lit_error(laser)
+    assert err.reason == "reset" and "clock went back" in str(err)
     assert laser.start(FRAME) is False
 
 
@@ -110,8 +114,7 @@ def test_an_outage_without_a_reboot_is_only_a_loss(laser_and_mcu):
     laser, fake = laser_and_mcu
     laser.start(FRAME)
     fake.answering = False
-    with pytest.raises(LaserError) as exc:
-        laser.frame_lit(FRAME)
-    assert exc.value.reason == "lost"
+    err = frame_lit_error(laser)
+    assert err.reason == "lost"
     fake.answering = True
     assert laser.start(FRAME) is False
