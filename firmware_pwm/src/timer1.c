@@ -213,18 +213,18 @@ TIMER1_ISR(TIMER1_COMPA_vect)
         if (elapsed > MAX_PULSE_TICKS + ARM_MARGIN_TICKS)
             return; /* a stale flag: rises are armed less than ARM_WINDOW_TICKS ahead, so a
                      * match before T shows more than 2^16 - ARM_WINDOW_TICKS here */
+        SFR_WRITE(TCCR1A, OC1A_CLEAR_ON_MATCH); /* the latch is 1: the pin stays high, and the
+                                                 * next match (the fall) clears it */
         SFR_WRITE(OCR1A, (uint16_t)(t16 + w16));
         elapsed = (uint16_t)(SFR_READ(TCNT1) - t16);
         uint64_t fall = core_rise_done(core, arm_target);
         arm_target = fall;
         arm_state = ARM_FALL;
-        SFR_WRITE(TCCR1A, OC1A_CLEAR_ON_MATCH); /* the latch is 1: the pin stays high */
         if (elapsed + 2u >= w16) { /* too late to place the fall: end the pulse now */
-            uint64_t now = now_locked();
             oc1a_force_low();
             SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~_BV(OCIE1A));
             arm_state = ARM_IDLE;
-            after_fall(now, EDGE_FALL_FORCED);
+            after_fall(now_locked(), EDGE_FALL_FORCED); /* the time after the cut, as core_fault */
         }
     } else if (arm_state == ARM_FALL) {
         if ((uint16_t)(SFR_READ(TCNT1) - (uint16_t)arm_target) >= 0x8000u)

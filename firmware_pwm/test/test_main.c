@@ -67,7 +67,10 @@ uint64_t __wrap_core_rise_done(core_t *c, uint64_t t)
 uint8_t __real_core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next);
 uint8_t __wrap_core_fall_done(core_t *c, uint64_t t, uint8_t flags, uint64_t *next)
 {
-    intend_fall(model_time(t)); /* a fall by its match, or ended late in software (forced) */
+    /* a fall by its match; or one ended in software because the fall seemed too late to arm
+     * (forced): then the compare unit may still have ended it on time, first */
+    uint64_t fall = model_time(t);
+    intend_fall((flags & EDGE_FALL_FORCED) && planned_fall < fall ? planned_fall : fall);
     return __real_core_fall_done(c, t, flags, next);
 }
 
