@@ -89,27 +89,33 @@ def buffer(ax, x: float, y: float, direction: int, tag: str) -> None:
     ax.text(x + 0.45, y + 0.08, tag, ha="left", va="bottom", fontsize=10, weight="bold")
 
 
+def pi_and_mcu(ax, title: str, lanes, pi_note: str, mcu_x: float, mcu_title: str, mcu_note: str):
+    """A panel: its title, the Pi's header on the left and the MCU at ``mcu_x``, with a straight
+    wire for each lane (Pi pin, MCU pin, colour, ...) in order; returns both boxes' pins."""
+    ax.set_title(title, fontsize=13, weight="bold", loc="left")
+    pi = box(ax, 0.3, 7.6, 3.7, "Raspberry Pi header", right=[lane[0] for lane in lanes], note=pi_note)
+    mcu = box(ax, mcu_x, 7.6, 4.3, mcu_title, left=[lane[1] for lane in lanes], note=mcu_note)
+    for lane in lanes:
+        wire(ax, [pi[lane[0]], mcu[lane[1]]], lane[2])
+    return pi, mcu
+
+
 def panel_3v3(ax) -> None:
-    ax.set_title("Recommended: ATmega328P at 3.3 V, 8 MHz crystal (make F_CPU=8000000), wired straight to the Pi",
-                 fontsize=13, weight="bold", loc="left")
-    pi = box(ax, 0.3, 7.6, 3.7, "Raspberry Pi header",
-             right=["1  3V3", "6  GND", "8  GPIO14 TXD", "10  GPIO15 RXD", "11  GPIO17"],
-             note="/dev/serial0 = PL011:\nenable_uart=1, dtoverlay=disable-bt")
-    mcu = box(ax, 8.6, 7.6, 4.3, "ATmega328P  3.3 V / 8 MHz",
-              left=["VCC, AVCC (7, 20)", "GND (8, 22)", "PD0 RXD  D0 (2)", "PD1 TXD  D1 (3)", "PB1 OC1A  D9 (15)"],
-              note="8 MHz crystal on XTAL1/2 (9, 10), 2 x 22 pF\n100 nF at each VCC pin\n"
-                   "ISP header: MOSI D11, MISO D12,\nSCK D13, RESET (1), VCC, GND")
-    drv = box(ax, 15.9, 7.6, 3.8, "Laser driver",
-              left=["V+", "EN (TTL) / MOSFET gate", "GND"],
-              note="constant-current driver with a TTL\nenable, or a logic-level MOSFET\n"
-                   "(RDS(on) given at VGS = 2.5 V)\nswitching a laser module")
     lanes = (("1  3V3", "VCC, AVCC (7, 20)", POWER_3V3, "3.3 V, a few mA"),
              ("6  GND", "GND (8, 22)", GROUND, "GND"),
              ("8  GPIO14 TXD", "PD0 RXD  D0 (2)", TO_MCU, "Pi TX -> MCU RX"),
              ("10  GPIO15 RXD", "PD1 TXD  D1 (3)", TO_PI, "MCU TX -> Pi RX"),
              ("11  GPIO17", "PB1 OC1A  D9 (15)", LASER, "laser trigger (edges) -> Pi"))
-    for a, b, color, label in lanes:
-        wire(ax, [pi[a], mcu[b]], color, label)
+    pi, mcu = pi_and_mcu(ax, "Recommended: ATmega328P at 3.3 V, 8 MHz crystal (make F_CPU=8000000), wired straight "
+                             "to the Pi", lanes, "/dev/serial0 = PL011:\nenable_uart=1, dtoverlay=disable-bt",
+                         8.6, "ATmega328P  3.3 V / 8 MHz", "8 MHz crystal on XTAL1/2 (9, 10), 2 x 22 pF\n100 nF at "
+                         "each VCC pin\nISP header: MOSI D11, MISO D12,\nSCK D13, RESET (1), VCC, GND")
+    for a, _, color, label in lanes:
+        ax.text(6.25, pi[a][1] + 0.1, label, ha="center", va="bottom", fontsize=9, color=color, weight="bold")
+    drv = box(ax, 15.9, 7.6, 3.8, "Laser driver",
+              left=["V+", "EN (TTL) / MOSFET gate", "GND"],
+              note="constant-current driver with a TTL\nenable, or a logic-level MOSFET\n"
+                   "(RDS(on) given at VGS = 2.5 V)\nswitching a laser module")
     # the D9 net, under the MCU, to the driver's enable, with its pull-down
     d9, en = mcu["PB1 OC1A  D9 (15)"], drv["EN (TTL) / MOSFET gate"]
     jx, low = 7.6, 1.6
@@ -128,25 +134,19 @@ def panel_3v3(ax) -> None:
 
 
 def panel_5v(ax) -> None:
-    ax.set_title("Alternative: ATmega328P at 5 V, 16 MHz (make F_CPU=16000000): a buffer on every signal line",
-                 fontsize=13, weight="bold", loc="left")
-    pi = box(ax, 0.3, 7.6, 3.7, "Raspberry Pi header",
-             right=["10  GPIO15 RXD", "11  GPIO17", "8  GPIO14 TXD", "2  5V", "6  GND"],
-             note="3.3 V only: every MCU -> Pi line\nthrough a 3.3 V buffer")
-    mcu = box(ax, 12.6, 7.6, 4.3, "ATmega328P  5 V / 16 MHz",
-              left=["PD1 TXD  D1 (3)", "PB1 OC1A  D9 (15)", "PD0 RXD  D0 (2)", "VCC, AVCC (7, 20)", "GND (8, 22)"],
-              note="16 MHz crystal, brown-out 4.3 V\nD9 also drives the laser driver's\nEN with the 10 kOhm pull-down")
     lanes = (("10  GPIO15 RXD", "PD1 TXD  D1 (3)", TO_PI, "MCU TX (5 V) -> Pi RX (3.3 V)", -1, "A1"),
              ("11  GPIO17", "PB1 OC1A  D9 (15)", LASER, "laser trigger (5 V) -> Pi (3.3 V)", -1, "A2"),
              ("8  GPIO14 TXD", "PD0 RXD  D0 (2)", TO_MCU, "Pi TX (3.3 V) -> MCU RX (5 V)", +1, "B"),
              ("2  5V", "VCC, AVCC (7, 20)", POWER_5V, "5 V (or the board's own supply)", 0, ""),
              ("6  GND", "GND (8, 22)", GROUND, "common ground", 0, ""))
-    for a, b, color, label, direction, tag in lanes:
-        p, q = pi[a], mcu[b]
-        wire(ax, [p, q], color)
-        ax.text(6.6, p[1] + 0.08, label, ha="center", va="bottom", fontsize=9, color=color, weight="bold")
+    pi, _ = pi_and_mcu(ax, "Alternative: ATmega328P at 5 V, 16 MHz (make F_CPU=16000000): a buffer on every signal "
+                           "line", lanes, "3.3 V only: every MCU -> Pi line\nthrough a 3.3 V buffer",
+                       12.6, "ATmega328P  5 V / 16 MHz", "16 MHz crystal, brown-out 4.3 V\nD9 also drives the laser "
+                       "driver's\nEN with the 10 kOhm pull-down")
+    for a, _, color, label, direction, tag in lanes:
+        ax.text(6.6, pi[a][1] + 0.08, label, ha="center", va="bottom", fontsize=9, color=color, weight="bold")
         if direction:
-            buffer(ax, 10.0, p[1], direction, tag)
+            buffer(ax, 10.0, pi[a][1], direction, tag)
     ax.text(4.6, 3.0, "A1, A2: 74LVC2G125 (dual buffer) at VCC = 3.3 V from Pi pin 1, OE1/OE2 to GND: its inputs\n"
                       "tolerate 5 V (no clamp to VCC), its outputs swing 3.3 V, and a powered MCU cannot feed\n"
                       "the Pi through it while the Pi is off.\n"
