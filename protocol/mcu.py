@@ -3,7 +3,8 @@
 The numbers, layouts and reason codes are the firmware's (firmware_pwm/src/msg.h);
 tests/test_mcu_protocol.py checks that both files agree.  Byte layouts (all little-endian) and
 units are documented in firmware_pwm/README.md.  Times are MCU ticks: Timer1 counts at
-16 MHz / 8, so one tick is 0.5 us (TICKS_PER_SECOND).
+F_CPU / 8, so one tick is 0.5 us in the default 16 MHz firmware (TICKS_PER_SECOND) and 1 us in
+the 8 MHz one; Info.ticks_per_second is the running firmware's.
 
 Pi -> MCU: Ping, Schedule, Trim, Stop, StatusRequest, Heartbeat, InfoRequest.
 MCU -> Pi: Pong, Ack, Nack, Status, Edge, Info.
@@ -18,7 +19,7 @@ from typing import ClassVar
 
 from protocol.framing import MAX_PAYLOAD_MCU, Frame, FrameError, encode_frame
 
-TICKS_PER_SECOND = 2_000_000
+TICKS_PER_SECOND = 2_000_000  # the default 16 MHz build's; ask Info for the running firmware's
 
 _RANGES = {
     "B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFF_FFFF), "Q": (0, 0xFFFF_FFFF_FFFF_FFFF),
@@ -33,9 +34,9 @@ class NackReason(enum.IntEnum):
     ENVELOPE_WIDTH = 4   # detail = the firmware's MAX_PULSE_TICKS
     ENVELOPE_DUTY = 5    # detail = smallest off time (ticks) the duty envelope allows
     BUSY = 6             # SCHEDULE while running or in a fault (STOP first); detail = state
-    BAD_TIME = 7         # start too close (< 100 us), in the past, or > 10 s ahead; detail = now (low 32 bits)
+    BAD_TIME = 7         # start too close (< 200 ticks), in the past, or > 10 s ahead; detail = now (low 32 bits)
     BAD_PATTERN = 8      # n outside 1..32, no lit frame, or mask bits at or above n
-    BAD_VALUE = 9        # width below 100 us (detail = minimum ticks) or a trimmed period too short
+    BAD_VALUE = 9        # width below 200 ticks (detail = that minimum) or a trimmed period too short
     NOT_RUNNING = 10     # TRIM without a running schedule
     ENVELOPE_RATE = 11   # pulses closer than the firmware's MIN_PERIOD_TICKS (rise to rise or fall to fall); detail = it
 

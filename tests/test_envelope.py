@@ -73,14 +73,14 @@ def test_defaults_are_what_the_generator_computes_for_the_thesis_sensor(thesis):
 
 
 def test_a_two_number_envelope_or_a_short_min_period_is_caught(thesis):
-    bad = FirmwareEnvelope(34_800, 200_000, 66_000)  # one pulse per 33 ms (every other frame at 60 fps)
+    bad = FirmwareEnvelope(17_400, 200_000, 33_000)  # one pulse per 33 ms (every other frame at 60 fps)
     check = verify_envelope(thesis, 0.025, EYE_M, bad)
     assert not check.class1
     assert check.worst_nohd_m > 0.012 and check.limiting_condition == "pulse_train"
     assert 0.4e-3 < check.worst_pulse_s < 1.0e-3 and check.worst_period_s == pytest.approx(0.033)
     assert _brute_force_worst(thesis, 0.025, bad, 2000, seed=2) <= check.worst_nohd_m * (1 + 1e-12)
     # width and duty only (the rate limited by what the firmware can place): far outside
-    no_rate = FirmwareEnvelope(34_800, 200_000, 600)
+    no_rate = FirmwareEnvelope(17_400, 200_000, 300)
     assert verify_envelope(thesis, 0.025, EYE_M, no_rate, width_points=8).worst_nohd_m > 0.014
     # the generator's envelope for 33 ms (its duty cap follows: 17.4 / 33 = 53 %) is refused, naming
     # the worst train and the shortest Class 1 period for 17.4 ms pulses
@@ -93,10 +93,10 @@ def test_higher_power_gives_a_tighter_envelope(thesis):
     shortest = [shortest_class1_period_s(thesis, p, EYE_M, 17.4e-3) for p in (0.020, 0.025, 0.030)]
     assert shortest[0] < shortest[1] < 0.090 < shortest[2]
     for power, period in zip((0.020, 0.025, 0.030), shortest):
-        env = FirmwareEnvelope(34_800, 990_000, round(period * 2_000_000))
+        env = FirmwareEnvelope(17_400, 990_000, round(period * 1e6))
         assert verify_envelope(thesis, power, EYE_M, env, width_points=60).class1
-        tighter = FirmwareEnvelope(34_800, 990_000, round(period * 2_000_000) - 1)
-        assert not verify_envelope(thesis, power, EYE_M, tighter, width_points=60).class1, "shortest, to the tick"
+        tighter = FirmwareEnvelope(17_400, 990_000, round(period * 1e6) - 1)
+        assert not verify_envelope(thesis, power, EYE_M, tighter, width_points=60).class1, "shortest, to the microsecond"
     with pytest.raises(EnvelopeError, match="shortest Class 1 period for these pulses is 1[0-9][0-9]"):
         compute_envelope(thesis, 0.030, EYE_M, 17.4e-3, 0.090)
 
@@ -114,14 +114,14 @@ def test_a_slower_train_can_be_worse_so_every_c5_step_is_checked(thesis):
 
 
 def test_bad_inputs_are_named():
-    with pytest.raises(EnvelopeError, match="min_period_ticks"):
-        FirmwareEnvelope(34_800, 200_000, 10)
-    with pytest.raises(EnvelopeError, match="max_pulse_ticks"):
-        FirmwareEnvelope(70_000, 200_000, 180_000)
+    with pytest.raises(EnvelopeError, match="min_period_us"):
+        FirmwareEnvelope(17_400, 200_000, 10)
+    with pytest.raises(EnvelopeError, match="max_pulse_us"):
+        FirmwareEnvelope(35_000, 200_000, 90_000)
     with pytest.raises(EnvelopeError, match="max_duty_ppm"):
-        FirmwareEnvelope(34_800, 1_000_000, 180_000)
-    with pytest.raises(EnvelopeError, match="MIN_PERIOD_TICKS"):
-        parse_makefile_envelope("MAX_PULSE_TICKS := 34800\nMAX_DUTY_PPM := 200000\n")
+        FirmwareEnvelope(17_400, 1_000_000, 90_000)
+    with pytest.raises(EnvelopeError, match="MIN_PERIOD_US"):
+        parse_makefile_envelope("MAX_PULSE_US := 17400\nMAX_DUTY_PPM := 200000\n")
     with pytest.raises(EnvelopeError, match="power"):
         verify_envelope(LineLaserOptics(808, 2.0, 4e-3, 1e-3), float("nan"), EYE_M, _defaults())
 
@@ -135,8 +135,8 @@ def test_generator_prints_the_makefile_line(tmp_path):
     out = _generator("--preset", "thesis-design")
     assert out.returncode == 0, out.stderr
     env = _defaults()
-    assert out.stdout.splitlines()[0] == (f"make -C firmware_pwm MAX_PULSE_TICKS={env.max_pulse_ticks} "
-                                          f"MAX_DUTY_PPM={env.max_duty_ppm} MIN_PERIOD_TICKS={env.min_period_ticks}")
+    assert out.stdout.splitlines()[0] == (f"make -C firmware_pwm MAX_PULSE_US={env.max_pulse_us} "
+                                          f"MAX_DUTY_PPM={env.max_duty_ppm} MIN_PERIOD_US={env.min_period_us}")
     assert "worst NOHD 9.77 mm" in out.stdout
     # another laser from a config file: 8 ms pulses at 15 Hz need a shorter minimum period
     cfg = load_preset("thesis-design")
@@ -145,6 +145,6 @@ def test_generator_prints_the_makefile_line(tmp_path):
     save_config(cfg, tmp_path / "other.toml")
     out = _generator("--config", str(tmp_path / "other.toml"), "--slack-ms", "5")
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "MAX_PULSE_TICKS=16000 MAX_DUTY_PPM=130000 MIN_PERIOD_TICKS=123334" in out.stdout
+    assert "MAX_PULSE_US=8000 MAX_DUTY_PPM=130000 MIN_PERIOD_US=61667" in out.stdout
     out = _generator("--preset", "thesis-design", "--power-mw", "30")
     assert out.returncode == 1 and "not Class 1 at 30 mW" in out.stdout

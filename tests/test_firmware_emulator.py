@@ -14,7 +14,7 @@ simavr's UART is not a physical line, so no link latency is measured here.
 Most tests run the production ELF (the Makefile's envelope: at most one pulse per 90 ms).  The
 few that need a denser train to measure timing (the 2 kHz exactness test, the heartbeat
 switch-off time) run a separate test ELF built in firmware_pwm/build/test-envelope with only
-MIN_PERIOD_TICKS relaxed to the placement minimum; the production build is never touched.
+MIN_PERIOD_US relaxed to the placement minimum; the production build is never touched.
 """
 import math
 import random
@@ -29,20 +29,20 @@ from device.sim.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulat
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
 
-MS = 2000  # ticks per millisecond
+MS = 2000  # ticks per millisecond (the default 16 MHz build)
 #: the production envelope's rate limit, from its one source of truth
 MIN_PERIOD = parse_makefile_envelope(
-    (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()).min_period_ticks
+    (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()).min_period_us * MS // 1000
 #: the relaxed rate of the timing-test ELF: the firmware's own placement minimum (100 us + 200 us)
-TEST_MIN_PERIOD = 600
+TEST_MIN_PERIOD_US = 300
 
 
 @pytest.fixture(scope="module")
 def relaxed_emulator():
-    """The test ELF with MIN_PERIOD_TICKS relaxed (its own build dir): only for tests whose point
+    """The test ELF with MIN_PERIOD_US relaxed (its own build dir): only for tests whose point
     is timing at pulse rates the production envelope refuses."""
     try:
-        return build_emulator("build/test-envelope", MIN_PERIOD_TICKS=TEST_MIN_PERIOD)
+        return build_emulator("build/test-envelope", MIN_PERIOD_US=TEST_MIN_PERIOD_US)
     except Exception as exc:
         pytest.fail(f"simavr harness unavailable: {exc}")
 
@@ -120,7 +120,7 @@ def test_boot_info_and_ping_track_the_timer(link):
     assert (info.max_pulse_ticks, info.max_duty_ppm, info.ticks_per_second) == (34_800, 200_000, 2_000_000)
     assert info.min_period_ticks == MIN_PERIOD and info.firmware_version == 2
     # the envelope the running firmware reports is Class 1 for the thesis laser (25 mW, eyes >= 10 mm)
-    env = FirmwareEnvelope(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks)
+    env = FirmwareEnvelope(info.max_pulse_ticks * 1000 // MS, info.max_duty_ppm, info.min_period_ticks * 1000 // MS)
     thesis = LineLaserOptics(808, math.radians(120), 4e-3, 1e-3)
     assert verify_envelope(thesis, 0.025, 0.010, env, width_points=60).class1
     a = comcu.ping()

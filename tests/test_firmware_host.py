@@ -35,15 +35,16 @@ def test_firmware_elf_builds_and_fits_the_atmega328p():
 
 
 def test_the_environment_cannot_change_the_envelope_but_the_command_line_rebuilds(tmp_path):
-    """The envelope comes from the Makefile or the make command line only, and a build directory
-    records the envelope it was built with (so a changed envelope rebuilds, never a stale ELF)."""
+    """The clock and envelope come from the Makefile or the make command line only, and a build
+    directory records those it was built with (so a change rebuilds, never a stale ELF)."""
     import os
 
-    env = {**os.environ, "MIN_PERIOD_TICKS": "600", "MAX_PULSE_TICKS": "60000"}
+    env = {**os.environ, "MIN_PERIOD_US": "300", "MAX_PULSE_US": "30000", "F_CPU": "8000000"}
     flags = tmp_path / "envelope.flags"
     proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE), f"BUILD={tmp_path}", str(flags)],
                           capture_output=True, text=True, timeout=60, env=env)
     assert proc.returncode == 0, proc.stderr
-    assert "-DMIN_PERIOD_TICKS=180000UL" in flags.read_text() and "-DMAX_PULSE_TICKS=34800UL" in flags.read_text()
-    _make(f"BUILD={tmp_path}", "MIN_PERIOD_TICKS=200000", str(flags))
-    assert "-DMIN_PERIOD_TICKS=200000UL" in flags.read_text()
+    recorded = flags.read_text().split()
+    assert {"-DMIN_PERIOD_US=90000UL", "-DMAX_PULSE_US=17400UL", "-DF_CPU=16000000UL"} <= set(recorded), recorded
+    _make(f"BUILD={tmp_path}", "MIN_PERIOD_US=100000", "F_CPU=8000000", str(flags))
+    assert {"-DMIN_PERIOD_US=100000UL", "-DF_CPU=8000000UL"} <= set(flags.read_text().split())

@@ -20,6 +20,7 @@ class FakeComcu:
 
     def __init__(self):
         self.ticks = 1_000_000
+        self.ticks_per_second = 2_000_000  # the 16 MHz firmware's
         self.boot_infos: list[mcu.Info] = []
         self.answering = True
 
@@ -41,6 +42,10 @@ class FakeComcu:
     def stop(self) -> int:
         self._request()
         return 0
+
+    def info(self) -> mcu.Info:
+        self._request()
+        return mcu.Info(2, 0x01, 50, 17_400, 200_000, self.ticks_per_second, 90_000)
 
     def edges(self) -> list:
         return []
@@ -67,6 +72,18 @@ def frame_lit_error(laser) -> LaserError:
     with pytest.raises(LaserError) as exc:
         laser.frame_lit(FRAME)
     return exc.value
+
+
+def test_the_sync_runs_on_the_tick_rate_the_comcu_reports(laser_and_mcu):
+    """The 8 MHz firmware counts 1 MHz ticks and says so in INFO: the controller converts with
+    that rate, not SyncConfig's default (the 16 MHz firmware's 2 MHz)."""
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    assert laser.controller.cfg.tick_hz == 2_000_000
+    laser.stop()
+    fake.ticks_per_second = 1_000_000  # reflashed with the 8 MHz build
+    laser.start(FRAME)
+    assert laser.controller.cfg.tick_hz == 1_000_000 and laser.sync.tick_hz == 2e6
 
 
 def test_a_fresh_link_is_no_reset_even_when_the_mcu_announces_its_boot(laser_and_mcu):

@@ -2,7 +2,9 @@
 synchronisation controller (device/sync/control.py), behind device.laser.base.Laser.
 
 * ``start(frame)``: opens the co-MCU link if needed, stops any old schedule (stale state from an
-  earlier run), pings it a few times for the clock map and hands it to a new SyncController; the
+  earlier run), asks its INFO for its tick rate (2 MHz in the 16 MHz firmware, 1 MHz in the 8 MHz
+  one: firmware_pwm/README.md "Board variants"), pings it a few times for the clock map and hands
+  it to a new SyncController running on that rate; the
   controller places the pulse train on the camera's frames as they come. It returns True when it
   finds that the co-MCU rebooted while it was not answering (a reset not reported yet: its boot
   announcement came late, or was garbled and its clock went back).
@@ -23,6 +25,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import replace
 from typing import Callable
 
 from device.camera.frame import Frame
@@ -115,7 +118,8 @@ class SyncedLaser:
                 if fresh:
                     self.comcu = LockedComcu(self.open_comcu())
                 self.comcu.stop()  # whatever an earlier run left scheduled
-                controller = SyncController(self.sync, CoMcuTrain(self.comcu))
+                tick_hz = self.comcu.info().ticks_per_second  # the firmware's clock, whatever its build
+                controller = SyncController(replace(self.sync, tick_hz=tick_hz), CoMcuTrain(self.comcu))
                 for _ in range(self.pings_at_start):
                     self._ping(controller)
                 self.comcu.edges()  # drop reports of an older schedule

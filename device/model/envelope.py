@@ -2,8 +2,8 @@
 model of device/model/safety.py (IEC 60825-1, thesis section 3.3, docs/thesis-notes.md N1, N2).
 
 The firmware (firmware_pwm/, src/core.c) allows every pulse train with
-  * widths from MIN_PULSE_TICKS (100 us) to ``max_pulse_ticks``,
-  * consecutive pulses at least ``min_period_ticks`` apart, rise to rise and fall to fall,
+  * widths from its MIN_PULSE_TICKS (100 us at 16 MHz, longer at a slower clock) to ``max_pulse_us``,
+  * consecutive pulses at least ``min_period_us`` apart, rise to rise and fall to fall,
   * off time g >= max(w1, w2) (1 - D) / D between pulses (duty D = ``max_duty_ppm``).
 A regular train of width w and period P is inside when w <= max_pulse, P >= min_period and
 w / P <= D.  `verify_envelope` evaluates the safety model on that whole region: every width of a
@@ -24,6 +24,9 @@ limits of the three conditions are evaluated at that largest count for every wid
 mixing widths of the region keeps each of its pulses inside its own limit (for condition 2 the
 pulse energies add up to at most the AEL over T).
 
+The limits are in microseconds, as in firmware_pwm/Makefile: the firmware converts them to ticks of
+its clock (config.h), so the 16 MHz and the 8 MHz build have the same envelope in seconds.
+
 Pure functions, no I/O; `main` (``python -m device.model.envelope``) is the generator of the
 Makefile line.
 """
@@ -40,13 +43,12 @@ import numpy as np
 
 from . import safety
 
-#: Firmware time base (firmware_pwm/src/config.h): Timer1 at 16 MHz / 8.
-TICKS_PER_SECOND = 2_000_000
-#: Shortest pulse the firmware places (config.h MIN_PULSE_TICKS, 100 us) and shortest off time.
-MIN_PULSE_TICKS = 200
-MIN_GAP_TICKS = 400
-#: Longest pulse that fits one 16-bit compare window (config.h's #error bound, 30.7 ms).
-MAX_PULSE_TICKS_LIMIT = 65536 - 2 * 48 - 4096
+#: Shortest pulse the firmware places and shortest off time (config.h MIN_PULSE_TICKS and
+#: MIN_GAP_TICKS: 200 and 400 ticks, in time shortest at the fastest clock, 16 MHz).
+MIN_PULSE_US = 100
+MIN_GAP_US = 200
+#: Longest pulse that fits one 16-bit compare window (config.h's #error bound, 61344 ticks) at 16 MHz.
+MAX_PULSE_US_LIMIT = (65536 - 2 * 48 - 4096) // 2
 #: Relative amount below the minimum period at which the densest corner is evaluated, so that a
 #: window holding a whole number of minimum periods counts floor(L / P) + 1 pulses.
 _HAIR = 1e-9
@@ -73,25 +75,25 @@ class LineLaserOptics:
 
 @dataclass(frozen=True)
 class FirmwareEnvelope:
-    """The three compiled-in limits, in the firmware's units (0.5 us ticks, ppm of time)."""
+    """The three compiled-in limits, in the Makefile's units (microseconds, ppm of time)."""
 
-    max_pulse_ticks: int
+    max_pulse_us: int
     max_duty_ppm: int
-    min_period_ticks: int
+    min_period_us: int
 
     def __post_init__(self) -> None:
-        if not MIN_PULSE_TICKS <= self.max_pulse_ticks <= MAX_PULSE_TICKS_LIMIT:
-            raise EnvelopeError(f"max_pulse_ticks = {self.max_pulse_ticks} is outside "
-                                f"{MIN_PULSE_TICKS}..{MAX_PULSE_TICKS_LIMIT} (100 us .. one 16-bit timer window)")
+        if not MIN_PULSE_US <= self.max_pulse_us <= MAX_PULSE_US_LIMIT:
+            raise EnvelopeError(f"max_pulse_us = {self.max_pulse_us} is outside "
+                                f"{MIN_PULSE_US}..{MAX_PULSE_US_LIMIT} (100 us .. one 16-bit timer window at 16 MHz)")
         if not 1 <= self.max_duty_ppm < 1_000_000:
             raise EnvelopeError(f"max_duty_ppm = {self.max_duty_ppm} is outside 1..999999")
-        if not MIN_PULSE_TICKS + MIN_GAP_TICKS <= self.min_period_ticks <= 2**31 - 1:
-            raise EnvelopeError(f"min_period_ticks = {self.min_period_ticks} is outside "
-                                f"{MIN_PULSE_TICKS + MIN_GAP_TICKS}..2^31-1")
+        if not MIN_PULSE_US + MIN_GAP_US <= self.min_period_us <= (2**31 - 1) // 2:
+            raise EnvelopeError(f"min_period_us = {self.min_period_us} is outside "
+                                f"{MIN_PULSE_US + MIN_GAP_US}..{(2**31 - 1) // 2} (2^31 - 1 ticks at 16 MHz)")
 
     @property
     def max_pulse_s(self) -> float:
-        return self.max_pulse_ticks / TICKS_PER_SECOND
+        return self.max_pulse_us * 1e-6
 
     @property
     def max_duty(self) -> float:
@@ -99,18 +101,18 @@ class FirmwareEnvelope:
 
     @property
     def min_period_s(self) -> float:
-        return self.min_period_ticks / TICKS_PER_SECOND
+        return self.min_period_us * 1e-6
 
     def make_command(self) -> str:
         """The firmware build line with these limits (firmware_pwm/Makefile variables)."""
-        return (f"make -C firmware_pwm MAX_PULSE_TICKS={self.max_pulse_ticks} MAX_DUTY_PPM={self.max_duty_ppm} "
-                f"MIN_PERIOD_TICKS={self.min_period_ticks}")
+        return (f"make -C firmware_pwm MAX_PULSE_US={self.max_pulse_us} MAX_DUTY_PPM={self.max_duty_ppm} "
+                f"MIN_PERIOD_US={self.min_period_us}")
 
 
 def parse_makefile_envelope(makefile_text: str) -> FirmwareEnvelope:
     """The compiled-in defaults from the text of firmware_pwm/Makefile (their one source of truth)."""
     values = {}
-    for name in ("MAX_PULSE_TICKS", "MAX_DUTY_PPM", "MIN_PERIOD_TICKS"):
+    for name in ("MAX_PULSE_US", "MAX_DUTY_PPM", "MIN_PERIOD_US"):
         m = re.search(rf"^{name} :?= *(\d+) *$", makefile_text, re.M)
         if m is None:
             raise EnvelopeError(f"no `{name} := <integer>` line in the firmware Makefile")
@@ -138,7 +140,7 @@ def width_grid_s(optics: LineLaserOptics, envelope: FirmwareEnvelope, points: in
     """Pulse widths to check (s, sorted): geometric from MIN_PULSE to the maximum, plus the ends,
     the model's kinks (625 us; the width where alpha_max equals the source's subtense) and the
     width at which the duty cap meets the minimum period."""
-    lo, hi = MIN_PULSE_TICKS / TICKS_PER_SECOND, envelope.max_pulse_s
+    lo, hi = MIN_PULSE_US * 1e-6, envelope.max_pulse_s
     subtense = safety.angular_subtense_mrad(optics.source_diameter_m)
     kinks = [625e-6, (subtense / 200.0) ** 2, envelope.max_duty * envelope.min_period_s]
     widths = np.concatenate([np.geomspace(lo, hi, points), [lo, hi], [k for k in kinks if lo <= k <= hi]])
@@ -146,7 +148,7 @@ def width_grid_s(optics: LineLaserOptics, envelope: FirmwareEnvelope, points: in
 
 
 #: Cross-check grid of periods (s), from the firmware's shortest placeable period to T = 100 s.
-_PERIOD_GRID_S = np.geomspace((MIN_PULSE_TICKS + MIN_GAP_TICKS) / TICKS_PER_SECOND, safety.AVERAGING_TIME_S, 60)
+_PERIOD_GRID_S = np.geomspace((MIN_PULSE_US + MIN_GAP_US) * 1e-6, safety.AVERAGING_TIME_S, 60)
 
 
 def period_candidates_s(optics: LineLaserOptics, envelope: FirmwareEnvelope, pulse_s: float) -> np.ndarray:
@@ -156,7 +158,7 @@ def period_candidates_s(optics: LineLaserOptics, envelope: FirmwareEnvelope, pul
     (condition 2) still changes, and it is largest at the step's start, so the steps of that count
     need no points of their own."""
     densest = max(envelope.min_period_s * (1.0 - _HAIR), pulse_s / envelope.max_duty,
-                  pulse_s + MIN_GAP_TICKS / TICKS_PER_SECOND)
+                  pulse_s + MIN_GAP_US * 1e-6)
     t2 = safety.t2_s(safety.angular_subtense_mrad(optics.source_diameter_m))
     steps = t2 / np.arange(1, math.floor(t2 / densest) + 1)  # the shortest period holding N pulses in T2
     periods = np.concatenate([[densest], steps, _PERIOD_GRID_S])
@@ -192,11 +194,11 @@ def verify_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: floa
     return EnvelopeCheck(worst[0], worst[1], worst[2], worst[3], float(closest_eye_m), points)
 
 
-def duty_ppm_for(max_pulse_ticks: int, min_period_ticks: int) -> int:
+def duty_ppm_for(max_pulse_us: int, min_period_us: int) -> int:
     """The duty cap of an envelope: max_pulse / min_period rounded up to a whole percent, so that it
     never refuses a regular train the other two limits allow (the region, and so the check, is the
     same as without it); it still bounds irregular patterns pulse by pulse."""
-    percent = math.ceil(100 * max_pulse_ticks / min_period_ticks - 1e-9)
+    percent = math.ceil(100 * max_pulse_us / min_period_us - 1e-9)
     return min(percent, 99) * 10_000
 
 
@@ -205,14 +207,11 @@ def compute_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: flo
     """The firmware envelope for pulses up to ``max_pulse_s`` at most one per ``min_period_s``
     (the sensor's pulse period minus the slack its sync needs), verified Class 1.
 
-    Ticks are rounded to the safe side (pulse down, period up).  Raises EnvelopeError naming the
+    Microseconds are rounded to the safe side (pulse down, period up).  Raises EnvelopeError naming the
     worst train and the shortest Class 1 period when the envelope is not Class 1.
     """
-    envelope = FirmwareEnvelope(
-        max_pulse_ticks=math.floor(max_pulse_s * TICKS_PER_SECOND + 1e-6),
-        max_duty_ppm=duty_ppm_for(math.floor(max_pulse_s * TICKS_PER_SECOND + 1e-6),
-                                  math.ceil(min_period_s * TICKS_PER_SECOND - 1e-6)),
-        min_period_ticks=math.ceil(min_period_s * TICKS_PER_SECOND - 1e-6))
+    max_pulse_us, min_period_us = _us_down(max_pulse_s), math.ceil(min_period_s * 1e6 - 1e-6)
+    envelope = FirmwareEnvelope(max_pulse_us, duty_ppm_for(max_pulse_us, min_period_us), min_period_us)
     check = verify_envelope(optics, power_w, closest_eye_m, envelope)
     if not check.class1:
         shortest = shortest_class1_period_s(optics, power_w, closest_eye_m, max_pulse_s)
@@ -227,23 +226,28 @@ def compute_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: flo
 
 def shortest_class1_period_s(optics: LineLaserOptics, power_w: float, closest_eye_m: float,
                              max_pulse_s: float) -> float | None:
-    """Shortest minimum period (s, whole ticks) whose envelope with pulses up to ``max_pulse_s``
+    """Shortest minimum period (s, whole microseconds) whose envelope with pulses up to ``max_pulse_s``
     is Class 1, by bisection (a longer minimum period allows a subset of the trains); None if even
     one pulse per 100 s is not."""
-    pulse_ticks = math.floor(max_pulse_s * TICKS_PER_SECOND + 1e-6)
+    pulse_us = _us_down(max_pulse_s)
 
-    def ok(period_ticks: int) -> bool:
-        env = FirmwareEnvelope(pulse_ticks, duty_ppm_for(pulse_ticks, period_ticks), period_ticks)
+    def ok(period_us: int) -> bool:
+        env = FirmwareEnvelope(pulse_us, duty_ppm_for(pulse_us, period_us), period_us)
         return verify_envelope(optics, power_w, closest_eye_m, env, width_points=60).class1
 
-    lo = max(pulse_ticks + MIN_GAP_TICKS, MIN_PULSE_TICKS + MIN_GAP_TICKS) - 1  # lo: not known to be ok
-    hi = int(safety.AVERAGING_TIME_S * TICKS_PER_SECOND)
+    lo = max(pulse_us + MIN_GAP_US, MIN_PULSE_US + MIN_GAP_US) - 1  # lo: not known to be ok
+    hi = int(safety.AVERAGING_TIME_S * 1e6)
     if not ok(hi):
         return None
     while hi - lo > 1:  # evaluates periods near the answer only, never the dense end
         mid = (lo + hi) // 2
         lo, hi = (lo, mid) if ok(mid) else (mid, hi)
-    return hi / TICKS_PER_SECOND
+    return hi * 1e-6
+
+
+def _us_down(seconds: float) -> int:
+    """Whole microseconds, rounded down (a hair of float error aside)."""
+    return math.floor(seconds * 1e6 + 1e-6)
 
 
 # ---------------------------------------------------------------- generator (python -m ...)

@@ -36,7 +36,7 @@ def build_emulator(build_dir: str = "build", **envelope: int) -> tuple[Path, Pat
     Without arguments: the production ELF (the Makefile's envelope) in firmware_pwm/build.  Tests
     that need another envelope name a separate ``build_dir`` (relative to firmware_pwm) and the
     Makefile variables to override, e.g. ``build_emulator("build/test-envelope",
-    MIN_PERIOD_TICKS=600)``, so that the production ELF is never built with them.
+    MIN_PERIOD_US=300)``, so that the production ELF is never built with them.
     """
     if envelope and build_dir == "build":
         raise ValueError(f"an envelope override {envelope} needs its own build_dir, not the production build")

@@ -63,9 +63,10 @@ class McuConfig:
     gpio_jitter_s: float = 20e-6
     gpio_outlier_prob: float = 0.005
     gpio_spurious_hz: float = 0.0
-    max_width_ticks: int = 34_800  # 17.4 ms, firmware_pwm/src/config.h MAX_PULSE_TICKS
-    max_duty: float = 0.2  # the firmware's compiled-in 200 000 ppm
-    min_period_ticks: int = 180_000  # 90 ms between lit rises, firmware_pwm/Makefile MIN_PERIOD_TICKS
+    # the 16 MHz firmware's compiled-in envelope (firmware_pwm/Makefile, in ticks of tick_hz)
+    max_width_ticks: int = 34_800  # 17.4 ms, MAX_PULSE_US
+    max_duty: float = 0.2  # MAX_DUTY_PPM 200 000
+    min_period_ticks: int = 180_000  # 90 ms between lit rises, MIN_PERIOD_US
 
 
 @dataclass

@@ -11,8 +11,6 @@
 #include "hw.h"
 #include "timer1.h"
 
-#define BAUD_UBRR 3 /* 16 MHz / (16 * 250000) - 1, exact */
-
 static core_t core;
 
 /* rx ring: bytes, plus the arrival tick of each delimiter (for PONG) */
@@ -69,7 +67,7 @@ void hw_tx(const uint8_t *buf, uint8_t len)
 int main(void)
 {
     timer1_start(&core);
-    UBRR0 = BAUD_UBRR;
+    UBRR0 = BAUD_UBRR; /* config.h: F_CPU / (16 * 250000) - 1, checked at compile time (16 MHz: 3, 8 MHz: 1) */
     UCSR0A = 0;
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8N1 */
