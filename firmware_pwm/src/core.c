@@ -194,12 +194,25 @@ static void arm_next(core_t *c)
         core_fault(c, FAULT_LATE);
 }
 
+/* Interrupts disabled.  Ends the pulse on the pin, if any, and records it as cut: also one whose
+ * rise the hardware made while the caller ran with interrupts off (its interrupt never came), so
+ * the interlock counts every pulse the pin had.  The fall is the time read after the cut: never
+ * earlier than the pin's. */
+static void cut_pulse(core_t *c)
+{
+    uint64_t rose_at;
+    uint8_t was_high = c->pin_high;
+    if (hw_force_off(&rose_at) && !was_high) {
+        core_rise_done(c, rose_at);
+        was_high = 1;
+    }
+    if (was_high)
+        record_fall(c, hw_now(), EDGE_CUT);
+}
+
 void core_fault(core_t *c, uint8_t flag)
 {
-    uint8_t was_high = c->pin_high;
-    hw_force_off();
-    if (was_high) /* the fall is the time read after the cut: never earlier than the pin's */
-        record_fall(c, hw_now(), EDGE_CUT);
+    cut_pulse(c);
     c->faults |= flag;
     c->state = STATE_FAULT;
     c->trim_pending = 0;
@@ -512,10 +525,7 @@ static void do_trim(core_t *c, const frame_t *f)
 static void do_stop(core_t *c, const frame_t *f)
 {
     uint8_t s = hw_irq_save();
-    uint8_t was_high = c->pin_high;
-    hw_force_off();
-    if (was_high) /* the fall is the time read after the cut: never earlier than the pin's */
-        record_fall(c, hw_now(), EDGE_CUT);
+    cut_pulse(c);
     c->state = STATE_IDLE;
     c->faults = 0;
     c->trim_pending = 0;

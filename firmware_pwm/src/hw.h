@@ -13,8 +13,10 @@ uint64_t hw_now(void);
  * to replace or has already happened (nothing changed: its pulse goes on). */
 enum { HW_ARMED = 0, HW_LATE = 1, HW_IN_FLIGHT = 2 };
 uint8_t hw_arm_rise(uint64_t t);
-/* Laser pin low now, every pending edge disarmed, the output compare latch cleared. */
-void hw_force_off(void);
+/* Laser pin low now, every pending edge disarmed, the output compare latch cleared.  Returns 1
+ * and sets *rose_at if the armed rise had already happened, its interrupt not yet run (a pulse
+ * the core was never told of, on the pin from *rose_at until now); 0 otherwise. */
+uint8_t hw_force_off(uint64_t *rose_at);
 /* Sends len bytes on the serial link (blocking). */
 void hw_tx(const uint8_t *buf, uint8_t len);
 /* Interrupt masking for the few sections shared with interrupt handlers. */

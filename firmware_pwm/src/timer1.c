@@ -100,15 +100,23 @@ static void oc1a_force_low(void)
     SFR_WRITE(TCCR1A, OC1A_DISCONNECTED);
 }
 
-void hw_force_off(void)
+uint8_t hw_force_off(uint64_t *rose_at)
 {
     uint8_t s = SFR_READ(SREG);
     IRQ_DISABLE();
+    uint8_t rise_armed = arm_state == ARM_RISE;
     oc1a_force_low();
     SFR_WRITE(PORTB, SFR_READ(PORTB) & (uint8_t)~_BV(PB1));
     SFR_WRITE(TIMSK1, SFR_READ(TIMSK1) & (uint8_t)~(_BV(OCIE1A) | _BV(OCIE1B)));
     arm_state = ARM_IDLE;
+    /* The armed rise's match acts at T + 1: read after the cut, a count past T means it may have
+     * acted before the cut (then the pin was high until it); counted as risen, at most a few
+     * ticks too many, never too few. */
+    uint8_t risen = rise_armed && arm_target < now_locked();
+    if (risen)
+        *rose_at = arm_target;
     SFR_WRITE(SREG, s);
+    return risen;
 }
 
 /* Interrupts disabled.  Arms an edge at t: ARMED (OC1A armed, the match is at t), DEFERRED
