@@ -552,8 +552,9 @@ static void test_heartbeat(void)
     fake_run(100000 + 10000); /* mid pulse, heartbeats stop */
     fake_run(2000000);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "heartbeat fault");
-    uint64_t last_edge = fake.edge_t[fake.n_edges - 1];
-    CHECK(fake.pin == 0 && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
+    CHECK(fake.n_edges >= 2, "a pulse before the fault, got %u edges", fake.n_edges);
+    uint64_t last_edge = fake.n_edges ? fake.edge_t[fake.n_edges - 1] : 0;
+    CHECK(fake.pin == 0 && fake.n_edges && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
     CHECK(last_edge - last_hb < TICKS_PER_SECOND / 10, "off within 100 ms: %llu ticks",
           (unsigned long long)(last_edge - last_hb));
     frame_t r = schedule(&c, 100000, 200000, 20000, 1, 1, 0);
