@@ -19,28 +19,22 @@ import sys
 import time
 from pathlib import Path
 
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text.strip()!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
+from .argtypes import positive_float, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--sequences", type=_positive_int, default=1000, help="how many sequences (default 1000)")
-    parser.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    parser.add_argument("--jobs", type=_positive_int, default=1, help="emulator processes at once (default 1)")
-    parser.add_argument("--batch", type=_positive_int, default=1000,
-                        help="sequences per emulator process, checked as one pin log (default 1000)")
-    parser.add_argument("--first", type=int, default=0, help="index of the first sequence (a multiple of --batch)")
-    parser.add_argument("--minutes", type=float, help="start no batch after this many minutes (the result "
-                        "says how many sequences ran)")
-    parser.add_argument("--elf", type=Path, help="firmware ELF to fuzz (default: build the production one)")
-    parser.add_argument("--harness", type=Path, help="simavr harness for --elf (default: firmware_pwm/build's)")
+    which = parser.add_argument_group("which sequences (the same ones, bit for bit, for the same values)")
+    which.add_argument("--sequences", type=positive_int, default=1000, help="how many (default 1000)")
+    which.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    which.add_argument("--batch", type=positive_int, default=1000,
+                       help="sequences per emulator process, checked as one pin log (default 1000)")
+    which.add_argument("--first", type=int, default=0, help="index of the first sequence (a multiple of --batch)")
+    how = parser.add_argument_group("how")
+    how.add_argument("--jobs", type=positive_int, default=1, help="emulator processes at once (default 1)")
+    how.add_argument("--minutes", type=positive_float,
+                     help="start no batch after this many minutes (the result says how many sequences ran)")
+    how.add_argument("--elf", type=Path, help="firmware ELF to fuzz (default: build the production one)")
+    how.add_argument("--harness", type=Path, help="simavr harness for --elf (default: firmware_pwm/build's)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
 
