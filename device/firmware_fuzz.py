@@ -394,7 +394,7 @@ class FuzzDriver:
             except (FrameError, ValueError):
                 self.events.append(("reply.undecodable", self.sequence))  # cut by a reset
                 continue
-            REPLIES[type(msg)](self, msg, frame.seq)
+            REPLIES.get(type(msg), FuzzDriver._unexpected)(self, msg, frame.seq)
 
     def _on_ack(self, ack: mcu.Ack, seq: int) -> None:
         req = self.pending.get(seq)
@@ -465,6 +465,9 @@ class FuzzDriver:
     def _ignore(self, *_) -> None:
         pass
 
+    def _unexpected(self, msg, seq: int) -> None:  # a Pi -> MCU message from the MCU
+        self.events.append((f"reply.unexpected_{type(msg).__name__.lower()}", self.sequence))
+
     # commands --------------------------------------------------------------------------------
     def cmd_schedule(self) -> None:
         self.send(random_schedule(self.rng, self.envelope, self.now_ticks()))
@@ -477,12 +480,12 @@ class FuzzDriver:
         return random_trim(self.rng, self.model_period or 200_000, slots)
 
     def cmd_trim_raced(self) -> None:
-        msg = self._trim()
+        msg, model, period = self._trim(), self.model, self.model_period  # a reply may reset them meanwhile
         length = len(mcu.encode_message(msg, 1)) + 1
-        if self.model and self.run(120 * CYCLES_PER_MS, until=self.pin_high, step=CYCLES_PER_MS):
+        if model and self.run(120 * CYCLES_PER_MS, until=self.pin_high, step=CYCLES_PER_MS):
             rise = self.port.edges[-1][0]
-            spacing = lit_spacing(self.model.mask, self.model.n) * self.model_period
-            edge = rise + self.rng.choice((self.model.width_ticks, spacing)) * CYCLES_PER_TICK
+            spacing = lit_spacing(model.mask, model.n) * period
+            edge = rise + self.rng.choice((model.width_ticks, spacing)) * CYCLES_PER_TICK
             self._run_until(edge + self.rng.randint(-3 * CYCLES_PER_MS // 2, CYCLES_PER_MS * 3 // 10)
                             - length * CYCLES_PER_BYTE)
         self.send(msg)
@@ -497,9 +500,10 @@ class FuzzDriver:
         self.send(mcu.Stop())
 
     def cmd_stop_mid_pulse(self) -> None:
-        if self.model and self.run(120 * CYCLES_PER_MS, until=self.pin_high, step=CYCLES_PER_MS):
+        model = self.model  # a reply may reset it meanwhile
+        if model and self.run(120 * CYCLES_PER_MS, until=self.pin_high, step=CYCLES_PER_MS):
             rise = self.port.edges[-1][0]
-            self._run_until(rise + int(self.rng.uniform(0.05, 0.95) * self.model.width_ticks * CYCLES_PER_TICK)
+            self._run_until(rise + int(self.rng.uniform(0.05, 0.95) * model.width_ticks * CYCLES_PER_TICK)
                             - 14 * CYCLES_PER_BYTE)
         self.cmd_stop()
 
