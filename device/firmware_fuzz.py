@@ -16,7 +16,7 @@ rules) is checked against the envelope the firmware announces in its boot INFO
     quiet      the pin is low, and stays low, from each STOP's ACK, each fault the MCU reports and
                each reset until the next SCHEDULE enters the MCU
     heartbeat  the pin is low from 100 ms after the last accepted HEARTBEAT or SCHEDULE was
-               answered until the next one (README: the laser is off 83 ms after the last one)
+               answered until the next one enters the MCU (README: off 83 ms after the last one)
     end        the pin is low at the end of the batch
 
 Times are Timer1 counts of the pin's edges ((cycle - timer start) // 8), exact within one boot:
@@ -27,8 +27,9 @@ were on both sides of a reset (``across_reset``) and whether the first was cut s
 (``after_cut``), and by how many ticks the limit was missed.
 
 A *sequence* is 1..12 commands (uniform), each followed by a random simulated delay (a quarter
-up to 1 ms, most 1-30 ms, some 30-60 ms), then a STATUS request.  During delays the driver sends
-a HEARTBEAT every 20, 30 or 40 ms like the Pi's heartbeat thread, except in one sequence in five.
+up to 1 ms, most 1-30 ms, some 30-60 ms), then a STATUS request.  In three sequences out of five
+the driver also sends a HEARTBEAT every 20, 30 or 40 ms during delays, like the Pi's heartbeat
+thread; in the others a running schedule lives only on the sequence's own HEARTBEATs.
 The commands (COMMANDS, by weight):
 
     schedule        SCHEDULE around the width, duty and rate limits (exact boundaries included),
@@ -39,7 +40,8 @@ The commands (COMMANDS, by weight):
     stop            STOP at a random moment
     stop_mid_pulse  STOP timed to arrive while a pulse is high
     stop_schedule   STOP, then at once a SCHEDULE whose first rise is on or next to the rate or
-                    duty boundary after the last pulse on the pin (sometimes both in one write)
+                    duty boundary after the last pulse on the pin (in three of ten without
+                    waiting for the STOP's ACK)
     heartbeat       HEARTBEAT
     silence         60-200 ms without a byte (the heartbeat timeout)
     garbage         1-90 random bytes, half of them delimiters
@@ -552,7 +554,7 @@ class FuzzDriver:
     def run_sequence(self) -> None:
         rng = self.rng
         self.sequence_starts.append(self.port.cycle)
-        self.heartbeat_every = rng.choice((20, 30, 40, 0)) * CYCLES_PER_MS if rng.random() < 0.8 else 0
+        self.heartbeat_every = rng.choice((20, 30, 40, 0, 0)) * CYCLES_PER_MS
         names, weights = zip(*((name, w) for name, (w, _) in COMMANDS.items()))
         for name in rng.choices(names, weights, k=rng.randint(1, 12)):
             self.events.append((name, self.sequence))
