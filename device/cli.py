@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "soak": ("device.commands.soak", "long run of the simulated sensor, watching memory and drops"),
     "demo": ("device.commands.demo", "the simulated sensor end to end, read by the host SDK"),
     "bench": ("device.commands.bench", "benchmarks: model, pipeline, protocol, sim"),
+    "fuzz-firmware": ("device.commands.fuzz_firmware", "co-MCU eye-safety envelope fuzzed in the emulator"),
     # host side (host_sdk/)
     "scans": ("host_sdk.commands.scans", "print one line per scan from a sensor"),
     "view": ("host_sdk.commands.view", "draw a scan to a PNG"),

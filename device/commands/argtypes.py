@@ -34,3 +34,13 @@ def nonnegative_float(text: str) -> float:
 def positive_floats(text: str) -> list[float]:
     """A comma-separated list of finite positive numbers."""
     return [positive_float(part) for part in text.split(",")]
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text.strip()!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text.strip()!r}")
+    return value

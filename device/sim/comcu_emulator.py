@@ -63,6 +63,7 @@ class SteppedMcuPort:
         self.edges: list[tuple[int, int]] = []   # (cpu cycle, new level) of the laser pin
         self.rx_delims: list[int] = []           # cpu cycle at which each 0x00 entered the MCU UART
         self.timer_starts: list[int] = []        # cpu cycle of each TCCR1B write (Timer1 start)
+        self.resets: list[int] = []              # cpu cycle of each reset()
         self._rx = bytearray()
         self._proc = subprocess.Popen([str(harness), str(elf), "--stepped"], stdin=subprocess.PIPE,
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
@@ -97,6 +98,14 @@ class SteppedMcuPort:
         """Timer1 count (extended, MCU ticks) at a CPU cycle, from the last timer start before it."""
         start = max(c for c in self.timer_starts if c <= cycle)
         return (cycle - start) // CYCLES_PER_TICK
+
+    def reset(self, cause: str = "power") -> None:
+        """Resets the MCU now as a power-on ("power") or watchdog ("wdt") reset does (its MCUSR
+        then reads PORF or WDRF); the laser pin goes low at once, the firmware boots again."""
+        if cause not in ("power", "wdt"):
+            raise ValueError(f"reset cause must be 'power' or 'wdt', not {cause!r}")
+        self._command(f"reset {cause}")
+        self.resets.append(self.cycle)
 
     def advance(self, seconds: float) -> None:
         self.run_cycles(int(round(seconds * CPU_HZ)))
