@@ -16,7 +16,8 @@ A scan whose timing is a lie (an age of 0xFFFFFFFF µs, a device time far off) g
 far below the others: the minimum is only taken over estimates no more than
 StampClock.tolerance_s below the fifth smallest in the window (the median while the window holds
 fewer than ten), so up to four such scans in a window shift no stamp - not even their own, which
-comes from the others. A genuine jump of the offset (the device restarted) is followed within
+comes from the others. tolerance_s (0.5 s) is above what a loaded host adds to a read (a late
+read must not make the good estimates before it look low), and far below what a lie does. A genuine jump of the offset (the device restarted) is followed within
 five scans; the Receiver also resets the clock when it sees a restart.
 A frame that had to wait in the device's UART buffer behind the previous one gives a late
 estimate, which the minimum also ignores as long as the link is not saturated (54 % at
@@ -202,7 +203,7 @@ class StampClock:
 
     REFERENCE_RANK = 4  # the fifth smallest estimate is the reference for what is too low
 
-    def __init__(self, link_rate_bps: float, window: int = 50, tolerance_s: float = 0.05):
+    def __init__(self, link_rate_bps: float, window: int = 50, tolerance_s: float = 0.5):
         if link_rate_bps <= 0:
             raise ValueError(f"link rate must be positive, got {link_rate_bps}")
         self.byte_time_s = UART_BITS_PER_BYTE / link_rate_bps
