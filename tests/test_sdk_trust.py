@@ -327,3 +327,105 @@ def test_diagnostics_in_the_shape_of_diagnostic_status(rig):
         rig.forge_port.raw(b"\x05\x01\x02\x03\x00")  # a damaged frame
         time.sleep(0.2)
         assert s.diagnostics()[1].level == 1
+
+
+# --- the pure parts, with hypothesis ------------------------------------------------------------
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from host_sdk.receiver import Receiver  # noqa: E402
+from host_sdk.scan import Crop, Scan, StampClock  # noqa: E402
+from protocol.framing import encode_frame  # noqa: E402
+from protocol.stream import StreamDecoder  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), where=st.lists(st.integers(0, 79), min_size=1, max_size=4, unique=True),
+       lie_s=st.sampled_from([0.6, 5.0, 4294.967295, -1e6]))
+def test_timing_outliers_shift_no_other_stamp(seed, where, lie_s):
+    """Up to four lying scans (age or device time off by lie_s) among 80: every other scan is
+    stamped as it is without them."""
+    rng = np.random.default_rng(seed)
+    offset, wire = 100.0, 4980
+    honest, lying = StampClock(921600), StampClock(921600)
+    for k in range(80):
+        device_t = 1.0 + 0.1 * k
+        t_read = device_t + offset + 0.004 + wire * 10 / 921600 + rng.exponential(0.002)
+        args = (t_read, 0, wire, 4000, int(round(device_t * 1e6)))
+        if k in where:
+            lie = (t_read, 0, wire, 4000 + int(lie_s * 1e6), args[4]) if lie_s > 0 else \
+                  (t_read, 0, wire, 4000, args[4] - int(lie_s * 1e6))
+            lying.stamp(*lie)
+            continue
+        truth = honest.stamp(*args)
+        assert lying.stamp(*args) == pytest.approx(truth, abs=0.002)
+    assert lying.outliers >= len(where) - (0 in where)  # the very first estimate has nothing to compare with
+
+
+@settings(max_examples=100, deadline=None)
+@given(n=st.integers(2, 60), a_min=st.floats(-2, 2), width=st.floats(0, 3), r_min=st.floats(0, 2),
+       r_span=st.floats(0.01, 3), seed=st.integers(0, 2**31))
+def test_crop_keeps_the_rays_between_the_nearest_and_filters_ranges_rep117(n, a_min, width, r_min, r_span, seed):
+    rng = np.random.default_rng(seed)
+    angles = np.sort(rng.uniform(-1.0, 1.0, n)).astype(np.float32)[::-1].copy()  # device order: clockwise
+    if np.unique(angles).size < 2:
+        return
+    ranges = rng.uniform(0.05, 4.0, n).astype(np.float32)
+    ranges[rng.random(n) < 0.1] = np.nan
+    scan = Scan(7, 10.0, 5.0, angles, ranges, np.arange(n, dtype=np.float32), 1e-4, 0.1, 0.1, 3.0)
+    out = scan.cropped(angle_min=a_min, angle_max=a_min + width, range_min=r_min, range_max=r_min + r_span)
+    u = np.unique(angles)
+    near = lambda a: u[np.argmin(np.abs(u - np.clip(a, u[0], u[-1])))]  # noqa: E731
+    lo, hi = near(a_min), near(a_min + width)
+    if lo == hi:
+        assert np.unique(out.angles).size == 2  # widened to two rays, as urg_node does
+    else:
+        assert out.angles.min() == lo and out.angles.max() == hi
+        assert np.array_equal(out.angles, angles[(angles >= lo) & (angles <= hi)])
+    assert out.range_min == max(r_min, 0.1) and out.range_max == min(r_min + r_span, 3.0)
+    kept = ranges[np.isin(angles, out.angles)]
+    fin = np.isfinite(kept)
+    assert np.array_equal(np.isnan(out.ranges), np.isnan(kept))
+    assert np.array_equal(np.isposinf(out.ranges), fin & (kept > out.range_max))
+    assert np.array_equal(np.isneginf(out.ranges), fin & (kept < out.range_min))
+    first = int(np.flatnonzero(np.isin(angles, out.angles))[0])
+    assert out.stamp == pytest.approx(10.0 + first * 1e-4)  # the scan now starts at its first kept ray
+    ls = scan.to_laserscan(angle_min=a_min, angle_max=a_min + width, range_min=r_min, range_max=r_min + r_span)
+    assert ls.angle_min == pytest.approx(float(out.angles.min())) and ls.range_max == out.range_max
+
+
+@pytest.mark.parametrize("bad", [dict(angle_min=1.0, angle_max=0.0), dict(range_min=-1.0),
+                                 dict(range_min=2.0, range_max=1.0), dict(angle_max=math.nan)])
+def test_crop_refuses_bad_limits_by_name(bad):
+    with pytest.raises(ValueError, match=list(bad)[0]):
+        Crop(**bad)
+
+
+@given(back=st.integers(1, 0x7FFF))
+def test_frame_sequence_going_back_is_a_restart_not_a_loss(back):
+    dec = StreamDecoder(synced=True)
+    seqs = [1000, 1001, 1002, (1002 - back) & 0xFFFF, (1003 - back) & 0xFFFF]
+    dec.feed(b"".join(encode_frame(m.MsgType.LOG, q, m.Log(20, 0, "x").encode()) for q in seqs))
+    assert (dec.stats.seq_restarts, dec.stats.frames_missing, dec.stats.frames_ok) == (1, 0, 5)
+
+
+@given(run=st.integers(0, 2000))
+def test_zero_runs_and_bytes_are_counted(run):
+    dec = StreamDecoder(synced=True)
+    frame = encode_frame(m.MsgType.LOG, 1, m.Log(20, 0, "x").encode())
+    dec.feed(b"\x00" + frame + b"\x00" * run + frame)  # one idle zero is what senders do
+    assert dec.stats.zero_bytes == 1 + run and dec.stats.zero_runs == int(run >= 2)
+    assert dec.stats.frames_ok == 2 and dec.stats.bytes_received == 2 + 2 * len(frame) + run - 1
+
+
+def test_an_old_device_whose_scan_counter_goes_back_has_restarted():
+    info = m.Info(1, 1, "old", "O-1", 10.0, 0.1, 3.0, np.linspace(0.5, -0.5, 4, dtype=np.float32),
+                  m.ScanSettings(10.0, 1000, 0, 4, 1, 0, 1.0), 5.0)
+    rx = Receiver(921600)
+    rx.set_info(info)
+    scan = lambda seq: encode_frame(m.MsgType.SCAN, seq, m.ScanMessage(  # noqa: E731
+        seq, 10**6 + seq, 0, 0, 0, np.ones(4), np.ones(4, np.uint8)).encode())
+    got = rx.feed(b"\x00" + scan(500) + scan(501) + scan(3) + scan(4), 0.0)
+    assert [s.seq for s in got] == [500, 501]  # nothing placed after the restart until INFO again
+    assert rx.stats.device_restarts == 1 and rx.restart_pending and rx.stats.scans_missing == 0
+    rx.set_info(info)
+    assert [s.seq for s in rx.feed(scan(5), 0.0)] == [5]
