@@ -150,7 +150,8 @@ class Crop:
       beyond range_max is +inf (no return within range), one below range_min is -inf (too close);
       NaN stays NaN. Limits wider than the device's keep the device's.
 
-    Bad limits (NaN, min above max, a negative range) raise ValueError naming them.
+    Bad limits (NaN, min above max, a negative range, a range window outside the sensor's)
+    raise ValueError naming them.
     """
 
     angle_min: float = -math.inf
@@ -171,6 +172,9 @@ class Crop:
         keep = self._rays(scan.angles)
         first = int(np.argmax(keep)) if keep.size else 0
         rmin, rmax = max(self.range_min, scan.range_min), min(self.range_max, scan.range_max)
+        if not rmin < rmax:
+            raise ValueError(f"range limits [{self.range_min}, {self.range_max}] m do not overlap the sensor's "
+                             f"[{scan.range_min}, {scan.range_max}] m")
         r = scan.ranges[keep]
         with np.errstate(invalid="ignore"):
             r = np.where(np.isfinite(r) & (r > rmax), np.inf, np.where(np.isfinite(r) & (r < rmin), -np.inf, r))
