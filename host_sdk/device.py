@@ -213,7 +213,9 @@ class LaserPi:
         return health
 
     def start(self) -> None:
-        self._request(m.Start(), m.Ack)
+        """Start streaming. The device answers once its camera and laser are started: this may
+        take its start-up time (INFO startup_s) on top of timeout_s."""
+        self._request(m.Start(), m.Ack, timeout_s=self.timeout_s + self._startup_s())
         self._streaming = True
         self._started_at = time.monotonic()
 
@@ -353,10 +355,14 @@ class LaserPi:
 
     def _scan_deadline(self, waited_from: float) -> float:
         if self._started_at is not None:  # no scan since our START: the start-up allowance too
-            info = self._receiver.info
-            startup = info.startup_s if info is not None and info.startup_s is not None else DEFAULT_STARTUP_S
-            return max(waited_from, self._started_at + startup) + self.timeout_s
+            return max(waited_from, self._started_at + self._startup_s()) + self.timeout_s
         return waited_from + self.timeout_s
+
+    def _startup_s(self) -> float:
+        """How long the device may take from START to its first scan: its own word (INFO, minor
+        2) or DEFAULT_STARTUP_S."""
+        info = self._receiver.info
+        return info.startup_s if info is not None and info.startup_s is not None else DEFAULT_STARTUP_S
 
     def _resume(self) -> None:
         """After a restart of the device or a reopened port: INFO again, then START again if we
@@ -469,9 +475,11 @@ class LaserPi:
             self._serial.write(b"\x00" + encode_frame(msg.TYPE, seq, msg.encode()))
         return seq
 
-    def _request(self, msg, reply_type: type):
+    def _request(self, msg, reply_type: type, timeout_s: float | None = None):
         """Send ``msg`` with a new request id, again every _retry_s, until its reply arrives or
-        timeout_s has passed (DeviceTimeout); a NACK raises CommandRefused."""
+        ``timeout_s`` (default self.timeout_s) has passed (DeviceTimeout); a NACK raises
+        CommandRefused."""
+        timeout_s = self.timeout_s if timeout_s is None else timeout_s
         with self._request_lock:
             with self._cond:
                 # while the reader reconnects, wait for it rather than fail the write
@@ -482,7 +490,7 @@ class LaserPi:
                 request_id, self._next_id = self._next_id, self._next_id % 0xFFFF + 1
                 pending = self._pending = _Pending(msg.TYPE, request_id, reply_type)
             msg = replace(msg, request_id=request_id)
-            deadline = time.monotonic() + self.timeout_s
+            deadline = time.monotonic() + timeout_s
             try:
                 while True:
                     try:
@@ -505,7 +513,7 @@ class LaserPi:
                         return reply
                     if time.monotonic() >= deadline:
                         raise DeviceTimeout(f"no reply to {type(msg).__name__} from {self.port_name} within "
-                                            f"{self.timeout_s} s ({len(pending.frame_seqs)} tries)")
+                                            f"{timeout_s:g} s ({len(pending.frame_seqs)} tries)")
             finally:
                 with self._cond:
                     self._pending = None
@@ -520,6 +528,7 @@ class LaserPi:
             try:
                 ser = self._serial
                 data = ser.read(max(1, min(ser.in_waiting, 65536)))
+                t_ns = time.monotonic_ns()  # first: the arrival time stamps the scans
                 self._heartbeat()
             except Exception as exc:  # pyserial raises SerialException/OSError/TypeError on unplug
                 if self._closing.is_set():
@@ -529,7 +538,6 @@ class LaserPi:
                 continue
             if not data:
                 continue
-            t_ns = time.monotonic_ns()
             try:
                 if self._tap is not None:
                     self._tap(t_ns, data)

@@ -20,7 +20,7 @@ import host_sdk
 from protocol import messages as m
 from protocol.framing import decode_frame, encode_frame
 from protocol.mock_wall import AnalyticWallSource, default_settings
-from protocol.ports import PacedPort, PtyLink
+from protocol.ports import NoisyPort, PacedPort, PtyLink
 from protocol.server import DeviceConfig, LinkServer
 from protocol.stream import StreamDecoder
 
@@ -136,15 +136,18 @@ class Rig:
     """One simulated device on ``kind`` ("sim" or "pty"); see the module docstring."""
 
     def __init__(self, kind: str, tmp_path: Path, *, points: int = 200, rate: float = 20.0,
-                 host_timeout_s: float = 5.0, start_delay_s: float = 0.0, old: bool = False):
+                 host_timeout_s: float = 5.0, start_delay_s: float = 0.0, old: bool = False, ber: float = 0.0,
+                 seed: int = 0):
         self.kind, self.points, self.rate = kind, points, rate
         self.host_timeout_s, self.start_delay_s, self.old = host_timeout_s, start_delay_s, old
+        self.ber, self.seed = ber, seed
         self.server: LinkServer | None = None
         self._pty = None
         if kind == "pty":
             self.link = tmp_path / "laserpi"
             self._pty = PtyLink(self.link)
-            self.forge_port = (OldDevicePort if old else ForgingPort)(PacedPort(self._pty.port, 921600))
+            line = NoisyPort(self._pty.port, ber, seed=seed)  # a bad cable: bits flip on the way to the host
+            self.forge_port = (OldDevicePort if old else ForgingPort)(PacedPort(line, 921600))
             self.server = LinkServer(self.forge_port, self.source(), self.config()).start()
         elif old:
             raise ValueError("the old device runs on a pty")
@@ -162,7 +165,7 @@ class Rig:
         if self.kind == "pty":
             return str(self.link)
         return (f"sim://wall?points={self.points}&rate={self.rate}&noise=0&host_timeout={self.host_timeout_s}"
-                f"&start_delay={self.start_delay_s}")
+                f"&start_delay={self.start_delay_s}&ber={self.ber}&seed={self.seed}")
 
     def open(self, **kw) -> host_sdk.LaserPi:
         sensor = host_sdk.LaserPi(self.url, **kw)
