@@ -152,14 +152,14 @@ class LaserPi:
                  link_rate_bps: float | None = None, tap=None):
         if queue_scans < 1:
             raise ValueError("queue_scans must be at least 1")
-        if not timeout_s > 0:
-            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         self.port_name = port
         self.baudrate = baudrate
         self.timeout_s = timeout_s
         self.reconnect = reconnect
         self.reconnect_timeout_s = reconnect_timeout_s
-        self._retry_s = max(0.1, timeout_s / 4)
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+        self._retry_s = max(0.1, timeout_s / 4)  # a request is sent again this often
         self._receiver = Receiver(link_rate_bps or baudrate)
         self._rx_lock = threading.Lock()  # the Receiver: fed by the reader, its INFO set by requests
         self._tap = tap

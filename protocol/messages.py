@@ -486,10 +486,10 @@ class GetAngles:
     """Host -> device (minor 2): columns first .. first + count - 1 of the scan geometry."""
 
     TYPE = MsgType.GET_ANGLES
-    _S = struct.Struct("<HHH")
     first: int
     count: int
     request_id: int = 0
+    _S: ClassVar = struct.Struct("<HHH")  # first, count, request_id
 
     def encode(self) -> bytes:
         return self._S.pack(self.first, self.count, self.request_id)
