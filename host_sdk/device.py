@@ -367,8 +367,10 @@ class LaserPi:
     def _resume(self) -> None:
         """After a restart of the device or a reopened port: INFO again, then START again if we
         were streaming; the start-up allowance applies again. A device still starting may not
-        answer yet: then we try again on the next pass."""
-        self._started_at = time.monotonic()
+        answer yet: then we try again on the next pass, within the allowance counted from the
+        first try."""
+        if self._started_at is None:
+            self._started_at = time.monotonic()
         try:
             self._fetch_info()
             with self._cond:

@@ -147,9 +147,9 @@ class Receiver:
         if (msg.scan_seq - last - 1) & 0xFFFFFFFF < _SCAN_SEQ_BACKWARDS:
             return False
         self._last_scan_seq = None
-        self.clock.reset()
-        if msg.boot_id is not None:
+        if msg.boot_id is not None:  # same process, same clock: nothing to forget
             return False
+        self.clock.reset()
         self.stats.device_restarts += 1
         self.restart_pending = True
         log.warning("the device's scan counter went back from %d to %d: it restarted", last, msg.scan_seq)
