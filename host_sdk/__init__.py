@@ -4,11 +4,12 @@ Needs numpy, pyserial and cobs only (no OpenCV). See the README section "On your
 """
 
 from host_sdk.device import LaserPi
+from host_sdk.diagnostics import DiagnosticStatus
 from host_sdk.errors import (CommandRefused, DeviceTimeout, DisconnectedError, IncompatibleDevice, LaserPiError,
                              PortError)
 from host_sdk.receiver import Stats
 from host_sdk.recording import replay
-from host_sdk.scan import LaserScan, Scan
+from host_sdk.scan import Crop, LaserScan, Scan
 
-__all__ = ["LaserPi", "Scan", "LaserScan", "Stats", "replay", "LaserPiError", "PortError", "DisconnectedError",
-           "DeviceTimeout", "CommandRefused", "IncompatibleDevice"]
+__all__ = ["LaserPi", "Scan", "LaserScan", "Crop", "DiagnosticStatus", "Stats", "replay", "LaserPiError", "PortError",
+           "DisconnectedError", "DeviceTimeout", "CommandRefused", "IncompatibleDevice"]

@@ -15,6 +15,8 @@ URL options (all optional):
     limit_mw=5.0     the device's Class 1 laser power limit, mW
     unplug_after=S   the device vanishes S seconds after opening (tests of DisconnectedError)
     ber=1e-5         bit error rate on the device-to-host line (tests of corruption handling)
+    start_delay=S    the first scan comes S seconds after START (a sensor starting up)
+    host_timeout=5   the device stops scanning when the host sent nothing for this long, s; 0 never
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from protocol.ports import NoisyPort, PacedPort, PortClosed, pipe_pair
 from protocol.server import DeviceConfig, LinkServer
 
 _OPTIONS = {"distance": float, "points": int, "fov_deg": float, "rate": float, "noise": int, "seed": int,
-            "limit_mw": float, "unplug_after": float, "ber": float}
+            "limit_mw": float, "unplug_after": float, "ber": float, "start_delay": float, "host_timeout": float}
 
 
 def parse_sim_url(url: str) -> tuple[str, dict]:
@@ -60,11 +62,13 @@ def build_sim_device(opts: dict) -> tuple[AnalyticWallSource, DeviceConfig]:
     source = AnalyticWallSource(opts.get("distance", 2.0), n_points=points,
                                 fov_rad=math.radians(opts.get("fov_deg", 105.0)),
                                 noise_floor_m=0.001 if noisy else 0.0, noise_rel_per_m=0.0025 if noisy else 0.0,
-                                dropout=0.01 if noisy else 0.0, seed=opts.get("seed", 0))
+                                dropout=0.01 if noisy else 0.0, seed=opts.get("seed", 0),
+                                start_delay_s=opts.get("start_delay", 0.0))
     settings = default_settings(points)
     if "rate" in opts:
         settings = settings.merged(type(settings)(scan_rate_hz=opts["rate"]))
-    return source, DeviceConfig(laser_limit_mw=opts.get("limit_mw", 5.0), settings=settings)
+    return source, DeviceConfig(laser_limit_mw=opts.get("limit_mw", 5.0), settings=settings,
+                                host_timeout_s=opts.get("host_timeout", 5.0))
 
 
 class Serial(SerialBase):

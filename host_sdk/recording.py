@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
-from host_sdk.receiver import Receiver, Stats
+from host_sdk.receiver import InfoAssembler, Receiver, Stats
 from host_sdk.scan import Scan
 from protocol import messages as m
 
@@ -112,7 +112,9 @@ class Replay:
     """Iterate the scans of a recording, decoded by the same Receiver as the live link.
 
     ``stats`` counts what was dropped (corrupt frames, gaps); ``info`` is the INFO the recording
-    carried (scans before it cannot be placed and are counted in stats.scans_without_info).
+    carried, completed by the ANGLES chunks that followed it (a recording cannot ask, so it takes
+    them as they come; scans before it cannot be placed and are counted in
+    stats.scans_without_info).
     Scan.stamp is in the recording host's time.monotonic() (header.mono_start_ns is its start).
     """
 
@@ -130,10 +132,22 @@ class Replay:
         return self._receiver.info
 
     def __iter__(self) -> Iterator[Scan]:
+        chunks = None
         for t_ns, chunk in self._records:
             for item in self._receiver.feed(chunk, t_ns * 1e-9):
                 if isinstance(item, Scan):
                     yield item
+                    continue
+                if isinstance(item, m.Info):
+                    chunks = InfoAssembler(item)
+                elif isinstance(item, m.Angles) and chunks is not None:
+                    chunks.add(item)
+                else:
+                    continue
+                info = chunks.complete()
+                if info is not None:
+                    self._receiver.set_info(info)
+                    chunks = None
 
 
 def replay(path: str | Path) -> Replay:

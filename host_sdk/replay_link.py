@@ -1,20 +1,23 @@
 """Serve a recording (host_sdk/recording.py) to a host again, as if it were the sensor.
 
-The server answers the host's requests itself - GET_INFO with the recording's INFO, GET_HEALTH,
-START and STOP with ACK, SET_CONFIG with NACK (a recording cannot change) - and, while started,
+The server answers the host's requests itself - GET_INFO with the recording's INFO (all its
+angles in it), GET_HEALTH, START and STOP with ACK, SET_CONFIG with NACK (a recording cannot
+change), each echoing the request's id - and, while started,
 writes the recorded bytes at their recorded times divided by ``speed``. STOP pauses the playback
 and START resumes it, so a LaserPi opening the link (STOP, GET_INFO, START) sees the recording
-from its beginning. Recorded control replies (INFO, HEALTH, ACK, NACK) are taken out of the
+from its beginning. Recorded control replies (INFO, HEALTH, ACK, NACK, ANGLES) are taken out of the
 stream so that they cannot be mistaken for answers; everything else, corrupt bytes included,
 is sent verbatim. (The removed frames show up as frame sequence gaps on the host.)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
 
+from host_sdk.receiver import InfoAssembler
 from host_sdk.recording import read_recording
 from protocol import messages as m
 from protocol.framing import FrameError, decode_frame, encode_frame
@@ -23,7 +26,7 @@ from protocol.stream import StreamDecoder
 
 log = logging.getLogger(__name__)
 
-_CONTROL = {m.MsgType.INFO, m.MsgType.HEALTH, m.MsgType.ACK, m.MsgType.NACK}
+_CONTROL = {m.MsgType.INFO, m.MsgType.HEALTH, m.MsgType.ACK, m.MsgType.NACK, m.MsgType.ANGLES}
 
 
 class ControlFilter:
@@ -47,18 +50,25 @@ class ControlFilter:
 
 
 def recorded_info(path) -> m.Info:
-    """The last INFO in a recording; ValueError if it has none."""
+    """The last complete INFO in a recording (its angles from the ANGLES chunks that followed
+    it, from a device of protocol minor >= 2); ValueError if it has none."""
     _, records = read_recording(path)
-    dec, info = StreamDecoder(), None
+    dec, info, chunks = StreamDecoder(), None, None
     for _, chunk in records:
         for rec in dec.feed(chunk):
-            if rec.frame.msg_type == m.MsgType.INFO:
-                try:
-                    info = m.Info.decode(rec.frame.payload)
-                except m.MessageError:
-                    continue
+            if rec.frame.msg_type not in (m.MsgType.INFO, m.MsgType.ANGLES):
+                continue
+            try:
+                msg = m.decode_message(rec.frame.msg_type, rec.frame.payload)
+            except m.MessageError:
+                continue
+            if isinstance(msg, m.Info):
+                chunks = InfoAssembler(msg)
+            elif chunks is not None:
+                chunks.add(msg)
+            info = (chunks.complete() if chunks is not None else None) or info
     if info is None:
-        raise ValueError(f"{path} holds no INFO message; a host could not place its scans")
+        raise ValueError(f"{path} holds no complete INFO message; a host could not place its scans")
     return info
 
 
@@ -116,18 +126,27 @@ class ReplayServer:
 
     def _answer(self, frame) -> None:
         t = frame.msg_type
+        try:
+            rid = getattr(m.decode_message(t, frame.payload), "request_id", 0)
+        except m.MessageError:
+            rid = 0
+        if t == m.MsgType.HEARTBEAT:
+            return
         if t == m.MsgType.GET_INFO:
-            reply = self.info
+            reply = self.info if self.info.boot_id is None else dataclasses.replace(self.info, request_id=rid)
         elif t == m.MsgType.GET_HEALTH:
-            state = m.DeviceState.SCANNING if self._playing.is_set() else m.DeviceState.IDLE
-            reply = m.Health(state, self._playing.is_set(), self._playing.is_set(), 0, 0, 0, device_clock_us())
+            playing = self._playing.is_set()
+            state = m.DeviceState.SCANNING if playing else m.DeviceState.IDLE
+            newer = {} if self.info.boot_id is None else dict(
+                {n: 0 for n in m.Health.MINOR1_FIELDS}, request_id=rid, boot_id=self.info.boot_id, host_timeouts=0)
+            reply = m.Health(state, playing, playing, 0, 0, 0, device_clock_us(), **newer)
         elif t in (m.MsgType.START, m.MsgType.STOP):
             (self._playing.set if t == m.MsgType.START else self._playing.clear)()
-            reply = m.Ack(t, frame.seq)
+            reply = m.Ack(t, frame.seq, rid)
         elif t == m.MsgType.SET_CONFIG:
-            reply = m.Nack(t, frame.seq, m.NackCode.NOT_SUPPORTED, "a replayed recording cannot change its settings")
+            reply = m.Nack(t, frame.seq, m.NackCode.NOT_SUPPORTED, "a replayed recording cannot change its settings", rid)
         else:
-            reply = m.Nack(t, frame.seq, m.NackCode.UNKNOWN_MESSAGE, f"unknown request 0x{t:02x}")
+            reply = m.Nack(t, frame.seq, m.NackCode.UNKNOWN_MESSAGE, f"unknown request 0x{t:02x}", rid)
         with self._write_lock:
             self.port.write(b"\x00" + encode_frame(reply.TYPE, self._seq, reply.encode()))
             self._seq = (self._seq + 1) & 0xFFFF

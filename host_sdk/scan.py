@@ -12,6 +12,13 @@ started sending (SCAN.age_us). Reads only ever arrive late, so the per-scan esti
 turned into a clock offset (host − device) by taking the minimum over the last
 StampClock.window scans; stamp = device_time + offset. This removes host scheduling jitter and
 leaves a constant error of the order of the serial driver's latency (about a millisecond).
+A scan whose timing is a lie (an age of 0xFFFFFFFF µs, a device time far off) gives an estimate
+far below the others: the minimum is only taken over estimates no more than
+StampClock.tolerance_s below the fifth smallest in the window (the median while the window holds
+fewer than ten), so up to four such scans in a window shift no stamp - not even their own, which
+comes from the others. tolerance_s (0.5 s) is above what a loaded host adds to a read (a late
+read must not make the good estimates before it look low), and far below what a lie does. A genuine jump of the offset (the device restarted) is followed within
+five scans; the Receiver also resets the clock when it sees a restart.
 A frame that had to wait in the device's UART buffer behind the previous one gives a late
 estimate, which the minimum also ignores as long as the link is not saturated (54 % at
 921600 baud and full rate, protocol/SPEC.md).
@@ -23,7 +30,8 @@ crystals. For a USB CDC link the baud rate is nominal: pass the real throughput 
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -79,8 +87,19 @@ class Scan:
         r = np.where(np.isfinite(self.ranges), self.ranges, np.nan)
         return np.stack([r * np.cos(self.angles), r * np.sin(self.angles)], axis=1)
 
-    def to_laserscan(self, frame_id: str = "laser", stamp: float | None = None) -> LaserScan:
+    def cropped(self, *, angle_min: float = -math.inf, angle_max: float = math.inf, range_min: float = 0.0,
+                range_max: float = math.inf) -> Scan:
+        """This scan cropped to [angle_min, angle_max] and filtered to [range_min, range_max]
+        (see Crop, which says how)."""
+        return Crop(angle_min, angle_max, range_min, range_max).apply(self)
+
+    def to_laserscan(self, frame_id: str = "laser", stamp: float | None = None, *, angle_min: float = -math.inf,
+                     angle_max: float = math.inf, range_min: float = 0.0, range_max: float = math.inf) -> LaserScan:
         """The scan as sensor_msgs/LaserScan fields, with increasing, equally spaced angles.
+
+        angle_min .. range_max crop and filter it first (Crop); the LaserScan's angle_min and
+        angle_max are then those of its first and last ray, its range_min and range_max the
+        filter's.
 
         LaserScan can only express equally spaced angles. If the device's angles (from its
         calibration) are within a quarter step of equal spacing the rays are copied in
@@ -100,6 +119,9 @@ class Scan:
             right = np.clip(np.searchsorted(a, grid), 1, n - 1)
             nearest = np.where(grid - a[right - 1] <= a[right] - grid, right - 1, right)
             ranges, inten = ranges[nearest], inten[nearest]
+        crop = Crop(angle_min, angle_max, range_min, range_max)
+        if crop != _NO_CROP:
+            return crop.apply(self).to_laserscan(frame_id, stamp)
         stamp = self.stamp if stamp is None else stamp
         time_inc = self.time_increment
         if n > 1 and order[0] != 0:  # the device's first ray is now last: stamp the new first one
@@ -110,28 +132,102 @@ class Scan:
                          inten.astype(np.float32))
 
 
-class StampClock:
-    """Host time of a scan's first ray from arrival time, frame length and age (module docstring)."""
+@dataclass(frozen=True)
+class Crop:
+    """Crop a scan to [angle_min, angle_max] (rad) and filter it to [range_min, range_max] (m)
+    on the host, with the conventions of the ROS drivers of other 2-D scanners:
 
-    def __init__(self, link_rate_bps: float, window: int = 50):
+    - Angles as in urg_node (ros-drivers/urg_node, src/urg_c_wrapper.cpp,
+      URGCWrapper::setAngleLimitsAndCluster): each limit is rounded to the nearest ray (urg_rad2step),
+      the rays between them are kept inclusive, and at least two are kept (the neighbour of the
+      one ray is added); the scan then starts at its first kept ray (stamp and device time move
+      with it) and a LaserScan made of it reports the first and last kept ray's angles, not the
+      requested limits. A limit outside the field of view keeps the field's edge.
+    - Ranges: the LaserScan's range_min and range_max are the limits a consumer must apply
+      (urg_node reports the device's, urg_c_wrapper.cpp getRangeMin/getRangeMax; rplidar_ros
+      likewise, src/node.cpp publish_scan). Here they become the tighter of the device's and the
+      requested ones, and the ranges are made to agree with them as REP 117 says: a finite range
+      beyond range_max is +inf (no return within range), one below range_min is -inf (too close);
+      NaN stays NaN. Limits wider than the device's keep the device's.
+
+    Bad limits (NaN, min above max, a negative range, a range window outside the sensor's)
+    raise ValueError naming them.
+    """
+
+    angle_min: float = -math.inf
+    angle_max: float = math.inf
+    range_min: float = 0.0
+    range_max: float = math.inf
+
+    def __post_init__(self):
+        for name in ("angle_min", "angle_max", "range_min", "range_max"):
+            if math.isnan(getattr(self, name)):
+                raise ValueError(f"{name} is NaN")
+        if self.angle_min > self.angle_max:
+            raise ValueError(f"angle_min {self.angle_min} is above angle_max {self.angle_max}")
+        if not 0 <= self.range_min < self.range_max:
+            raise ValueError(f"need 0 <= range_min < range_max, got {self.range_min}, {self.range_max}")
+
+    def apply(self, scan: Scan) -> Scan:
+        keep = self._rays(scan.angles)
+        first = int(np.argmax(keep)) if keep.size else 0
+        rmin, rmax = max(self.range_min, scan.range_min), min(self.range_max, scan.range_max)
+        if not rmin < rmax:
+            raise ValueError(f"range limits [{self.range_min}, {self.range_max}] m do not overlap the sensor's "
+                             f"[{scan.range_min}, {scan.range_max}] m")
+        r = scan.ranges[keep]
+        with np.errstate(invalid="ignore"):
+            r = np.where(np.isfinite(r) & (r > rmax), np.inf, np.where(np.isfinite(r) & (r < rmin), -np.inf, r))
+        shift = first * scan.time_increment
+        return replace(scan, stamp=scan.stamp + shift, device_time=scan.device_time + shift,
+                       angles=scan.angles[keep], ranges=r.astype(np.float32), intensities=scan.intensities[keep],
+                       range_min=float(rmin), range_max=float(rmax))
+
+    def _rays(self, angles: np.ndarray) -> np.ndarray:
+        """Mask of the rays kept: between the rays nearest to the limits, at least two."""
+        ordered = np.unique(angles.astype(np.float64))
+        if ordered.size < 2 or (self.angle_min <= ordered[0] and self.angle_max >= ordered[-1]):
+            return np.ones(angles.shape, bool)
+        lo = int(np.argmin(np.abs(ordered - np.clip(self.angle_min, ordered[0], ordered[-1]))))
+        hi = int(np.argmin(np.abs(ordered - np.clip(self.angle_max, ordered[0], ordered[-1]))))
+        if lo == hi:  # one ray: add its neighbour, as urg_node widens to two steps
+            lo, hi = (lo, lo + 1) if lo == 0 else (hi - 1, hi)
+        a = angles.astype(np.float64)
+        return (a >= ordered[lo]) & (a <= ordered[hi])
+
+
+_NO_CROP = Crop()
+
+
+class StampClock:
+    """Host time of a scan's first ray from arrival time, frame length and age (module docstring).
+
+    ``outliers`` counts the estimates left out for being more than tolerance_s below the others.
+    """
+
+    REFERENCE_RANK = 4  # the fifth smallest estimate is the reference for what is too low
+
+    def __init__(self, link_rate_bps: float, window: int = 50, tolerance_s: float = 0.5):
         if link_rate_bps <= 0:
             raise ValueError(f"link rate must be positive, got {link_rate_bps}")
         self.byte_time_s = UART_BITS_PER_BYTE / link_rate_bps
+        self.tolerance_s = tolerance_s
+        self.outliers = 0
         self._offsets: collections.deque[float] = collections.deque(maxlen=window)
-        self._last_device_us: int | None = None
 
     def reset(self) -> None:
         self._offsets.clear()
-        self._last_device_us = None
 
     def stamp(self, t_read: float, tail_bytes: int, wire_len: int, age_us: int, device_time_us: int) -> float:
-        if self._last_device_us is not None and device_time_us < self._last_device_us:
-            self._offsets.clear()  # the device clock restarted (device rebooted)
-        self._last_device_us = device_time_us
         first_ray = t_read - (tail_bytes + wire_len) * self.byte_time_s - age_us * 1e-6
         device_s = device_time_us * 1e-6
-        self._offsets.append(first_ray - device_s)
-        return device_s + min(self._offsets)
+        estimate = first_ray - device_s
+        self._offsets.append(estimate)
+        ordered = sorted(self._offsets)
+        floor = ordered[min(len(ordered) // 2, self.REFERENCE_RANK)] - self.tolerance_s
+        if estimate < floor:
+            self.outliers += 1
+        return device_s + next(e for e in ordered if e >= floor)
 
 
 def scan_from_message(msg: ScanMessage, info: Info, stamp: float) -> Scan:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import enum
 import struct
+import zlib
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -22,7 +23,7 @@ import numpy as np
 from protocol.framing import OVERHEAD, PROTOCOL_VERSION
 
 #: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
-PROTOCOL_MINOR = 1  # 1: HEALTH fault counters appended (SPEC.md "HEALTH")
+PROTOCOL_MINOR = 2  # 1: HEALTH fault counters; 2: request ids, boot id, ANGLES, HEARTBEAT (SPEC.md 2)
 
 
 class MsgType(enum.IntEnum):
@@ -35,6 +36,9 @@ class MsgType(enum.IntEnum):
     SET_CONFIG = 0x07
     ACK = 0x08
     NACK = 0x09
+    GET_ANGLES = 0x0A
+    ANGLES = 0x0B
+    HEARTBEAT = 0x0C
     SCAN = 0x10
     LOG = 0x11
 
@@ -153,6 +157,28 @@ def _finite(value: float, what: str) -> None:
         raise MessageError("value", f"{what} is {value}")
 
 
+# --- request ids (protocol minor 2) -----------------------------------------------------------
+# A request of minor >= 2 ends with a u16 request_id (1..65535) that its reply echoes; 0 means
+# "no id" and is not sent, so a request of an older host and its reply keep their old bytes.
+_ID = struct.Struct("<H")
+
+
+def _pack_id(request_id: int) -> bytes:
+    return _ID.pack(request_id) if request_id else b""
+
+
+def _unpack_id(payload: bytes, offset: int) -> int:
+    """The request id at ``offset`` if the payload carries one, else 0 (a sender of minor < 2)."""
+    if len(payload) >= offset + _ID.size:
+        return _ID.unpack_from(payload, offset)[0]
+    return 0
+
+
+def angles_crc(angles: np.ndarray) -> int:
+    """CRC-32 (as the frame CRC) of the angles as little-endian f32: names one scan geometry."""
+    return zlib.crc32(np.ascontiguousarray(angles, dtype="<f4").tobytes())
+
+
 # --- messages ---------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class GetInfo:
@@ -162,14 +188,15 @@ class GetInfo:
     _S = struct.Struct("<BB")
     host_major: int = PROTOCOL_VERSION
     host_minor: int = PROTOCOL_MINOR
+    request_id: int = 0  # minor 2
 
     def encode(self) -> bytes:
-        return self._S.pack(self.host_major, self.host_minor)
+        return self._S.pack(self.host_major, self.host_minor) + _pack_id(self.request_id)
 
     @classmethod
     def decode(cls, payload: bytes) -> GetInfo:
         _need(payload, cls._S.size, "GET_INFO")
-        return cls(*cls._S.unpack_from(payload))
+        return cls(*cls._S.unpack_from(payload), _unpack_id(payload, cls._S.size))
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,10 +257,19 @@ class Info:
 
     ``angles`` (float32, rad, counter-clockwise from +x, REP 103) gives the bearing of every
     column a scan can carry; a scan's points are ``angles[first_index : first_index + n]``.
+
+    Fields of protocol minor 2 (None from an older device; all present or all None):
+    request_id echoes the GET_INFO's; boot_id is drawn at random when the device process
+    starts (a new one = the device restarted); n_columns and angles_crc name the geometry - a
+    device answers a host of minor >= 2 with ``angles`` empty, and the host fetches them with
+    GET_ANGLES in frames smaller than a scan; startup_s is the longest the device takes from START
+    to its first scan; host_timeout_s is how long the device keeps scanning without hearing from
+    the host (0: forever).
     """
 
     TYPE = MsgType.INFO
     _S = struct.Struct("<BBfffH")
+    _S2: ClassVar = struct.Struct("<HIHIff")
     protocol_major: int
     protocol_minor: int
     software_version: str
@@ -244,14 +280,29 @@ class Info:
     angles: np.ndarray
     settings: ScanSettings
     laser_limit_mw: float  # the Class 1 limit the device enforces on laser_power_mw
+    # protocol minor 2
+    request_id: int | None = None
+    boot_id: int | None = None
+    n_columns: int | None = None
+    angles_crc: int | None = None
+    startup_s: float | None = None
+    host_timeout_s: float | None = None
+
+    MINOR2_FIELDS: ClassVar = ("request_id", "boot_id", "n_columns", "angles_crc", "startup_s", "host_timeout_s")
 
     def encode(self) -> bytes:
         angles = np.ascontiguousarray(self.angles, dtype="<f4")
         head = self._S.pack(self.protocol_major, self.protocol_minor, self.scan_rate_hz,
                             self.range_min_m, self.range_max_m, angles.size)
-        return (head + _pack_str(self.software_version, "software_version")
+        body = (head + _pack_str(self.software_version, "software_version")
                 + _pack_str(self.serial_number, "serial_number") + angles.tobytes()
                 + self.settings.encode() + struct.pack("<f", self.laser_limit_mw))
+        return body + _pack_group(self, self.MINOR2_FIELDS, self._S2, "INFO", 2)
+
+    @property
+    def complete(self) -> bool:
+        """Whether ``angles`` holds the whole geometry (False: fetch it with GET_ANGLES)."""
+        return self.n_columns is None or self.angles.size == self.n_columns
 
     @classmethod
     def decode(cls, payload: bytes) -> Info:
@@ -264,6 +315,8 @@ class Info:
         off += 4 * n
         settings = ScanSettings.decode(payload, off)
         (limit,) = struct.unpack_from("<f", payload, off + SETTINGS_SIZE)
+        minor2 = _unpack_group(payload, off + SETTINGS_SIZE + 4, cls._S2, "INFO fields of protocol minor 2",
+                               len(cls.MINOR2_FIELDS))
         for name, v in (("scan_rate_hz", rate), ("range_min_m", rmin), ("range_max_m", rmax)):
             _finite(v, name)
         if not np.isfinite(angles).all():
@@ -272,19 +325,50 @@ class Info:
             raise MessageError("value", f"range limits [{rmin}, {rmax}] m are not increasing")
         if not rate > 0:
             raise MessageError("value", f"scan_rate_hz {rate} is not positive")
-        return cls(major, minor, sw, serial, rate, rmin, rmax, angles, settings, limit)
+        info = cls(major, minor, sw, serial, rate, rmin, rmax, angles, settings, limit, *minor2)
+        if info.n_columns is not None:
+            if info.n_columns < 1 or n not in (0, info.n_columns):
+                raise MessageError("value", f"INFO carries {n} angles of n_columns {info.n_columns}")
+            if n and angles_crc(angles) != info.angles_crc:
+                raise MessageError("value", "INFO angles do not match their angles_crc")
+            for name in ("startup_s", "host_timeout_s"):
+                v = getattr(info, name)
+                if not (np.isfinite(v) and v >= 0):
+                    raise MessageError("value", f"{name} {v} is not a finite non-negative time")
+        return info
+
+
+def _pack_group(msg, fields: tuple, layout: struct.Struct, what: str, minor: int) -> bytes:
+    """The fields appended in one protocol minor: all None -> nothing (an older device's
+    message), all set -> packed; a mix is a bug of the sender."""
+    values = [getattr(msg, n) for n in fields]
+    if all(v is None for v in values):
+        return b""
+    missing = [n for n, v in zip(fields, values) if v is None]
+    if missing:
+        raise ValueError(f"{what} fields of protocol minor {minor} are all set or all None; missing {missing}")
+    return layout.pack(*values)
+
+
+def _unpack_group(payload: bytes, offset: int, layout: struct.Struct, what: str, count: int) -> tuple:
+    """The values of a group appended in a later minor, or Nones if the payload ends before it."""
+    if len(payload) <= offset:
+        return (None,) * count
+    _need(payload, offset + layout.size, what)
+    return layout.unpack_from(payload, offset)
 
 
 @dataclass(frozen=True, slots=True)
 class GetHealth:
     TYPE = MsgType.GET_HEALTH
+    request_id: int = 0  # minor 2
 
     def encode(self) -> bytes:
-        return b""
+        return _pack_id(self.request_id)
 
     @classmethod
     def decode(cls, payload: bytes) -> GetHealth:
-        return cls()
+        return cls(_unpack_id(payload, 0))
 
 
 @dataclass(frozen=True, slots=True)
@@ -293,11 +377,14 @@ class Health:
 
     The counters after ``errors`` were appended in protocol minor 1; they are None when the
     device speaks minor 0 (its payload ends after ``errors``) and encode to nothing when None.
+    The fields of minor 2 (request_id, boot_id, host_timeouts) follow them likewise.
     """
 
     TYPE = MsgType.HEALTH
     _S = struct.Struct("<BBBxIIIQH")
     _S1: ClassVar = struct.Struct("<7I")
+    _S2: ClassVar = struct.Struct("<HII")
+    MINOR2_FIELDS: ClassVar = ("request_id", "boot_id", "host_timeouts")
     MINOR1_FIELDS: ClassVar = ("camera_restarts", "comcu_resets", "comcu_lost", "pipeline_errors",
                                "host_bytes_discarded", "host_frames_rejected", "host_sessions")
     state: DeviceState
@@ -316,18 +403,23 @@ class Health:
     host_bytes_discarded: int | None = None  # bytes from the host outside intact frames (garbage, CRC, decode)
     host_frames_rejected: int | None = None  # frames from the host dropped for CRC, decode or size errors
     host_sessions: int | None = None  # times the host link was opened (reopened after a port failure)
+    # protocol minor 2
+    request_id: int | None = None  # the GET_HEALTH's request id
+    boot_id: int | None = None  # drawn at random when the device process started
+    host_timeouts: int | None = None  # times scanning stopped because the host was silent for host_timeout_s
 
     def encode(self) -> bytes:
         head = self._S.pack(int(self.state), self.laser_on, self.sync_locked, self.frames_dropped & 0xFFFFFFFF,
                             self.scans_dropped & 0xFFFFFFFF, self.scans_sent & 0xFFFFFFFF,
                             self.device_time_us, len(self.errors)) + struct.pack(f"<{len(self.errors)}H", *self.errors)
         counters = [getattr(self, n) for n in self.MINOR1_FIELDS]
-        if all(v is None for v in counters):
+        minor2 = _pack_group(self, self.MINOR2_FIELDS, self._S2, "HEALTH", 2)
+        if all(v is None for v in counters) and not minor2:
             return head
         missing = [n for n, v in zip(self.MINOR1_FIELDS, counters) if v is None]
         if missing:
             raise ValueError(f"HEALTH counters of protocol minor 1 are all set or all None; missing {missing}")
-        return head + self._S1.pack(*(v & 0xFFFFFFFF for v in counters))
+        return head + self._S1.pack(*(v & 0xFFFFFFFF for v in counters)) + minor2
 
     @classmethod
     def decode(cls, payload: bytes) -> Health:
@@ -340,48 +432,125 @@ class Health:
         except ValueError:
             raise MessageError("value", f"unknown device state {state}") from None
         errors = struct.unpack_from(f"<{n}H", payload, cls._S.size)
-        counters = (None,) * len(cls.MINOR1_FIELDS)
-        if len(payload) > off:  # a device of minor >= 1
-            _need(payload, off + cls._S1.size, "HEALTH counters (protocol minor 1)")
-            counters = cls._S1.unpack_from(payload, off)
-        return cls(state, bool(laser), bool(sync), fd, sd, ss, t, tuple(errors), *counters)
+        counters = _unpack_group(payload, off, cls._S1, "HEALTH counters (protocol minor 1)", len(cls.MINOR1_FIELDS))
+        minor2 = _unpack_group(payload, off + cls._S1.size, cls._S2, "HEALTH fields of protocol minor 2",
+                               len(cls.MINOR2_FIELDS))
+        return cls(state, bool(laser), bool(sync), fd, sd, ss, t, tuple(errors), *counters, *minor2)
 
 
 @dataclass(frozen=True, slots=True)
 class Start:
     TYPE = MsgType.START
+    request_id: int = 0  # minor 2
 
     def encode(self) -> bytes:
-        return b""
+        return _pack_id(self.request_id)
 
     @classmethod
     def decode(cls, payload: bytes) -> Start:
-        return cls()
+        return cls(_unpack_id(payload, 0))
 
 
 @dataclass(frozen=True, slots=True)
 class Stop:
     TYPE = MsgType.STOP
+    request_id: int = 0  # minor 2
+
+    def encode(self) -> bytes:
+        return _pack_id(self.request_id)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Stop:
+        return cls(_unpack_id(payload, 0))
+
+
+@dataclass(frozen=True, slots=True)
+class SetConfig:
+    """Host -> device. A device of minor >= 2 applies a SET_CONFIG repeated with the same
+    request_id and settings once and answers the repeat as it answered the first."""
+
+    TYPE = MsgType.SET_CONFIG
+    settings: ScanSettings
+    request_id: int = 0  # minor 2
+
+    def encode(self) -> bytes:
+        return self.settings.encode() + _pack_id(self.request_id)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> SetConfig:
+        return cls(ScanSettings.decode(payload), _unpack_id(payload, SETTINGS_SIZE))
+
+
+@dataclass(frozen=True, slots=True)
+class GetAngles:
+    """Host -> device (minor 2): columns first .. first + count - 1 of the scan geometry."""
+
+    TYPE = MsgType.GET_ANGLES
+    first: int
+    count: int
+    request_id: int = 0
+    _S: ClassVar = struct.Struct("<HHH")  # first, count, request_id
+
+    def encode(self) -> bytes:
+        return self._S.pack(self.first, self.count, self.request_id)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> GetAngles:
+        _need(payload, cls._S.size, "GET_ANGLES")
+        return cls(*cls._S.unpack_from(payload))
+
+
+#: The most angles one ANGLES frame carries: 1 KiB of f32, a fifth of a full scan's frame, so
+#: the geometry gets through wherever scans do (SPEC.md "ANGLES").
+ANGLES_PER_FRAME = 256
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Angles:
+    """Device -> host (minor 2): a chunk of the scan geometry, for the GET_ANGLES request_id.
+
+    boot_id, angles_crc and n_columns are those of the INFO the chunk belongs to; ``angles``
+    (float32) are columns first .. first + angles.size - 1.
+    """
+
+    TYPE = MsgType.ANGLES
+    _S = struct.Struct("<HIIHHH")
+    request_id: int
+    boot_id: int
+    angles_crc: int
+    n_columns: int
+    first: int
+    angles: np.ndarray
+
+    def encode(self) -> bytes:
+        a = np.ascontiguousarray(self.angles, dtype="<f4")
+        return self._S.pack(self.request_id, self.boot_id, self.angles_crc, self.n_columns, self.first, a.size) + a.tobytes()
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Angles:
+        _need(payload, cls._S.size, "ANGLES")
+        rid, boot, crc, total, first, n = cls._S.unpack_from(payload)
+        _need(payload, cls._S.size + 4 * n, f"ANGLES of {n} columns")
+        if n == 0 or first + n > total:
+            raise MessageError("value", f"ANGLES columns [{first}, {first + n}) not inside [0, {total})")
+        angles = np.frombuffer(payload, dtype="<f4", count=n, offset=cls._S.size).astype(np.float32)
+        if not np.isfinite(angles).all():
+            raise MessageError("value", "ANGLES contain NaN or inf")
+        return cls(rid, boot, crc, total, first, angles)
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Host -> device (minor 2), no reply: the host is still listening (SPEC.md "Host liveness")."""
+
+    TYPE = MsgType.HEARTBEAT
 
     def encode(self) -> bytes:
         return b""
 
     @classmethod
-    def decode(cls, payload: bytes) -> Stop:
+    def decode(cls, payload: bytes) -> Heartbeat:
         return cls()
-
-
-@dataclass(frozen=True, slots=True)
-class SetConfig:
-    TYPE = MsgType.SET_CONFIG
-    settings: ScanSettings
-
-    def encode(self) -> bytes:
-        return self.settings.encode()
-
-    @classmethod
-    def decode(cls, payload: bytes) -> SetConfig:
-        return cls(ScanSettings.decode(payload))
 
 
 @dataclass(frozen=True, slots=True)
@@ -392,14 +561,15 @@ class Ack:
     _S = struct.Struct("<BH")
     request_type: int
     request_seq: int
+    request_id: int = 0  # minor 2: the request's id (0: it carried none)
 
     def encode(self) -> bytes:
-        return self._S.pack(self.request_type, self.request_seq)
+        return self._S.pack(self.request_type, self.request_seq) + _pack_id(self.request_id)
 
     @classmethod
     def decode(cls, payload: bytes) -> Ack:
         _need(payload, cls._S.size, "ACK")
-        return cls(*cls._S.unpack_from(payload))
+        return cls(*cls._S.unpack_from(payload), _unpack_id(payload, cls._S.size))
 
 
 @dataclass(frozen=True, slots=True)
@@ -412,20 +582,22 @@ class Nack:
     request_seq: int
     code: NackCode
     reason: str
+    request_id: int = 0  # minor 2: the request's id (0: it carried none)
 
     def encode(self) -> bytes:
-        return self._S.pack(self.request_type, self.request_seq, int(self.code)) + _pack_str(self.reason, "reason", clip=True)
+        return (self._S.pack(self.request_type, self.request_seq, int(self.code))
+                + _pack_str(self.reason, "reason", clip=True) + _pack_id(self.request_id))
 
     @classmethod
     def decode(cls, payload: bytes) -> Nack:
         _need(payload, cls._S.size, "NACK")
         rtype, rseq, code = cls._S.unpack_from(payload)
-        reason, _ = _unpack_str(payload, cls._S.size, "reason")
+        reason, off = _unpack_str(payload, cls._S.size, "reason")
         try:
             code = NackCode(code)
         except ValueError:
             raise MessageError("value", f"unknown NACK code {code}") from None
-        return cls(rtype, rseq, code, reason)
+        return cls(rtype, rseq, code, reason, _unpack_id(payload, off))
 
 
 @dataclass(frozen=True, slots=True)
@@ -459,6 +631,8 @@ class ScanMessage:
     uses it with the frame's arrival time to stamp the scan (host_sdk/scan.py).
     ranges_m (float32, REP 117) and quality (uint8) are per point, for columns
     ``first_index .. first_index + n - 1`` of Info.angles.
+    boot_id (minor 2, after the qualities; None from an older device): the device process's
+    boot id, as in INFO and HEALTH.
     """
 
     TYPE = MsgType.SCAN
@@ -469,6 +643,7 @@ class ScanMessage:
     first_index: int
     ranges_m: np.ndarray
     quality: np.ndarray
+    boot_id: int | None = None
 
     def encode(self) -> bytes:
         quality = np.asarray(self.quality)
@@ -477,24 +652,30 @@ class ScanMessage:
             raise ValueError(f"quality must be uint8 of shape {codes.shape}, got {quality.dtype} {quality.shape}")
         head = _SCAN_HEAD.pack(self.scan_seq & 0xFFFFFFFF, self.device_time_us, self.ray_interval_ns,
                                min(self.age_us, 0xFFFFFFFF), self.first_index, codes.size)
-        return head + codes.tobytes() + quality.tobytes()
+        boot = b"" if self.boot_id is None else _SCAN_BOOT.pack(self.boot_id)
+        return head + codes.tobytes() + quality.tobytes() + boot
 
     @classmethod
     def decode(cls, payload: bytes) -> ScanMessage:
         _need(payload, _SCAN_HEAD.size, "SCAN header")
         seq, t, dt, age, first, n = _SCAN_HEAD.unpack_from(payload)
-        _need(payload, _SCAN_HEAD.size + 3 * n, f"SCAN of {n} points")
+        end = _SCAN_HEAD.size + 3 * n
+        _need(payload, end, f"SCAN of {n} points")
         codes = np.frombuffer(payload, dtype="<u2", count=n, offset=_SCAN_HEAD.size)
         quality = np.frombuffer(payload, dtype=np.uint8, count=n, offset=_SCAN_HEAD.size + 2 * n)
-        return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy())
+        (boot,) = _unpack_group(payload, end, _SCAN_BOOT, "SCAN boot_id (protocol minor 2)", 1)
+        return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy(), boot)
 
 
 _SCAN_HEAD = struct.Struct("<IQIIHH")  # scan_seq, device_time_us, ray_interval_ns, age_us, first_index, n
+_SCAN_BOOT = struct.Struct("<I")  # boot_id after the qualities (minor 2)
 SCAN_HEADER_SIZE = _SCAN_HEAD.size  # 24
+SCAN_TRAILER_SIZE = _SCAN_BOOT.size  # 4
 BYTES_PER_POINT = 3
 
 MESSAGES: dict[int, type] = {cls.TYPE: cls for cls in (
-    GetInfo, Info, GetHealth, Health, Start, Stop, SetConfig, Ack, Nack, ScanMessage, Log)}
+    GetInfo, Info, GetHealth, Health, Start, Stop, SetConfig, Ack, Nack, GetAngles, Angles, Heartbeat,
+    ScanMessage, Log)}
 
 
 def decode_message(msg_type: int, payload: bytes):
@@ -514,7 +695,8 @@ UART_BITS_PER_BYTE = 10
 
 
 def scan_wire_bytes(n_points: int) -> int:
-    """Bytes on the wire for one scan frame of n_points: payload, frame header and CRC, COBS
+    """Bytes on the wire for one scan frame of n_points from a device of minor >= 2: payload (with
+    its boot id), frame header and CRC, COBS
     overhead (at most one byte per 254) and the delimiter."""
-    body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + OVERHEAD
+    body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + SCAN_TRAILER_SIZE + OVERHEAD
     return body + body // 254 + 1 + 1

@@ -14,6 +14,8 @@ with σ(r) = noise_floor_m + noise_rel_m⁻¹ · r², because triangulation erro
 square of the range; a fraction ``dropout`` of rays is invalid (NaN). Ranges beyond range_max
 are +inf (no return), below range_min -inf (too close), as REP 117 says. Quality falls with
 1/r² like the returned laser power: round(255 · min(1, (0.5 m / r)²)), 0 for non-finite ranges.
+``start_delay_s`` holds back the first scan after start() like a real sensor starting its camera
+and locking its laser (SIMULATED time, not measured on a Pi).
 """
 
 from __future__ import annotations
@@ -63,13 +65,15 @@ class AnalyticWallSource:
 
     def __init__(self, distance_m: float = 2.0, *, n_points: int = 1640, fov_rad: float = DEFAULT_FOV_RAD,
                  range_min_m: float = 0.1, range_max_m: float = 3.0, noise_floor_m: float = 0.001,
-                 noise_rel_per_m: float = 0.0025, dropout: float = 0.01, seed: int | None = 0):
+                 noise_rel_per_m: float = 0.0025, dropout: float = 0.01, seed: int | None = 0,
+                 start_delay_s: float = 0.0):
         self.distance_m = float(distance_m)
         wall_ranges(np.zeros(1), self.distance_m)  # validates
         self._geometry = ScanGeometry(column_angles(n_points, fov_rad), range_min_m, range_max_m)
         self.noise_floor_m = noise_floor_m
         self.noise_rel_per_m = noise_rel_per_m
         self.dropout = dropout
+        self.start_delay_s = start_delay_s
         self._rng = np.random.default_rng(seed)
         self._truth = wall_ranges(self._geometry.angles, self.distance_m)
         self._settings: ScanSettings | None = None
@@ -88,7 +92,7 @@ class AnalyticWallSource:
     def start(self) -> None:
         with self._lock:
             self._running = True
-            self._next_due_s = time.monotonic()
+            self._next_due_s = time.monotonic() + self.start_delay_s
 
     def stop(self) -> None:
         with self._lock:

@@ -19,12 +19,21 @@ Threads (all owned by LinkServer, stopped by ``close()``):
   writer  sends control replies first, then scans, one whole frame at a time.
 Every reply is preceded by one extra 0x00 (idle fill) so that a host that just opened the port
 and discards its partial first frame does not lose the reply.
+
+Replies echo the request's id (protocol minor 2); a SET_CONFIG repeated with the id and settings
+of the last one is not applied again but answered as before, so a host may retry it. Scans,
+INFO and HEALTH carry the device's boot id (DeviceConfig.boot_id, one per device process).
+Host liveness: while scanning, if no intact frame came from the host for
+``DeviceConfig.host_timeout_s``, the server stops the source (laser off) and the stream, counts
+it (HEALTH.host_timeouts) and says so in a LOG message (SPEC.md "Host liveness").
 """
 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
+import secrets
 import threading
 import time
 from dataclasses import dataclass, field
@@ -142,6 +151,13 @@ class DeviceConfig:
     exposure_range_us: tuple[int, int] = (10, 50_000)
     max_median_window: int = 15
     queue_scans: int = 4  # bounded outgoing scan queue, in whole scans
+    #: longest time from START to the first scan (camera start, laser lock); reported in INFO
+    startup_s: float = 5.0
+    #: stop scanning (laser off) when the host sent no intact frame for this long; 0: never
+    #: (a one-way cable). SPEC.md "Host liveness".
+    host_timeout_s: float = 5.0
+    #: drawn at random once per device process; a host that sees another one knows the device restarted
+    boot_id: int = field(default_factory=lambda: secrets.randbits(32))
 
     def __post_init__(self):
         missing = [n for n in m.ScanSettings.FIELDS if getattr(self.settings, n) is None]
@@ -149,6 +165,10 @@ class DeviceConfig:
             raise ValueError(f"DeviceConfig.settings must set every field; missing {missing}")
         if self.queue_scans < 1:
             raise ValueError("queue_scans must be at least 1")
+        for name in ("startup_s", "host_timeout_s"):
+            v = getattr(self, name)
+            if not (v >= 0 and v < float("inf")):
+                raise ValueError(f"{name} must be a finite time >= 0 s, got {v}")
 
 
 def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) -> tuple[m.NackCode, str] | None:
@@ -190,6 +210,7 @@ class LinkCounters:
     requests: int = 0
     refused: int = 0  # requests answered with NACK
     source_failures: int = 0
+    host_timeouts: int = 0  # scanning stopped because the host was silent for host_timeout_s
     sessions: int = 0  # link servers that counted here (the host port opened)
     host: LinkStats = field(default_factory=LinkStats)  # what the decoders made of the host's bytes
 
@@ -225,6 +246,12 @@ class LinkServer:
         self._seq = 0
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._angles_crc = m.angles_crc(self.geometry.angles)
+        self._last_config: tuple[int, m.ScanSettings, m.Ack | m.Nack] | None = None  # id, settings, answer
+        self._heard_at = time.monotonic()  # the host's last intact frame
+        self._requests = {m.GetInfo: self._info, m.GetHealth: self._reply_health, m.Start: self._start,
+                          m.Stop: self._stop_request, m.SetConfig: self._configure, m.GetAngles: self._angles,
+                          m.Heartbeat: lambda frame, msg: None}
 
     # lifecycle
     def start(self) -> LinkServer:
@@ -273,7 +300,25 @@ class LinkServer:
                 self._stop.set()
                 break
             for rec in self.decoder.feed(data):
+                self._heard_at = time.monotonic()
                 self._handle(rec.frame)
+            self._check_host_alive()
+
+    def _check_host_alive(self) -> None:
+        limit = self.config.host_timeout_s
+        silent = time.monotonic() - self._heard_at
+        if not limit or silent <= limit or not self._scanning:
+            return
+        with self._lock:
+            if not self._scanning:
+                return
+            self._stop_scanning()
+            self.counters.host_timeouts += 1
+            self._control.append(m.Log(logging.WARNING, device_clock_us(),
+                                       f"no frame from the host for {silent:.1f} s (host_timeout_s "
+                                       f"{limit:g}): scanning stopped, laser off"))
+            self._lock.notify_all()
+        log.warning("host silent for %.1f s: scanning stopped, laser off", silent)
 
     def _handle(self, frame) -> None:
         self.counters.requests += 1
@@ -283,26 +328,40 @@ class LinkServer:
             code = m.NackCode.UNKNOWN_MESSAGE if exc.reason == "type" else m.NackCode.BAD_PAYLOAD
             self._nack(frame, code, str(exc))
             return
-        if isinstance(msg, m.GetInfo):
-            if msg.host_major != PROTOCOL_VERSION:
-                log.warning("host speaks protocol %d.%d, device %d", msg.host_major, msg.host_minor, PROTOCOL_VERSION)
-            self._reply(m.Info(PROTOCOL_VERSION, m.PROTOCOL_MINOR, self.config.software_version,
-                               self.config.serial_number, self.settings.scan_rate_hz, self.geometry.range_min_m,
-                               self.geometry.range_max_m, self.geometry.angles, self.settings,
-                               self.config.laser_limit_mw))
-        elif isinstance(msg, m.GetHealth):
-            self._reply(self._health())
-        elif isinstance(msg, m.Start):
-            self._start(frame)
-        elif isinstance(msg, m.Stop):
-            self._stop_scanning()
-            self._reply(m.Ack(frame.msg_type, frame.seq))
-        elif isinstance(msg, m.SetConfig):
-            self._configure(frame, msg.settings)
-        else:
-            self._nack(frame, m.NackCode.UNKNOWN_MESSAGE, f"{type(msg).__name__} is not a request")
+        handler = self._requests.get(type(msg))
+        if handler is None:
+            self._nack(frame, m.NackCode.UNKNOWN_MESSAGE, f"{type(msg).__name__} is not a request",
+                       getattr(msg, "request_id", 0))
+            return
+        handler(frame, msg)
 
-    def _health(self) -> m.Health:
+    def _info(self, frame, msg: m.GetInfo) -> None:
+        if msg.host_major != PROTOCOL_VERSION:
+            log.warning("host speaks protocol %d.%d, device %d", msg.host_major, msg.host_minor, PROTOCOL_VERSION)
+        g = self.geometry
+        # a host of minor >= 2 that numbers its requests fetches the angles in chunks (GET_ANGLES):
+        # its INFO stays small; any other host gets them here, as before
+        angles = g.angles[:0] if msg.host_minor >= 2 and msg.request_id else g.angles
+        self._reply(m.Info(PROTOCOL_VERSION, m.PROTOCOL_MINOR, self.config.software_version,
+                           self.config.serial_number, self.settings.scan_rate_hz, g.range_min_m, g.range_max_m,
+                           angles, self.settings, self.config.laser_limit_mw, request_id=msg.request_id,
+                           boot_id=self.config.boot_id, n_columns=g.angles.size, angles_crc=self._angles_crc,
+                           startup_s=self.config.startup_s, host_timeout_s=self.config.host_timeout_s))
+
+    def _angles(self, frame, msg: m.GetAngles) -> None:
+        n = self.geometry.angles.size
+        if not (msg.first < n and msg.count >= 1):
+            self._nack(frame, m.NackCode.OUT_OF_RANGE, f"angles from column {msg.first} (count {msg.count}) "
+                       f"not inside the {n} columns", msg.request_id)
+            return
+        last = min(n, msg.first + msg.count, msg.first + m.ANGLES_PER_FRAME)
+        self._reply(m.Angles(msg.request_id, self.config.boot_id, self._angles_crc, n, msg.first,
+                             self.geometry.angles[msg.first:last]))
+
+    def _reply_health(self, frame, msg: m.GetHealth) -> None:
+        self._reply(self._health(msg.request_id))
+
+    def _health(self, request_id: int = 0) -> m.Health:
         st = self.source.status()
         errors = st.errors + ((m.ErrorCode.SOURCE_FAILED,) if self._fault else ())
         state = m.DeviceState.FAULT if self._fault else (m.DeviceState.SCANNING if self._scanning else m.DeviceState.IDLE)
@@ -311,20 +370,25 @@ class LinkServer:
                         device_clock_us(), tuple(int(e) for e in errors), camera_restarts=st.camera_restarts,
                         comcu_resets=st.comcu_resets, comcu_lost=st.comcu_lost, pipeline_errors=st.pipeline_errors,
                         host_bytes_discarded=c.host.bytes_discarded, host_frames_rejected=c.host_frames_rejected,
-                        host_sessions=c.sessions)
+                        host_sessions=c.sessions, request_id=request_id, boot_id=self.config.boot_id,
+                        host_timeouts=c.host_timeouts)
 
-    def _start(self, frame) -> None:
+    def _start(self, frame, msg: m.Start) -> None:
         with self._lock:
             if not self._scanning:
                 try:
                     self.source.start()
                 except Exception as exc:
-                    self._nack(frame, m.NackCode.SOURCE_ERROR, f"source failed to start: {exc}")
+                    self._nack(frame, m.NackCode.SOURCE_ERROR, f"source failed to start: {exc}", msg.request_id)
                     return
                 self._fault = None
                 self._scanning = True
                 self._lock.notify_all()
-        self._reply(m.Ack(frame.msg_type, frame.seq))
+        self._reply(m.Ack(frame.msg_type, frame.seq, msg.request_id))
+
+    def _stop_request(self, frame, msg: m.Stop) -> None:
+        self._stop_scanning()
+        self._reply(m.Ack(frame.msg_type, frame.seq, msg.request_id))
 
     def _stop_scanning(self) -> None:
         with self._lock:
@@ -333,8 +397,13 @@ class LinkServer:
                 self.source.stop()
             self._scans.clear()  # nothing of before the stop is sent after its ACK
 
-    def _configure(self, frame, update: m.ScanSettings) -> None:
-        new = self.settings.merged(update)
+    def _configure(self, frame, msg: m.SetConfig) -> None:
+        last = self._last_config
+        if msg.request_id and last is not None and last[:2] == (msg.request_id, msg.settings):
+            # the host did not hear our answer and asked again: answer again, apply once
+            self._reply(dataclasses.replace(last[2], request_seq=frame.seq))
+            return
+        new = self.settings.merged(msg.settings)
         refusal = settings_refusal(new, self.config, self.geometry.angles.size)
         if refusal is None:
             try:
@@ -342,15 +411,19 @@ class LinkServer:
             except ValueError as exc:
                 refusal = (m.NackCode.SOURCE_ERROR, f"source refused the settings: {exc}")
         if refusal:
-            self._nack(frame, *refusal)
-            return
-        self.settings = new
-        self._reply(m.Ack(frame.msg_type, frame.seq))
+            answer = self._nack(frame, *refusal, msg.request_id)
+        else:
+            self.settings = new
+            answer = m.Ack(frame.msg_type, frame.seq, msg.request_id)
+            self._reply(answer)
+        self._last_config = (msg.request_id, msg.settings, answer)
 
-    def _nack(self, frame, code: m.NackCode, reason: str) -> None:
+    def _nack(self, frame, code: m.NackCode, reason: str, request_id: int = 0) -> m.Nack:
         log.info("refusing request 0x%02x: %s", frame.msg_type, reason)
         self.counters.refused += 1
-        self._reply(m.Nack(frame.msg_type, frame.seq, code, reason))
+        nack = m.Nack(frame.msg_type, frame.seq, code, reason, request_id)
+        self._reply(nack)
+        return nack
 
     def _reply(self, msg) -> None:
         with self._lock:
@@ -373,7 +446,7 @@ class LinkServer:
             if scan is None:
                 continue
             msg = m.ScanMessage(seq, scan.device_time_us, scan.ray_interval_ns, 0, scan.first_index,
-                                scan.ranges_m, scan.quality)
+                                scan.ranges_m, scan.quality, self.config.boot_id)
             seq += 1
             with self._lock:
                 if not self._scanning:
@@ -426,8 +499,7 @@ class LinkServer:
     def _encode(self, msg) -> bytes:
         if isinstance(msg, m.ScanMessage):
             age = max(0, device_clock_us() - msg.device_time_us)
-            payload = m.ScanMessage(msg.scan_seq, msg.device_time_us, msg.ray_interval_ns, age, msg.first_index,
-                                    msg.ranges_m, msg.quality).encode()
+            payload = dataclasses.replace(msg, age_us=age).encode()
         else:
             payload = msg.encode()
         wire = encode_frame(msg.TYPE, self._seq, payload)

@@ -117,3 +117,66 @@ def test_serve_without_simulate_says_what_is_missing(tmp_path, capsys):
     assert main(["serve", "--link", str(tmp_path / "x")]) == 2
     assert "--simulate" in capsys.readouterr().out
     assert not (tmp_path / "x").exists()
+
+
+def test_a_host_killed_with_sigkill_leaves_the_laser_off(tmp_path):
+    """SPEC.md "Host liveness": a host streaming through the SDK is killed with SIGKILL (no
+    close(), no STOP); the device stops scanning and its laser within host_timeout_s."""
+    import json
+
+    link, stats = tmp_path / "laserpi", tmp_path / "stats.json"
+    proc = start_serve(link, "--host-timeout-s", "1.0", "--stats-file", str(stats))
+    code = ("import host_sdk, sys, time\n"
+            f"s = host_sdk.LaserPi({str(link)!r})\n"
+            "it = s.scans(); next(it); print('streaming', flush=True)\n"
+            "while True: next(it)\n")
+    host = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        assert host.stdout.readline().strip() == "streaming"
+
+        def health(predicate, within_s):
+            deadline = time.monotonic() + within_s
+            while time.monotonic() < deadline:
+                try:
+                    doc = json.loads(stats.read_text())
+                except (OSError, ValueError):
+                    doc = None
+                if doc is not None and predicate(doc):
+                    return doc
+                time.sleep(0.1)
+            raise AssertionError(f"health never matched: {doc}")
+
+        health(lambda d: d["scanning"] and d["laser_on"], 5.0)  # streaming while the host lives
+        time.sleep(2.5)
+        health(lambda d: d["scanning"] and d["laser_on"], 3.0)  # heartbeats kept it going
+        host.send_signal(signal.SIGKILL)
+        host.wait(5)
+        killed = time.monotonic()
+        health(lambda d: not d["scanning"] and not d["laser_on"], 6.0)
+        assert time.monotonic() - killed < 1.0 + 2.0 + 2.0  # timeout + the stats file's 2 s period + slack
+        # and the stream stopped: after what was queued in the pty before the stop, no scan frame
+        fd = os.open(str(link), os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+        try:
+            for _ in range(2):  # drain the pty (and whatever the device's writer was blocked on)
+                while True:
+                    try:
+                        if not os.read(fd, 65536):
+                            break
+                    except BlockingIOError:
+                        break
+                time.sleep(0.5)
+            late = b""
+            try:
+                late = os.read(fd, 65536)
+            except BlockingIOError:
+                pass
+        finally:
+            os.close(fd)
+        from protocol.stream import StreamDecoder
+        from protocol.messages import MsgType
+        assert not [r for r in StreamDecoder(synced=True).feed(late) if r.frame.msg_type == MsgType.SCAN]
+    finally:
+        host.kill()
+        host.wait()
+        proc.kill()
+        proc.wait()

@@ -72,12 +72,12 @@ def measure(seconds: float = 1.0) -> dict:
     info = m.Info(1, 0, "bench", "B", FULL_RATE_HZ, 0.1, 3.0, np.linspace(0.9, -0.9, FULL_POINTS, dtype=np.float32),
                   m.ScanSettings(10.0, 1000, 0, FULL_POINTS, 1, 0, 1.0), 5.0)
     wire = b"".join(encode_frame(m.MsgType.SCAN, i, p) for i, p in enumerate(payloads))
-    head = b"\x00" + encode_frame(m.MsgType.INFO, 0, info.encode())
     codes = m.encode_ranges(ranges[0])
 
     def receiver():
         rx = Receiver(921600)
-        rx.feed(head, 0.0)
+        rx.set_info(info)  # as LaserPi does with the INFO it asked for
+        rx.feed(b"\x00", 0.0)  # the delimiter before the first frame (as after an INFO)
         assert sum(1 for _ in rx.feed(wire, 0.0)) == k
 
     def frames_msg():

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
     parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
+    parser.add_argument("--host-timeout-s", type=float, default=5.0,
+                        help="stop scanning (laser off) when the host sent nothing for this long; 0 never "
+                             "(a one-way cable, a host of protocol minor < 2 that streams silently)")
     parser.add_argument("--laser-limit-mw", type=float, default=None,
                         help="Class 1 limit on laser power the device enforces (default and maximum: from the safety model "
                              "for the sensor's laser and pulse; 5 mW for --mock)")
@@ -150,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
                                      f"{built.laser_limit_mw:.2f} mW the safety model gives for this laser and pulse; "
                                      "it can only lower the limit")
                 limit_mw = args.laser_limit_mw
-        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings)
+        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings, host_timeout_s=args.host_timeout_s)
     except (ValueError, OSError, RuntimeError) as exc:
         for close in reversed(closers):
             close()

@@ -46,6 +46,26 @@ VECTORS: dict[str, tuple[int, object]] = {
                                   np.array([0.0, 0.5, 1.25, m.RANGE_MAX_ENCODABLE_M, math.nan,
                                             math.inf, -math.inf, 2.00025], dtype=np.float64),
                                   np.array([0, 1, 128, 255, 0, 0, 0, 77], dtype=np.uint8))),
+    # protocol minor 2: request ids echoed, boot id, the geometry in chunks, heartbeats
+    "get_info_minor2": (11, m.GetInfo(1, 2, request_id=0x1234)),
+    "info_minor2": (12, m.Info(1, 2, "0.2.0", "LP-000042", 10.0, 0.125, 3.0, np.zeros(0, np.float32), _SETTINGS, 5.5,
+                               request_id=0x1234, boot_id=0xCAFEF00D, n_columns=8,
+                               angles_crc=m.angles_crc(np.linspace(0.5, -0.5, 8, dtype=np.float32)),
+                               startup_s=5.0, host_timeout_s=5.0)),
+    "get_angles": (13, m.GetAngles(4, 256, request_id=0x1235)),
+    "angles": (14, m.Angles(0x1235, 0xCAFEF00D, m.angles_crc(np.linspace(0.5, -0.5, 8, dtype=np.float32)), 8, 4,
+                            np.linspace(0.5, -0.5, 8, dtype=np.float32)[4:])),
+    "heartbeat": (15, m.Heartbeat()),
+    "set_config_minor2": (16, m.SetConfig(m.ScanSettings(scan_rate_hz=5.0, laser_power_mw=2.5), request_id=0x1236)),
+    "ack_minor2": (17, m.Ack(m.MsgType.SET_CONFIG, 16, request_id=0x1236)),
+    "nack_minor2": (18, m.Nack(m.MsgType.SET_CONFIG, 16, m.NackCode.EYE_SAFETY,
+                               "laser_power_mw 9 exceeds the Class 1 limit 5.5", request_id=0x1236)),
+    "health_minor2": (19, m.Health(m.DeviceState.SCANNING, True, False, 7, 2, 1000, 123456789,
+                                   (m.ErrorCode.SYNC_LOST,), camera_restarts=1, comcu_resets=2, comcu_lost=3,
+                                   pipeline_errors=4, host_bytes_discarded=70000, host_frames_rejected=5,
+                                   host_sessions=6, request_id=0x1237, boot_id=0xCAFEF00D, host_timeouts=1)),
+    "scan_minor2": (20, m.ScanMessage(7, 2**40 + 5, 12500, 61000, 2, np.array([0.5, math.inf], dtype=np.float64),
+                                      np.array([200, 0], dtype=np.uint8), boot_id=0xCAFEF00D)),
 }
 
 
