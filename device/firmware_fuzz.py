@@ -1,6 +1,6 @@
 """The co-MCU's eye-safety envelope, fuzzed in the emulator and judged on the true laser pin.
 
-The real firmware ELF runs in simavr (device.comcu_emulator.SteppedMcuPort: lock-step, so a run
+The real firmware ELF runs in simavr (device.sim.comcu_emulator.SteppedMcuPort: lock-step, so a run
 is deterministic whatever the load of the machine).  Random command *sequences* go to it back to
 back, a *batch* of them (default 1000) in one emulator process, and the whole pin log of the
 batch (the harness's true OC1A pin, computed from the registers by the datasheet's output compare
@@ -64,7 +64,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from device.comcu_emulator import CPU_HZ, CYCLES_PER_TICK, ELF, HARNESS, SteppedMcuPort
+from device.sim.comcu_emulator import CPU_HZ, CYCLES_PER_TICK, ELF, HARNESS, SteppedMcuPort
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 

@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from device.comcu_emulator import HARNESS, build_emulator
+    from device.sim.comcu_emulator import HARNESS, build_emulator
     from device.firmware_fuzz import fuzz
 
     if args.elf is None:
