@@ -131,7 +131,9 @@ class DeviceConfig:
 
     laser_limit_mw: the IEC 60825-1 Class 1 limit on peak laser power; any set-config above it
     is refused (NackCode.EYE_SAFETY). Passed in by whoever builds the device (the eye-safety
-    model computes it), never chosen by the host.
+    model computes it), never chosen by the host. link_rate_bps: what the host link carries,
+    bits/s (a UART's baud rate); settings whose scans need more are refused, also at power-on
+    (messages.link_budget_refusal); None: not limited.
     """
 
     laser_limit_mw: float
@@ -142,6 +144,7 @@ class DeviceConfig:
     exposure_range_us: tuple[int, int] = (10, 50_000)
     max_median_window: int = 15
     queue_scans: int = 4  # bounded outgoing scan queue, in whole scans
+    link_rate_bps: float | None = None
 
     def __post_init__(self):
         missing = [n for n in m.ScanSettings.FIELDS if getattr(self.settings, n) is None]
@@ -149,6 +152,9 @@ class DeviceConfig:
             raise ValueError(f"DeviceConfig.settings must set every field; missing {missing}")
         if self.queue_scans < 1:
             raise ValueError("queue_scans must be at least 1")
+        refusal = m.link_budget_refusal(self.settings.roi_count, self.settings.scan_rate_hz, self.link_rate_bps)
+        if refusal is not None:
+            raise ValueError(f"the power-on settings do not fit the host link: {refusal}")
 
 
 def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) -> tuple[m.NackCode, str] | None:
@@ -175,7 +181,8 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
     if s.laser_power_mw > config.laser_limit_mw:
         return m.NackCode.EYE_SAFETY, (
             f"laser_power_mw {s.laser_power_mw:g} exceeds the Class 1 limit of {config.laser_limit_mw:g} mW")
-    return None
+    refusal = m.link_budget_refusal(s.roi_count, s.scan_rate_hz, config.link_rate_bps)
+    return None if refusal is None else (m.NackCode.OUT_OF_RANGE, refusal)
 
 
 # --- the server -------------------------------------------------------------------------------

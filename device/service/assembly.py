@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from device.config import SensorConfig, load_config, load_preset
+from device.config import SensorConfig, load_config, load_preset, with_operating_point
 from device.laser.comcu import BAUDRATE, CoMcu
 from device.scan.pipeline import ScanPipeline
 from device.scan.source import SensorSource
@@ -72,10 +72,12 @@ def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.0
 class AssemblyConfig:
     """Which sensor ``build_sensor`` builds (``laserpi serve`` makes one of its options).
 
-    ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``points``: points
-    per scan (None: the configuration's active image width); ``comcu``: the co-MCU's serial device
-    on a Pi. ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
-    ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``.
+    ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``scan_rate_hz``
+    overrides its [operating_point] scan_rate_hz; ``points``: points per scan (None: the
+    configuration's active image width); ``comcu``: the co-MCU's serial device on a Pi.
+    ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
+    ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``, its
+    co-MCU running ``firmware`` (an ELF; None: the production build).
     """
 
     simulate: bool = False
@@ -86,6 +88,8 @@ class AssemblyConfig:
     scene: str = "wall"
     distance_m: float = 2.0
     seed: int = 0
+    scan_rate_hz: float | None = None
+    firmware: str | None = None
 
 
 @dataclass
@@ -110,6 +114,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     from device.vision.pipelines import make_pipeline
 
     cfg = sensor_config(setup.config_path, setup.preset)
+    if setup.scan_rate_hz is not None:
+        cfg = with_operating_point(cfg, scan_rate_hz=setup.scan_rate_hz)
     op = cfg.operating_point  # scan rate, exposure, gain, depth range ([operating_point])
     frame_duration_s = 0.5 / op.scan_rate_hz  # a lit and an unlit frame per scan
     pipeline = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
@@ -132,7 +138,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         from device.sim.sensor import SensorParams
 
         spec = f"wall:distance={setup.distance_m:g}" if setup.scene == "wall" else setup.scene
-        hw = SimulatedHardware(seed=setup.seed)
+        hw = SimulatedHardware(seed=setup.seed, elf=setup.firmware)
         closers.append(hw.close)
         timing = CameraTimingConfig(frame_duration_s=frame_duration_s, exposure_s=op.exposure_us * 1e-6)
         camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,
