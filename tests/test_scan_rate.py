@@ -124,3 +124,18 @@ def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
     finally:
         stop_serve(proc)
     assert "sync locked" in log.read_text()
+
+
+def test_bench_process_at_20_hz_runs_the_20_hz_sensor_and_firmware(tmp_path):
+    from device.bench.process import LINK_BAUD, rate_arguments
+
+    args = rate_arguments(20.0, tmp_path)
+    cfg = load_config(args[args.index("--config") + 1])
+    assert cfg.operating_point.scan_rate_hz == cfg.laser.rate_hz == 20.0
+    (point,) = rate_points(load_preset("thesis-calibrated"), (20.0,))
+    assert cfg.laser.power_w == point.envelope_power_w < 0.025
+    elf = Path(args[args.index("--firmware") + 1])
+    assert elf.exists() and elf.parent.name == f"rate-{point.envelope.min_period_ticks}"
+    assert args[args.index("--baud") + 1] == str(LINK_BAUD)
+    at10 = rate_arguments(10.0, tmp_path)  # the preset's rate: the production firmware, 921600 baud
+    assert at10 == ["--config", str(tmp_path / "sensor.toml")]

@@ -8,6 +8,7 @@ and 20 scans/s.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -112,6 +113,18 @@ def rate_points(cfg, rates_hz=SCAN_RATES_HZ) -> tuple[RatePoint, ...]:
                                 power_w, _background_range_m(cfg, power_w, background),
                                 _background_range_m(cfg, power_w, irradiance.INDOOR_FRACTION * background)))
     return tuple(points)
+
+
+def sensor_at_rate(cfg, rate_hz: float):
+    """``cfg`` made to run at ``rate_hz`` scans/s, and the co-MCU firmware envelope it needs
+    (:class:`RatePoint`): its [laser] pulsed at that rate at the laser's power capped at the
+    envelope's Class 1 power, its [operating_point] at that rate. ConfigError if the sensor mode
+    cannot run that fast."""
+    from device.config import with_operating_point
+
+    (point,) = rate_points(cfg, (rate_hz,))
+    laser = dataclasses.replace(cfg.laser, rate_hz=float(rate_hz), power_w=point.power_w)
+    return with_operating_point(dataclasses.replace(cfg, laser=laser), scan_rate_hz=float(rate_hz)), point.envelope
 
 
 def _background_range_m(cfg, power_w: float, background_w_m2: float) -> float:
