@@ -12,8 +12,9 @@ The scenes, the order the frame pairs are processed in and the fields compared a
 tools/golden_scenes.py's; the frames are rendered once on x86-64 and read on ARM, so the pipelines
 alone are compared. What the kernel computes and what follows from it in exact steps (column, row,
 quality, points, status) must be identical bit for bit. The scan-plane angle and range are numpy's
-rotation of the points (a matrix product, OpenBLAS) and atan2/hypot (libm), which round the last
-bits differently on aarch64; they must have the same NaNs and infinities and agree to SCAN_PLANE_RTOL.
+rotation of the points into the scan plane, whose matrix already differs in the last bit on
+aarch64 (np.linalg.norm in device/model/scan_frame.py, BLAS), then atan2/hypot; they must have the
+same NaNs and infinities and agree to SCAN_PLANE_RTOL.
 """
 
 from __future__ import annotations
