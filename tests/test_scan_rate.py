@@ -3,7 +3,6 @@ the simulated sensor at 20 scans/s with the co-MCU firmware built for that rate.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -107,20 +106,20 @@ def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
                               "--scan-rate-hz", "20", "--firmware", str(elf), "--points", str(points)],
                        log_path=log, timeout_s=90)
     try:
-        with host_sdk.LaserPi(str(link), timeout_s=30.0) as sensor:
+        with host_sdk.LaserPi(str(link), timeout_s=60.0) as sensor:
             assert sensor.info().scan_rate_hz == 20.0
             it = sensor.scans()
             first = next(it)
-            assert first.ranges_m.size == points
-            start, count = time.monotonic(), 0
-            for _ in it:
-                count += 1
-                if count == 100:
-                    break
-            rate = count / (time.monotonic() - start)
+            assert first.ranges.size == points
+            scans = [next(it) for _ in range(60)]
             health = sensor.health()
         assert health.sync_locked, log.read_text()[-3000:]
-        assert rate > 19.0, f"{rate:.1f} scans/s (known to fail on a loaded machine, as the 10 Hz timing test)"
+        # in the simulated clock (this machine may run the simulation slower than real time: the
+        # renderer draws 40 frames per simulated second): a scan every 50 ms, none lost
+        seqs = [s.seq for s in scans]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+        rate = (len(scans) - 1) / (scans[-1].device_time - scans[0].device_time)
+        assert rate == pytest.approx(20.0, rel=0.01)
     finally:
         stop_serve(proc)
     assert "sync locked" in log.read_text()
