@@ -80,6 +80,7 @@ Presets (``device/presets/*.toml``) hold the thesis's inputs only, never its res
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -313,7 +314,8 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
         raise ConfigError(f"{where}: max_m ({op.max_m}) must exceed min_m ({op.min_m})")
     if op.scan_rate_hz > laser.rate_hz:
         raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} exceeds [laser] rate_hz = {laser.rate_hz:g}, "
-                          "the pulse rate the laser's eye-safety envelope is built for")
+                          "the pulse rate the laser's eye-safety envelope is built for (a faster rate needs a [laser] "
+                          "of that rate and power, and the co-MCU firmware built for it: `laserpi design` lists both)")
     frame_s = 0.5 / op.scan_rate_hz
     if not mode.min_frame_duration_s <= frame_s <= mode.max_frame_duration_s:
         raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} needs {2 * op.scan_rate_hz:g} frames/s; the "
@@ -325,6 +327,14 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
                           f"at {op.scan_rate_hz:g} scans/s) less {IMX219_EXPOSURE_MARGIN_LINES} lines")
     if not 1.0 <= op.analog_gain <= IMX219_ANALOG_GAIN_MAX:
         raise ConfigError(f"{where}: analog_gain = {op.analog_gain:g} is outside the IMX219's 1..{IMX219_ANALOG_GAIN_MAX:.2f}")
+
+
+def with_operating_point(cfg: SensorConfig, **changes: float) -> SensorConfig:
+    """``cfg`` with ``[operating_point]`` fields changed (``laserpi serve --scan-rate-hz``), checked
+    as a file's are: ConfigError naming the field otherwise."""
+    op = dataclasses.replace(cfg.operating_point, **changes)
+    _check_operating_point(op, cfg.laser, cfg.window)
+    return dataclasses.replace(cfg, operating_point=op)
 
 
 def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:

@@ -700,3 +700,20 @@ def scan_wire_bytes(n_points: int) -> int:
     overhead (at most one byte per 254) and the delimiter."""
     body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + SCAN_TRAILER_SIZE + OVERHEAD
     return body + body // 254 + 1 + 1
+
+
+def link_budget_refusal(n_points: int, scan_rate_hz: float, link_rate_bps: float | None) -> str | None:
+    """Why scans of ``n_points`` at ``scan_rate_hz`` do not fit a host link of ``link_rate_bps``
+    bits/s, counted as a UART at 8N1 (UART_BITS_PER_BYTE), or None if they fit (or the link is not
+    limited: None). SPEC.md section 5 has the table."""
+    if link_rate_bps is None:
+        return None
+    need_bps = scan_wire_bytes(n_points) * scan_rate_hz * UART_BITS_PER_BYTE
+    if need_bps <= link_rate_bps:
+        return None
+    per_scan_bytes = link_rate_bps / (scan_rate_hz * UART_BITS_PER_BYTE)
+    points = max((k for k in range(n_points) if scan_wire_bytes(k) <= per_scan_bytes), default=0)
+    return (f"{n_points} points at {scan_rate_hz:g} scans/s need {need_bps / 1e3:.1f} kbit/s on the host link "
+            f"({scan_wire_bytes(n_points)} bytes per scan, 8N1), more than its {link_rate_bps / 1e3:.1f} kbit/s: "
+            f"use at most {points} points (a narrower field of view), at most "
+            f"{link_rate_bps / (scan_wire_bytes(n_points) * UART_BITS_PER_BYTE):.2f} scans/s, or USB")

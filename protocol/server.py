@@ -140,7 +140,9 @@ class DeviceConfig:
 
     laser_limit_mw: the IEC 60825-1 Class 1 limit on peak laser power; any set-config above it
     is refused (NackCode.EYE_SAFETY). Passed in by whoever builds the device (the eye-safety
-    model computes it), never chosen by the host.
+    model computes it), never chosen by the host. link_rate_bps: what the host link carries,
+    bits/s (a UART's baud rate); settings whose scans need more are refused, also at power-on
+    (messages.link_budget_refusal); None: not limited.
     """
 
     laser_limit_mw: float
@@ -158,6 +160,7 @@ class DeviceConfig:
     host_timeout_s: float = 5.0
     #: drawn at random once per device process; a host that sees another one knows the device restarted
     boot_id: int = field(default_factory=lambda: secrets.randbits(32))
+    link_rate_bps: float | None = None
 
     def __post_init__(self):
         missing = [n for n in m.ScanSettings.FIELDS if getattr(self.settings, n) is None]
@@ -169,6 +172,9 @@ class DeviceConfig:
             v = getattr(self, name)
             if not (v >= 0 and v < float("inf")):
                 raise ValueError(f"{name} must be a finite time >= 0 s, got {v}")
+        refusal = m.link_budget_refusal(self.settings.roi_count, self.settings.scan_rate_hz, self.link_rate_bps)
+        if refusal is not None:
+            raise ValueError(f"the power-on settings do not fit the host link: {refusal}")
 
 
 def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) -> tuple[m.NackCode, str] | None:
@@ -195,7 +201,8 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
     if s.laser_power_mw > config.laser_limit_mw:
         return m.NackCode.EYE_SAFETY, (
             f"laser_power_mw {s.laser_power_mw:g} exceeds the Class 1 limit of {config.laser_limit_mw:g} mW")
-    return None
+    refusal = m.link_budget_refusal(s.roi_count, s.scan_rate_hz, config.link_rate_bps)
+    return None if refusal is None else (m.NackCode.OUT_OF_RANGE, refusal)
 
 
 # --- the server -------------------------------------------------------------------------------

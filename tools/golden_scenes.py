@@ -22,23 +22,40 @@ SCENES = ("wall", "room", "corridor", "clutter", "targets", "near", "far", "sunl
 FIELDS = ("column", "row", "angle", "range", "quality", "points", "status")
 
 
+def runs_of(pairs) -> list:
+    """The frame pairs each variant processes, in order, from a scene's (lit, unlit, lit_rows)
+    triples: each pair, then the first with its lit rows withheld and with lit and unlit swapped."""
+    lit, unlit, rows = pairs[0]
+    return list(pairs) + [(lit, unlit, None), (unlit, lit, rows)]
+
+
+def scene_pairs(cfg, scene: str, pairs_per_scene: int = 3) -> list:
+    """A scene's simulated (lit, unlit, lit_rows) triples."""
+    from device.vision.evaluation import simulated_pairs
+
+    return [(p.lit, p.unlit, p.lit_rows) for p in simulated_pairs(cfg, scene, pairs_per_scene, seed=3)]
+
+
+def measure(cfg, scene: str, runs, variants, out: dict) -> None:
+    """Every variant's output on ``runs`` into ``out`` under "scene|variant|run|field"."""
+    from device.vision.pipelines import make_pipeline
+
+    for name in variants:
+        pipe = make_pipeline(name, cfg)
+        for k, (lit, unlit, rows) in enumerate(runs):
+            meas = pipe.process(lit, unlit, lit_rows=rows)
+            for f in FIELDS:
+                out[f"{scene}|{name}|{k}|{f}"] = np.asarray(getattr(meas, f))
+
+
 def dump(path: str, pairs_per_scene: int = 3) -> None:
     from device.config import load_preset
-    from device.vision.evaluation import simulated_pairs
-    from device.vision.pipelines import VARIANTS, make_pipeline
+    from device.vision.pipelines import VARIANTS
 
     cfg = load_preset("thesis-calibrated")
     out = {}
     for scene in SCENES:
-        pairs = simulated_pairs(cfg, scene, pairs_per_scene, seed=3)
-        for name in VARIANTS:
-            pipe = make_pipeline(name, cfg)
-            runs = [(p.lit, p.unlit, p.lit_rows) for p in pairs]
-            runs += [(pairs[0].lit, pairs[0].unlit, None), (pairs[0].unlit, pairs[0].lit, pairs[0].lit_rows)]
-            for k, (lit, unlit, rows) in enumerate(runs):
-                meas = pipe.process(lit, unlit, lit_rows=rows)
-                for f in FIELDS:
-                    out[f"{scene}|{name}|{k}|{f}"] = np.asarray(getattr(meas, f))
+        measure(cfg, scene, runs_of(scene_pairs(cfg, scene, pairs_per_scene)), VARIANTS, out)
         print(f"{scene}: {len(VARIANTS)} variants x {pairs_per_scene + 2} pairs", flush=True)
     np.savez_compressed(path, **out)
     print(f"wrote {len(out)} arrays to {path}")

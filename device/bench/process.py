@@ -14,7 +14,13 @@ its own thread); it is not simulated, so not measured here.
 Headroom on a Pi Zero 2 W (4 x Cortex-A53 at 1 GHz) is an estimate: device CPU per scan here
 times ``--slowdown`` (default 15: clock 1 GHz against ~3 GHz, about 2.5x lower IPC of the in-order
 A53, and half the SIMD width of NEON against AVX2 for the numpy/OpenCV-heavy parts; plausible
-range 8-25), against the 100 ms a scan may take at 10 Hz on one core.
+range 8-25), against the time between scans on one core (100 ms at 10 Hz).
+
+``--scan-rate-hz``: the thesis preset made to run at that rate (device/design/report.py
+sensor_at_rate: its laser at the Class 1 power of the rate's firmware envelope) with the co-MCU
+firmware built with that envelope (in firmware_pwm/build/rate-<min period ticks>), serving the
+same 1640 points per scan on a link paced like USB CDC (LINK_BAUD) where 921600 baud would not
+carry them (protocol/SPEC.md section 5).
 """
 
 from __future__ import annotations
@@ -25,11 +31,18 @@ import tempfile
 import time
 from pathlib import Path
 
+PRESET = "thesis-calibrated"
+#: The pty's pacing where the 921600 baud UART cannot carry the scans: USB CDC full speed, ~8 Mbit/s.
+LINK_BAUD = 8_000_000
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="measured span after warm-up")
     parser.add_argument("--warmup", type=float, default=6.0, help="seconds before the first snapshot")
     parser.add_argument("--slowdown", type=float, default=15.0, help="Cortex-A53 @ 1 GHz per-core slowdown vs here")
+    parser.add_argument("--scan-rate-hz", type=float, default=None,
+                        help=f"scans/s (default: the {PRESET} preset's 10; another rate runs the co-MCU firmware "
+                             "built for it)")
     parser.add_argument("--json", action="store_true")
 
 
@@ -58,13 +71,34 @@ def cost_per_scan(a: dict, b: dict) -> dict:
     }
 
 
+def rate_arguments(rate_hz: float, tmp: Path) -> list[str]:
+    """`laserpi serve` arguments for the preset at ``rate_hz`` scans/s (module doc)."""
+    from device.config import load_preset, save_config
+    from device.design.report import sensor_at_rate
+    from device.model.envelope import parse_makefile_envelope
+    from device.sim.comcu_emulator import FIRMWARE_DIR, build_emulator
+    from protocol import messages as m
+
+    cfg, envelope = sensor_at_rate(load_preset(PRESET), rate_hz)
+    save_config(cfg, tmp / "sensor.toml")
+    args = ["--config", str(tmp / "sensor.toml")]
+    if envelope != parse_makefile_envelope((FIRMWARE_DIR / "Makefile").read_text()):
+        _, elf = build_emulator(f"build/rate-{envelope.min_period_us}", MAX_PULSE_US=envelope.max_pulse_us,
+                                MAX_DUTY_PPM=envelope.max_duty_ppm, MIN_PERIOD_US=envelope.min_period_us)
+        args += ["--firmware", str(elf)]
+    if m.link_budget_refusal(cfg.active_width or cfg.width, rate_hz, 921_600) is not None:
+        args += ["--baud", str(LINK_BAUD)]
+    return args
+
+
 def run(args: argparse.Namespace) -> int:
     import host_sdk
     from device.service.child import start_serve, stop_serve
 
     with tempfile.TemporaryDirectory(prefix="laserpi-bench-") as tmp:
         link, stats = Path(tmp) / "laserpi", Path(tmp) / "stats.json"
-        proc = start_serve(link, ["--simulate", "--scene", "wall", "--stats-file", str(stats)],
+        rate = [] if args.scan_rate_hz is None else rate_arguments(args.scan_rate_hz, Path(tmp))
+        proc = start_serve(link, ["--simulate", "--scene", "wall", "--stats-file", str(stats), *rate],
                            log_path=Path(tmp) / "serve.log")
         try:
             with host_sdk.LaserPi(str(link), timeout_s=15.0) as sensor:
@@ -81,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
         last = json.loads(stats.read_text())
     r = cost_per_scan(first, last)
     pi_ms = r["device_ms_per_scan"] * args.slowdown
-    r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_core_load_at_10hz=pi_ms / 100.0)
+    rate_hz = 10.0 if args.scan_rate_hz is None else args.scan_rate_hz
+    r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_cores_at_rate=pi_ms * rate_hz / 1e3)
     if args.json:
         print(json.dumps(r))
         return 0
@@ -90,5 +125,5 @@ def run(args: argparse.Namespace) -> int:
           f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
           f"other {r['other_ms_per_scan']:.1f})")
     print(f"Pi Zero 2 W estimate (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
-          f"{100 * pi_ms / 100.0:.0f} % of one of its 4 cores at 10 Hz")
+          f"{100 * r['pi_zero2w_cores_at_rate']:.0f} % of one of its 4 cores at {rate_hz:g} Hz")
     return 0

@@ -44,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
         args._parser.error(f"argument {'--preset' if args.preset is not None else '--config'}: {exc}")
     ranges_m = [d * 1e-3 for d in args.distances_mm]
     want_figures = not args.json or args.plots is not None
-    rep = design_report(cfg, args.subpixel, ranges_m, sweep=want_figures, columns=want_figures)
+    rep = design_report(cfg, args.subpixel, ranges_m, sweep=want_figures, columns=want_figures,
+                        rates=want_figures)
     if args.plots is not None:
         from device.design.plots import write_plots
 

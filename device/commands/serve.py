@@ -34,6 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", metavar="DEV", help="serve on this serial device (e.g. /dev/ttyAMA0, /dev/ttyGS0)")
     parser.add_argument("--baud", type=int, default=921600,
                         help="baud rate of --port; with --link, writes are paced at this rate like a UART")
+    parser.add_argument("--link-rate-bps", type=float, default=None,
+                        help="what the host link carries, bits/s (default: --baud, a UART at 8N1; a USB CDC port "
+                             "carries more): settings whose scans need more are refused")
+    parser.add_argument("--scan-rate-hz", type=float, default=None,
+                        help="scans/s (default: the configuration's [operating_point] scan_rate_hz; not with --mock)")
+    parser.add_argument("--firmware", metavar="ELF", default=None,
+                        help="with --simulate: the co-MCU firmware to run (default: firmware_pwm/build/laserpi_pwm.elf, "
+                             "the production envelope; another rate needs its own build, see `laserpi design`)")
     parser.add_argument("--simulate", action="store_true",
                         help="simulated camera and scene, co-MCU firmware in the emulator, real pipeline")
     parser.add_argument("--mock", action="store_true", help="with --simulate: the analytic wall, no images")
@@ -129,8 +137,8 @@ def run(args: argparse.Namespace) -> int:
     hw = None
     try:
         if args.mock:
-            if not args.simulate:
-                print("laserpi serve: --mock needs --simulate")
+            if not args.simulate or args.scan_rate_hz is not None or args.firmware is not None:
+                print("laserpi serve: --mock needs --simulate, and runs at its own rate without firmware")
                 return 2
             from protocol.mock_wall import AnalyticWallSource, default_settings
 
@@ -141,9 +149,14 @@ def run(args: argparse.Namespace) -> int:
         else:
             from device.service.assembly import AssemblyConfig, build_sensor
 
+            if args.firmware is not None and not args.simulate:
+                print("laserpi serve: --firmware needs --simulate (on a Pi the co-MCU runs the firmware flashed into it)")
+                return 2
+
             built = build_sensor(AssemblyConfig(simulate=args.simulate, config_path=args.config, preset=args.preset,
                                                 points=args.points, comcu=args.comcu, scene=args.scene,
-                                                distance_m=args.distance_m, seed=args.seed))
+                                                distance_m=args.distance_m, seed=args.seed,
+                                                scan_rate_hz=args.scan_rate_hz, firmware=args.firmware))
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware
             limit_mw = built.laser_limit_mw
@@ -153,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
                                      f"{built.laser_limit_mw:.2f} mW the safety model gives for this laser and pulse; "
                                      "it can only lower the limit")
                 limit_mw = args.laser_limit_mw
-        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings, host_timeout_s=args.host_timeout_s)
+        config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings, host_timeout_s=args.host_timeout_s,
+                              link_rate_bps=args.baud if args.link_rate_bps is None else args.link_rate_bps)
     except (ValueError, OSError, RuntimeError) as exc:
         for close in reversed(closers):
             close()

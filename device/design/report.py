@@ -1,5 +1,6 @@
 """The design report of a sensor configuration: range limits, resolution table, camera-tilt sweep,
-eye safety and background light (thesis 3.5 steps 1-6, 4.1.3-4.1.5, 4.2.3).
+eye safety and background light (thesis 3.5 steps 1-6, 4.1.3-4.1.5, 4.2.3), and both at 10, 15
+and 20 scans/s.
 
 ``design_report`` computes; ``format_report`` renders the readable table that
 ``laserpi design`` prints. No I/O here.
@@ -7,12 +8,14 @@ eye safety and background light (thesis 3.5 steps 1-6, 4.1.3-4.1.5, 4.2.3).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from device.design import limits
+from device.model import envelope as envelope_model
 from device.model import irradiance, safety
 
 #: Thesis 4.1.4: no eye gets closer than 1 cm to the source.
@@ -27,6 +30,32 @@ SWEEP_COLUMN_STEP = 16
 TARGET_RANGE_M = 2.0
 #: Background-limited range: the return at 1 % of the background (Figure 4.4).
 BACKGROUND_FRACTION = 0.01
+#: Scan rates of the eye-safety and range table, scans/s (a lit and an unlit frame each).
+SCAN_RATES_HZ = (10.0, 15.0, 20.0)
+
+
+@dataclass(frozen=True)
+class RatePoint:
+    """Eye safety and range at one scan rate, one pulse of ``pulse_s`` per scan (the longest the
+    sensor fires: device/service/assembly.py's laser_pulse_s).
+
+    ``class1_power_w``: the largest Class 1 peak power of that regular train; ``envelope``: the
+    co-MCU firmware envelope for it (device/model/envelope.py: pulses up to ``pulse_s``, at least
+    1 / rate - SYNC_SLACK_S apart), and ``envelope_power_w`` the largest power at which every
+    train that envelope allows is Class 1 (at most ``class1_power_w``: it also allows denser
+    trains of shorter pulses); ``power_w``: the laser's power capped at that; the distances where
+    its return falls to BACKGROUND_FRACTION of the background (eq. 3.46, Figure 4.4) at that
+    power. ``frames_fit``: the sensor mode runs 2 x ``scan_rate_hz`` frames/s (device/camera/modes.py)."""
+
+    scan_rate_hz: float
+    pulse_s: float
+    frames_fit: bool
+    class1_power_w: float
+    envelope: envelope_model.FirmwareEnvelope
+    envelope_power_w: float
+    power_w: float
+    background_range_m: float
+    background_range_indoor_m: float
 
 
 @dataclass(frozen=True)
@@ -44,6 +73,8 @@ class DesignReport:
     background_w_m2: float
     background_range_m: float           # outdoor, return = 1 % of background
     background_range_indoor_m: float
+    rates: tuple[RatePoint, ...] = ()
+    max_scan_rate_hz: float = math.nan  # the sensor mode's frame-rate limit / 2
 
 
 def laser_of(cfg) -> safety.PulsedLineLaser:
@@ -60,7 +91,49 @@ def principal_limits(geom: limits.RangeGeometry) -> tuple[float, float]:
     return float(col.q_min[0]), float(col.q_max[0])
 
 
-def design_report(cfg, subpixels, ranges_m, *, sweep: bool = True, columns: bool = True) -> DesignReport:
+def rate_points(cfg, rates_hz=SCAN_RATES_HZ) -> tuple[RatePoint, ...]:
+    """:class:`RatePoint` of ``cfg`` at each scan rate, for the pulse the device fires for the
+    operating point's exposure and region of interest."""
+    from device.service.assembly import laser_limit_mw, laser_pulse_s, roi_rows
+    from device.vision.geometry import column_geometry
+
+    op, mode = cfg.operating_point, cfg.window.mode
+    pulse_s = laser_pulse_s(cfg, *roi_rows(column_geometry(cfg, op.min_m, op.max_m)))
+    background = irradiance.band_irradiance_w_m2(cfg.laser.wavelength_m * 1e9, cfg.optics.bandpass_width_m * 1e9)
+    las = cfg.laser
+    optics = envelope_model.LineLaserOptics(las.wavelength_m * 1e9, las.fan_angle_rad, las.line_height_m,
+                                            las.source_diameter_m)
+    points = []
+    for rate in rates_hz:
+        limit_w = laser_limit_mw(cfg, pulse_s, CLOSEST_EYE_M, rate) * 1e-3
+        envelope = envelope_model.envelope_for(pulse_s, 1.0 / rate - envelope_model.SYNC_SLACK_S)
+        envelope_w = envelope_model.envelope_max_power_w(optics, CLOSEST_EYE_M, envelope)
+        power_w = min(las.power_w, envelope_w)
+        points.append(RatePoint(float(rate), pulse_s, 2 * rate <= mode.max_frame_rate_hz, limit_w, envelope, envelope_w,
+                                power_w, _background_range_m(cfg, power_w, background),
+                                _background_range_m(cfg, power_w, irradiance.INDOOR_FRACTION * background)))
+    return tuple(points)
+
+
+def sensor_at_rate(cfg, rate_hz: float):
+    """``cfg`` made to run at ``rate_hz`` scans/s, and the co-MCU firmware envelope it needs
+    (:class:`RatePoint`): its [laser] pulsed at that rate at the laser's power capped at the
+    envelope's Class 1 power, its [operating_point] at that rate. ConfigError if the sensor mode
+    cannot run that fast."""
+    from device.config import with_operating_point
+
+    (point,) = rate_points(cfg, (rate_hz,))
+    laser = dataclasses.replace(cfg.laser, rate_hz=float(rate_hz), power_w=point.power_w)
+    return with_operating_point(dataclasses.replace(cfg, laser=laser), scan_rate_hz=float(rate_hz)), point.envelope
+
+
+def _background_range_m(cfg, power_w: float, background_w_m2: float) -> float:
+    return irradiance.background_limited_distance_m(power_w, background_w_m2, BACKGROUND_FRACTION,
+                                                    cfg.laser.fan_angle_rad, cfg.laser.line_height_m)
+
+
+def design_report(cfg, subpixels, ranges_m, *, sweep: bool = True, columns: bool = True,
+                  rates: bool = True) -> DesignReport:
     """Everything ``laserpi design`` shows for ``cfg`` (a :class:`device.config.SensorConfig`)."""
     geom = limits.geometry_from_config(cfg)
     q_min, q_max = principal_limits(geom)
@@ -82,12 +155,10 @@ def design_report(cfg, subpixels, ranges_m, *, sweep: bool = True, columns: bool
     assessment = safety.assess(laser, CLOSEST_EYE_M, cfg.laser.power_w)
     background = irradiance.band_irradiance_w_m2(cfg.laser.wavelength_m * 1e9, cfg.optics.bandpass_width_m * 1e9)
 
-    def bg_range(scale: float) -> float:
-        return irradiance.background_limited_distance_m(
-            cfg.laser.power_w, scale * background, BACKGROUND_FRACTION, cfg.laser.fan_angle_rad, cfg.laser.line_height_m)
-
-    return DesignReport(cfg.name, geom, q_min, q_max, subpixels, ranges_m, table, col, sw, assessment,
-                        background, bg_range(1.0), bg_range(irradiance.INDOOR_FRACTION))
+    return DesignReport(cfg.name, geom, q_min, q_max, subpixels, ranges_m, table, col, sw, assessment, background,
+                        _background_range_m(cfg, cfg.laser.power_w, background),
+                        _background_range_m(cfg, cfg.laser.power_w, irradiance.INDOOR_FRACTION * background),
+                        rate_points(cfg) if rates else (), cfg.window.mode.max_frame_rate_hz / 2)
 
 
 def _mm(x: float) -> str:
@@ -151,4 +222,17 @@ def format_report(rep: DesignReport) -> str:
     out.append(f"background (ASTM G173 AM1.5 global, {rep.background_w_m2 / 10:.2f} mW/cm^2 in the bandpass):")
     out.append(f"  return falls to {BACKGROUND_FRACTION:.0%} of the background at {_mm(rep.background_range_m)} outdoors, "
                f"{_mm(rep.background_range_indoor_m)} indoors ({irradiance.INDOOR_FRACTION:.0%} of outdoor)")
+    if rep.rates:
+        out.append("")
+        out.append(f"scan rate (a lit and an unlit frame per scan; the sensor mode allows at most "
+                   f"{rep.max_scan_rate_hz:.2f} scans/s), pulses up to {rep.rates[0].pulse_s * 1e3:.2f} ms, one per scan:")
+        out.append("  scans/s   Class 1 max: this train   its firmware envelope   laser power   "
+                   "range at 1 % of background: outdoors   indoors")
+        for r in rep.rates:
+            out.append(f"  {r.scan_rate_hz:7g}   {r.class1_power_w * 1e3:20.2f} mW   {r.envelope_power_w * 1e3:18.2f} mW   "
+                       f"{r.power_w * 1e3:8.2f} mW   {_mm(r.background_range_m):>33}   {_mm(r.background_range_indoor_m):>9}"
+                       + ("" if r.frames_fit else "   (too fast for the sensor mode)"))
+        out.append("  the firmware envelope of each rate (flash the co-MCU with it to run at that rate; an envelope other "
+                   "than the Makefile's in its own BUILD=build/NAME):")
+        out.extend(f"  {r.scan_rate_hz:7g}   {r.envelope.make_command()}" for r in rep.rates)
     return "\n".join(out)

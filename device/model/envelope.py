@@ -49,6 +49,9 @@ MIN_PULSE_US = 100
 MIN_GAP_US = 200
 #: Longest pulse that fits one 16-bit compare window (config.h's #error bound, 61344 ticks) at 16 MHz.
 MAX_PULSE_US_LIMIT = (65536 - 2 * 48 - 4096) // 2
+#: Room below the sensor's pulse period that an envelope's minimum period leaves for the sync's
+#: period trims (ppm) and phase steps: minimum period = 1 / rate - this.
+SYNC_SLACK_S = 10e-3
 #: Relative amount below the minimum period at which the densest corner is evaluated, so that a
 #: window holding a whole number of minimum periods counts floor(L / P) + 1 pulses.
 _HAIR = 1e-9
@@ -174,6 +177,13 @@ def _nohd_point(optics: LineLaserOptics, power_w: float, pulse_s: float, period_
     return safety.nohd_m(laser, power_w, limit), limit.limiting_condition
 
 
+def _allowed_trains(optics: LineLaserOptics, envelope: FirmwareEnvelope, width_points: int):
+    """(pulse_s, period_s) of every regular train `verify_envelope` evaluates (module doc)."""
+    for pulse_s in width_grid_s(optics, envelope, width_points):
+        for period_s in period_candidates_s(optics, envelope, float(pulse_s)):
+            yield float(pulse_s), float(period_s)
+
+
 def verify_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: float, envelope: FirmwareEnvelope,
                     width_points: int = 200) -> EnvelopeCheck:
     """Largest NOHD of any pulse train the firmware allows (module doc), and where it is.
@@ -185,13 +195,27 @@ def verify_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: floa
         raise EnvelopeError(f"laser power must be a finite positive number, got {power_w!r}")
     worst = (-1.0, math.nan, math.nan, "")
     points = 0
-    for pulse_s in width_grid_s(optics, envelope, width_points):
-        for period_s in period_candidates_s(optics, envelope, float(pulse_s)):
-            nohd, condition = _nohd_point(optics, power_w, float(pulse_s), float(period_s))
-            points += 1
-            if nohd > worst[0]:
-                worst = (nohd, float(pulse_s), float(period_s), condition)
+    for pulse_s, period_s in _allowed_trains(optics, envelope, width_points):
+        nohd, condition = _nohd_point(optics, power_w, pulse_s, period_s)
+        points += 1
+        if nohd > worst[0]:
+            worst = (nohd, pulse_s, period_s, condition)
     return EnvelopeCheck(worst[0], worst[1], worst[2], worst[3], float(closest_eye_m), points)
+
+
+def envelope_max_power_w(optics: LineLaserOptics, closest_eye_m: float, envelope: FirmwareEnvelope,
+                         width_points: int = 200) -> float:
+    """Largest peak power (W) at which every train of the envelope is Class 1: the smallest of
+    the trains' own limits (eq. 3.45), over the trains `verify_envelope` evaluates."""
+    return min(safety.max_power_w(optics.train(pulse_s, period_s), closest_eye_m)
+               for pulse_s, period_s in _allowed_trains(optics, envelope, width_points))
+
+
+def envelope_for(max_pulse_s: float, min_period_s: float) -> FirmwareEnvelope:
+    """The envelope for pulses up to ``max_pulse_s`` at most one per ``min_period_s``, in whole
+    microseconds rounded to the safe side (pulse down, period up); not yet checked against the model."""
+    max_pulse_us, min_period_us = _us_down(max_pulse_s), math.ceil(min_period_s * 1e6 - 1e-6)
+    return FirmwareEnvelope(max_pulse_us, duty_ppm_for(max_pulse_us, min_period_us), min_period_us)
 
 
 def duty_ppm_for(max_pulse_us: int, min_period_us: int) -> int:
@@ -207,11 +231,10 @@ def compute_envelope(optics: LineLaserOptics, power_w: float, closest_eye_m: flo
     """The firmware envelope for pulses up to ``max_pulse_s`` at most one per ``min_period_s``
     (the sensor's pulse period minus the slack its sync needs), verified Class 1.
 
-    Microseconds are rounded to the safe side (pulse down, period up).  Raises EnvelopeError naming the
-    worst train and the shortest Class 1 period when the envelope is not Class 1.
+    Microseconds are rounded as in `envelope_for`.  Raises EnvelopeError naming the worst train and
+    the shortest Class 1 period when the envelope is not Class 1.
     """
-    max_pulse_us, min_period_us = _us_down(max_pulse_s), math.ceil(min_period_s * 1e6 - 1e-6)
-    envelope = FirmwareEnvelope(max_pulse_us, duty_ppm_for(max_pulse_us, min_period_us), min_period_us)
+    envelope = envelope_for(max_pulse_s, min_period_s)
     check = verify_envelope(optics, power_w, closest_eye_m, envelope)
     if not check.class1:
         shortest = shortest_class1_period_s(optics, power_w, closest_eye_m, max_pulse_s)
@@ -264,9 +287,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="closest distance an eye can reach (default 10: thesis 4.1.4)")
     parser.add_argument("--max-pulse-ms", type=float,
                         help="longest pulse the sensor needs (default: the configuration's pulse_s)")
-    parser.add_argument("--slack-ms", type=float, default=10.0,
+    parser.add_argument("--slack-ms", type=float, default=SYNC_SLACK_S * 1e3,
                         help="minimum period = 1 / rate_hz minus this, room for the sync's period trims "
-                             "(ppm) and phase steps (default 10)")
+                             f"(ppm) and phase steps (default {SYNC_SLACK_S * 1e3:g})")
     args = parser.parse_args(argv)
     try:
         cfg = load_config(args.config) if args.config else load_preset(args.preset)

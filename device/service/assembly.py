@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from device.config import SensorConfig, load_config, load_preset
+from device.config import SensorConfig, load_config, load_preset, with_operating_point
 from device.laser.comcu import BAUDRATE, CoMcu
 from device.scan.pipeline import ScanPipeline
 from device.scan.source import SensorSource
@@ -45,24 +45,39 @@ def sensor_config(config_path: str | None, preset: str) -> SensorConfig:
     return load_config(config_path) if config_path else load_preset(preset)
 
 
-def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.01) -> float:
-    """Class 1 peak power limit (mW) of the configured laser at this pulse width and scan rate
-    (device/model/safety.py, eq. 3.45 with the thesis's 1 cm closest eye)."""
-    from device.model.safety import PulsedLineLaser, max_power_w
+def roi_rows(geometry) -> tuple[int, int]:
+    """First and last image row of the pipeline's region of interest (any column)."""
+    return int(geometry.roi_lo.min()), int(geometry.roi_hi.max()) - 1
 
-    laser = PulsedLineLaser(cfg.laser.wavelength_m * 1e9, pulse_s, cfg.operating_point.scan_rate_hz, cfg.laser.fan_angle_rad,
-                            cfg.laser.line_height_m, cfg.laser.source_diameter_m)
-    return 1e3 * max_power_w(laser, closest_eye_m)
+
+def laser_pulse_s(cfg: SensorConfig, row_min: int, row_max: int) -> float:
+    """The longest pulse the sensor fires (s): one exposure plus the readout of rows row_min..row_max
+    (rolling shutter: the pulse covers the exposure of every row of the region of interest), or the
+    [laser] pulse_s if longer (the sync's guards widen the pulse up to that)."""
+    return max(cfg.operating_point.exposure_us * 1e-6 + (row_max - row_min) * cfg.window.mode.line_time_s,
+               cfg.laser.pulse_s)
+
+
+def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.01, rate_hz: float | None = None) -> float:
+    """Class 1 peak power limit (mW) of the configured laser, one ``pulse_s`` pulse per scan at
+    ``rate_hz`` scans/s (default: the operating point's); device/model/safety.py, eq. 3.45 with the
+    thesis's 1 cm closest eye."""
+    from device.sync.placement import class1_power_w
+
+    rate_hz = cfg.operating_point.scan_rate_hz if rate_hz is None else rate_hz
+    return 1e3 * class1_power_w(pulse_s, rate_hz, cfg.laser, closest_eye_m)
 
 
 @dataclass(frozen=True)
 class AssemblyConfig:
     """Which sensor ``build_sensor`` builds (``laserpi serve`` makes one of its options).
 
-    ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``points``: points
-    per scan (None: the configuration's active image width); ``comcu``: the co-MCU's serial device
-    on a Pi. ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
-    ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``.
+    ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``scan_rate_hz``
+    overrides its [operating_point] scan_rate_hz; ``points``: points per scan (None: the
+    configuration's active image width); ``comcu``: the co-MCU's serial device on a Pi.
+    ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
+    ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``, its
+    co-MCU running ``firmware`` (an ELF; None: the production build).
     """
 
     simulate: bool = False
@@ -73,6 +88,8 @@ class AssemblyConfig:
     scene: str = "wall"
     distance_m: float = 2.0
     seed: int = 0
+    scan_rate_hz: float | None = None
+    firmware: str | None = None
 
 
 @dataclass
@@ -97,21 +114,22 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     from device.vision.pipelines import make_pipeline
 
     cfg = sensor_config(setup.config_path, setup.preset)
+    if setup.scan_rate_hz is not None:
+        cfg = with_operating_point(cfg, scan_rate_hz=setup.scan_rate_hz)
     op = cfg.operating_point  # scan rate, exposure, gain, depth range ([operating_point])
     frame_duration_s = 0.5 / op.scan_rate_hz  # a lit and an unlit frame per scan
     pipeline = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
     count = setup.points or cfg.active_width or cfg.width
     scan = ScanPipeline(pipeline, count)
-    g = pipeline.geometry
-    row_min, row_max = int(g.roi_lo.min()), int(g.roi_hi.max()) - 1
+    row_min, row_max = roi_rows(pipeline.geometry)
     # Guards: a 100 us floor and narrowing at most every 5 s keep the controller from re-placing
     # the train for guard changes of tens of microseconds (each new train costs the frames before
     # it, i.e. a scan). Exposure + ROI span + 2 x 1.3 x the 2 ms guard ceiling = 17.3 ms stays
     # inside the firmware's 17.4 ms pulse envelope.
     # (SyncConfig's PING/PONG minimum line times default to device.laser.comcu's 250000 baud.)
     sync = SyncConfig(row_min, row_max, frame_duration_s, cmd_latency_max_s=COMMAND_LATENCY_S, min_guard_s=100e-6, narrow_interval_s=5.0)
-    pulse_s = op.exposure_us * 1e-6 + (row_max - row_min) * cfg.window.mode.line_time_s
-    limit = laser_limit_mw(cfg, max(pulse_s, cfg.laser.pulse_s))
+    pulse_s = laser_pulse_s(cfg, row_min, row_max)
+    limit = laser_limit_mw(cfg, pulse_s)
     closers = []
     if setup.simulate:
         from device.sim.camera import SimulatedCamera
@@ -120,7 +138,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         from device.sim.sensor import SensorParams
 
         spec = f"wall:distance={setup.distance_m:g}" if setup.scene == "wall" else setup.scene
-        hw = SimulatedHardware(seed=setup.seed)
+        hw = SimulatedHardware(seed=setup.seed, elf=setup.firmware)
         closers.append(hw.close)
         timing = CameraTimingConfig(frame_duration_s=frame_duration_s, exposure_s=op.exposure_us * 1e-6)
         camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,

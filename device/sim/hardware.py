@@ -19,6 +19,7 @@ import os
 import select
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -29,8 +30,9 @@ from protocol.ports import open_raw_pty
 
 
 class SimulatedHardware:
-    """The simulated Pi's CLOCK_MONOTONIC and its co-MCU: the shipped firmware ELF running in the
-    simavr harness (device/sim/comcu_emulator.SteppedMcuPort), cycle-exact, behind a pty.
+    """The simulated Pi's CLOCK_MONOTONIC and its co-MCU: the shipped firmware ELF (or ``elf``, a
+    build with another envelope, e.g. 20 scans/s: `laserpi design` gives its make line) running in
+    the simavr harness (device/sim/comcu_emulator.SteppedMcuPort), cycle-exact, behind a pty.
 
     Time: simulated CLOCK_MONOTONIC = ``t_base + emulator cycles / CPU_HZ``; a clock thread keeps
     it at the wall clock (it advances the emulator, never ahead of the wall clock) but not past
@@ -54,10 +56,14 @@ class SimulatedHardware:
     """
 
     def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
-                 history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05):
-        if not (HARNESS.exists() and ELF.exists()):
-            build_emulator()
-        self.harness, self.elf, self.cpu_hz = HARNESS, ELF, CPU_HZ
+                 history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05, elf: Path | None = None):
+        if not HARNESS.exists() or (elf is None and not ELF.exists()):
+            build_emulator()  # the harness and the production ELF (the Makefile's envelope)
+        elf = ELF if elf is None else Path(elf)
+        if not elf.exists():
+            raise FileNotFoundError(f"no firmware ELF {elf}: build it with make -C firmware_pwm BUILD=build/NAME "
+                                    "<the envelope's variables>")
+        self.harness, self.elf, self.cpu_hz = HARNESS, elf, CPU_HZ
         self.gpio_latency_s = gpio_latency_s
         self.tick_ns, self.step_ns = int(tick_s * 1e9), int(step_s * 1e9)
         self.answer_window_ns = int(answer_window_s * 1e9)
