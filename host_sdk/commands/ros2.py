@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         flag = "--" + name.replace("_", "-")
         shown = f" (default {default})" if default is not None else ""
         if type_ is bool:
-            parser.add_argument(flag, action="store_true", default=None, help=help_)
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=help_)
         else:
             parser.add_argument(flag, type=type_, default=None, help=help_ + shown,
                                 choices=("reliable", "sensor") if name == "qos" else None)

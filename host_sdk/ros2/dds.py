@@ -116,6 +116,10 @@ class Ros2Publisher:
     def publish_diagnostics(self, statuses, stamp: tuple[int, int], hardware_id: str) -> None:
         self._diagnostics.write(diagnostic_array_msg(statuses, stamp, hardware_id))
 
+    def subscriptions_matched(self) -> int:
+        """Readers that match the scan and the diagnostics writer, together."""
+        return sum(w.get_publication_matched_status().current_count for w in (self._scans, self._diagnostics))
+
     def close(self) -> None:
         """Delete the participant and its writers now (their readers see them leave)."""
         self.participant.__del__()  # cyclonedds deletes on __del__; this is idempotent

@@ -18,7 +18,7 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, Iterable
 
 from host_sdk.crop import crop
@@ -68,7 +68,7 @@ def device_diagnostics(health, stats: dict) -> list[tuple[str, int, str, dict]]:
         level, message = DIAGNOSTIC_LEVELS["WARN"], "degraded: " + ", ".join(errors)
     else:
         level, message = DIAGNOSTIC_LEVELS["OK"], health.state.name.lower()
-    device_values = {name: value for name, value in vars(health).items() if value is not None}
+    device_values = {f.name: getattr(health, f.name) for f in fields(health) if getattr(health, f.name) is not None}
     device_values["state"], device_values["errors"] = health.state.name, " ".join(errors)
     lossy = stats["scans_missing"] or stats["crc_errors"]
     link = ("link", DIAGNOSTIC_LEVELS["WARN"] if lossy else DIAGNOSTIC_LEVELS["OK"],
