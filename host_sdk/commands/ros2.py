@@ -16,6 +16,7 @@ $ROS_DOMAIN_ID, else 0, as rcl does (rcl/src/rcl/domain_id.c, rcl_get_default_do
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import os
 import signal
@@ -79,9 +80,7 @@ def resolve(args: argparse.Namespace, environ=os.environ) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        import cyclonedds  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("cyclonedds") is None:
         print("laserpi ros2 needs the 'ros2' extra: pip install 'laserpi[ros2]'")
         return 2
     from host_sdk import LaserPi, LaserPiError
