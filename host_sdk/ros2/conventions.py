@@ -20,10 +20,11 @@ Each rule is ROS 2's own, cited to the source that implements it:
 - QoS profiles: ros2/rmw, rmw/include/rmw/qos_profiles.h. rmw_qos_profile_sensor_data is
   keep-last 5, best effort, volatile; rmw_qos_profile_default keep-last 10, reliable, volatile.
   rmw_cyclonedds maps them onto DDS in rmw_node.cpp, create_readwrite_qos (reliable with an
-  infinite max blocking time, best effort, autodispose off). DDS matches a writer to a reader when
-  what the writer offers is at least what the reader requests (OMG DDS 1.4, 2.2.3
-  "Supported QoS", RELIABILITY and DURABILITY: "offered >= requested"): a reliable writer
-  serves reliable and best-effort readers, a best-effort writer only best-effort readers.
+  infinite max blocking time, best effort, autodispose off). A writer matches a reader when what
+  it offers is at least what the reader requests (docs.ros.org, Concepts "Quality of Service
+  settings", "QoS compatibilities"; OMG DDS 1.4, 2.2.3, RELIABILITY "requested/offered"): a
+  reliable writer serves reliable and best-effort readers, a best-effort writer only best-effort
+  ones; a volatile writer serves volatile readers (a transient-local reader does not match it).
   The drivers publish scans reliably (Slamtec/rplidar_ros ros2 branch, src/rplidar_node.cpp:
   QoS(KeepLast(10)); urg_node src/urg_node.cpp: depth 20), so "reliable" is the default.
 - Type hash. Since Iron, rmw puts "typehash=RIHS01_<hex>;" in the endpoints' USER_DATA

@@ -3,10 +3,10 @@
 Imports ``cyclonedds`` (the ``ros2`` extra): only ``laserpi ros2`` and its tests load this module.
 The names, encoding and QoS follow host_sdk/ros2/conventions.py, which cites ROS 2's sources.
 
-The structs are the IDL of the ROS 2 messages (rosidl_adapter maps a .msg file to IDL:
-float32 -> float, byte -> octet, string -> string, T[] -> sequence<T>; design article
-"Interface definition and language mapping"), with the DDS type names rmw gives them; their
-fields are in the .msg files' order, which fixes the CDR layout. Cyclone DDS serialises them as
+The structs are the DDS types of the ROS 2 messages (ROS 2 design, articles/
+111_mapping_dds_types.md: float32 -> float, int32 -> long, uint32 -> unsigned long, byte -> octet,
+string -> string, T[] -> sequence<T>), with the DDS type names rmw gives them; their fields are
+in the .msg files' order, which fixes the CDR layout. Cyclone DDS serialises them as
 XCDR1 when the writer's DataRepresentation policy allows only XCDR1.
 """
 
