@@ -103,8 +103,9 @@ class Ros2Publisher:
             raise ValueError(f"unknown QoS profile {qos!r}; known: {', '.join(c.QOS_PROFILES)}")
         if not 0 <= domain_id <= 232:  # docs.ros.org, Concepts "The ROS_DOMAIN_ID": 0..232 (RTPS ports)
             raise ValueError(f"ROS 2 domain id must be 0..232, got {domain_id}")
+        scan_topic = c.dds_topic_name(topic)  # a bad name fails here, before anything goes on the network
         self.participant = DomainParticipant(domain_id, qos=Qos(Policy.Userdata(c.PARTICIPANT_USER_DATA)))
-        self._scans = DataWriter(self.participant, Topic(self.participant, c.dds_topic_name(topic), LaserScanMsg),
+        self._scans = DataWriter(self.participant, Topic(self.participant, scan_topic, LaserScanMsg),
                                  writer_qos(c.QOS_PROFILES[qos], c.LASERSCAN))
         self._diagnostics = DataWriter(
             self.participant, Topic(self.participant, c.dds_topic_name(c.DIAGNOSTICS_TOPIC), DiagnosticArrayMsg),
