@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import logging
 import math
 import os
 import signal
 import sys
 import tomllib
+
+log = logging.getLogger(__name__)
 
 # name: (type, default, help). The command line's default is None so that a file can fill it.
 PARAMETERS = {
@@ -79,13 +82,30 @@ def resolve(args: argparse.Namespace, environ=os.environ) -> dict:
     return values
 
 
+def publish_scans(publisher, sensor, options, reconnect: bool) -> None:
+    """Publish the sensor's scans until it fails. With ``reconnect`` a pause in the scans (the
+    sensor coming back more slowly than LaserPi's timeout_s after an unplug) is waited out, as the
+    port is."""
+    from host_sdk import DeviceTimeout
+    from host_sdk.ros2.node import run_node
+
+    while True:
+        try:
+            run_node(publisher, sensor.scans(), options)
+            return
+        except DeviceTimeout as exc:
+            if not reconnect:
+                raise
+            log.warning("%s; waiting for scans", exc)
+
+
 def run(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("cyclonedds") is None:
         print("laserpi ros2 needs the 'ros2' extra: pip install 'laserpi[ros2]'")
         return 2
     from host_sdk import LaserPi, LaserPiError
     from host_sdk.ros2.dds import Ros2Publisher
-    from host_sdk.ros2.node import DiagnosticsThread, ScanOptions, device_diagnostics, run_node
+    from host_sdk.ros2.node import DiagnosticsThread, ScanOptions, device_diagnostics
 
     try:
         p = resolve(args)
@@ -104,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
                   f"on ROS domain {p['domain_id']}", flush=True)
             diagnostics.start()
             try:
-                run_node(publisher, sensor.scans(), options)
+                publish_scans(publisher, sensor, options, p["reconnect"])
             finally:
                 diagnostics.stop()
     except (LaserPiError, ValueError) as exc:
