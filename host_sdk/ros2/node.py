@@ -1,7 +1,7 @@
 """The ROS 2 node without ROS: scans in, LaserScan and DiagnosticArray samples out.
 
-``run_node`` publishes every scan a scan iterator yields and, on a thread, the diagnostics a
-callable returns, until the iterator ends or ``stop`` is set. It knows the sensor only through
+``run_node`` publishes every scan a scan iterator yields until it ends, and DiagnosticsThread,
+on a thread, the diagnostics a callable returns. It knows the sensor only through
 those two (a Scan iterator and a callable returning (name, level, message, {key: value})
 tuples, the shape of diagnostic_msgs/DiagnosticStatus), so tests feed it fakes.
 
@@ -107,15 +107,13 @@ class DiagnosticsThread:
                 return
 
 
-def run_node(publisher, scans: Iterable[Scan], options: ScanOptions, stop: threading.Event | None = None,
+def run_node(publisher, scans: Iterable[Scan], options: ScanOptions,
              on_published: Callable[[Scan, tuple[int, int]], None] | None = None) -> int:
-    """Publish every scan until ``scans`` ends or ``stop`` is set; returns how many."""
+    """Publish every scan until ``scans`` ends; returns how many."""
     n = 0
     for scan in scans:
         stamp = publish_scan(publisher, scan, options)
         n += 1
         if on_published is not None:
             on_published(scan, stamp)
-        if stop is not None and stop.is_set():
-            break
     return n
