@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("host_sdk.commands.record", "record the raw wire bytes of a sensor"),
     "replay": ("host_sdk.commands.replay", "serve a recording again through a pty"),
     "export-bag": ("host_sdk.commands.export_bag", "write a recording as a ROS 2 bag of LaserScan"),
+    "ros2": ("host_sdk.commands.ros2", "publish scans and diagnostics into a ROS 2 graph (DDS, no ROS needed)"),
 }
 
 

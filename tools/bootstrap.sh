@@ -37,7 +37,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stam
    || ! ls device/vision/_columns*.so >/dev/null 2>&1; then
   echo "bootstrap: installing Python packages into .venv"
   .venv/bin/pip install -q --upgrade pip >/dev/null
-  .venv/bin/pip install -q -e ".[device,ros,test]"
+  .venv/bin/pip install -q -e ".[device,ros,ros2,test]"
   # the kernel's build is optional for pip (a robot installing only the host SDK needs no
   # compiler), not for the device: say so here rather than in every test
   .venv/bin/python -c "import device.vision._columns" || {
