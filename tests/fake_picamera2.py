@@ -273,7 +273,12 @@ def fake_module(**kwargs) -> tuple[types.ModuleType, list[FakePicamera2]]:
         made.append(cam)
         return cam
 
+    def global_camera_info() -> list[dict]:  # picamera2.py: Model, Location, Rotation, Id, Num per camera
+        return [{"Model": "imx219", "Location": 2, "Rotation": 180, "Id": "/base/soc/i2c0mux/i2c@1/imx219@10", "Num": 0}]
+
+    factory.global_camera_info = global_camera_info
     module = types.ModuleType("picamera2")
+    module.__file__ = "/usr/lib/python3/dist-packages/picamera2/__init__.py"
     module.Picamera2 = factory
     return module, made
 
