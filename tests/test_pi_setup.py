@@ -57,7 +57,8 @@ def test_it_sets_up_the_boot_files_service_and_udev(tmp_path):
     assert "camera_auto_detect=1" in config.splitlines()
     service = t["etc/systemd/system/laserpi.service"]
     for line in ("User=laserpi", "SupplementaryGroups=video dialout gpio", "Restart=on-failure", "StandardOutput=journal",
-                 "ExecStart=/opt/laserpi/venv/bin/laserpi serve $LASERPI_ARGS", "WantedBy=multi-user.target"):
+                 "ExecStart=/opt/laserpi/venv/bin/laserpi serve $LASERPI_ARGS", "WantedBy=multi-user.target",
+                 "RuntimeDirectory=laserpi"):
         assert line in service.splitlines()
     assert t["etc/systemd/system/multi-user.target.wants/laserpi.service"] == "-> /etc/systemd/system/laserpi.service"
     assert "m laserpi gpio" in t["etc/sysusers.d/laserpi.conf"]

@@ -147,6 +147,7 @@ User=laserpi
 Group=laserpi
 SupplementaryGroups=video dialout gpio
 EnvironmentFile=/etc/default/laserpi
+RuntimeDirectory=laserpi
 ExecStart=$LASERPI serve \$LASERPI_ARGS
 Restart=on-failure
 RestartSec=2
