@@ -33,6 +33,12 @@ at 26bfadc6; raspberrypi/linux drivers/media/platform/bcm2835/bcm2835-unicam.c):
   has the ``output_size`` (picamera2.py ``_update_stream_config``/``sensor_config``).
   Request metadata carries ``SensorTimestamp``, ``ExposureTime``, ``FrameDuration``,
   ``ScalerCrop``.
+* **Tuning.** ``Picamera2(n, tuning=dict)`` and the static ``load_tuning_file(name)`` (RuntimeError
+  "Tuning file not found" for a name it does not have) and ``find_tuning_algo(tuning, name)``
+  (version 2: the ``algorithms`` list), as picamera2.py has them; the tuning files here hold the
+  algorithms and parameters Picamera2Camera changes, named as in libcamera's
+  src/ipa/rpi/vc4/data/imx219_noir.json (``rpi.contrast`` with ``ce_enable`` and a gamma curve,
+  ``rpi.sharpen``, ``rpi.sdn``), with a two-point stand-in for the real curve.
 
 What the frames show is the test's: ``render(sequence, frame_start_ns, row0_ns, exposure_us,
 line_time_ns)`` returns the image (height, width) uint8 of the frame whose image row 0 is read
@@ -43,6 +49,8 @@ simulated Pi, or :class:`ManualClock`.
 
 from __future__ import annotations
 
+import json
+import sys
 import threading
 import types
 from dataclasses import dataclass, replace
@@ -116,7 +124,7 @@ class FakeCompletedRequest:
 class FakePicamera2:
     """picamera2.Picamera2 for the calls Picamera2Camera makes; see the module docstring."""
 
-    def __init__(self, camera_num: int = 0, *, clock, render: Callable, timing: CameraTimingConfig,
+    def __init__(self, camera_num: int = 0, tuning: dict | None = None, *, clock, render: Callable, timing: CameraTimingConfig,
                  latency_ns: int = 20_000, isp_ns: int = 2_000_000, modes: dict = SENSOR_MODES, seed: int = 0,
                  hold_frames: float = 5.0):
         """``hold_frames``: a test machine's concession, not the camera's: a clock with ``limit_ns``
@@ -124,6 +132,7 @@ class FakePicamera2:
         loaded test machine does not drop without end; lags shorter than that drop frames as the
         real camera does."""
         self.hold_frames = hold_frames
+        self.tuning = tuning
         self.camera_num, self.clock, self.render, self.timing = camera_num, clock, render, timing
         self.latency_ns, self.isp_ns, self.modes = latency_ns, isp_ns, modes
         self.stats = FakeStats()
@@ -153,9 +162,9 @@ class FakePicamera2:
     def camera_properties(self) -> dict:
         return {"Model": "imx219", "PixelArraySize": (3296, 2480), "PixelArrayActiveAreas": [(8, 8, *ACTIVE_ARRAY)]}
 
-    def create_video_configuration(self, main=None, sensor=None, controls=None, buffer_count=6, **_):
+    def create_video_configuration(self, main=None, sensor=None, controls=None, buffer_count=6, colour_space=None):
         return {"main": dict(main or {}), "sensor": dict(sensor or {}), "controls": dict(controls or {}),
-                "buffer_count": buffer_count, "queue": True, "raw": {}}
+                "buffer_count": buffer_count, "queue": True, "raw": {}, "colour_space": colour_space or "Rec709"}
 
     def configure(self, config: dict) -> None:
         size = tuple(config["sensor"].get("output_size", (1640, 1232)))
@@ -263,15 +272,39 @@ class FakePicamera2:
         return FakeCompletedRequest(self, yuv, meta, ft.sequence)
 
 
-def fake_module(**kwargs) -> tuple[types.ModuleType, list[FakePicamera2]]:
-    """A ``picamera2`` module whose ``Picamera2(n)`` is a FakePicamera2 with ``kwargs``; the list
-    collects the instances made."""
+def _tuning(gamma: list[int]) -> dict:
+    return {"version": 2.0, "target": "bcm2835", "algorithms": [
+        {"rpi.black_level": {"black_level": 4096}}, {"rpi.sdn": {}},
+        {"rpi.contrast": {"ce_enable": 1, "gamma_curve": gamma}},
+        {"rpi.sharpen": {"threshold": 0.75, "limit": 0.5, "strength": 1.0}}]}
+
+
+TUNING_FILES = {"imx219_noir.json": _tuning([0, 0, 32768, 54876, 65535, 65535]),
+                "imx219.json": _tuning([0, 0, 32768, 54876, 65535, 65535])}
+
+
+def fake_modules(*, tuning_files: dict = TUNING_FILES, **kwargs) -> tuple[dict[str, types.ModuleType], list[FakePicamera2]]:
+    """``picamera2`` (whose ``Picamera2(n, tuning=None)`` is a FakePicamera2 with ``kwargs``) and the
+    ``libcamera`` names it is used with; the list collects the instances made."""
     made: list[FakePicamera2] = []
 
-    def factory(camera_num: int = 0) -> FakePicamera2:
-        cam = FakePicamera2(camera_num, **kwargs)
+    def factory(camera_num: int = 0, tuning: dict | None = None) -> FakePicamera2:
+        cam = FakePicamera2(camera_num, tuning, **kwargs)
         made.append(cam)
         return cam
+
+    def load_tuning_file(name: str, dir=None) -> dict:
+        if name not in tuning_files:
+            raise RuntimeError("Tuning file not found")
+        return json.loads(json.dumps(tuning_files[name]))
+
+    def find_tuning_algo(tuning: dict, name: str) -> dict:
+        if tuning.get("version", 1) == 1:
+            return tuning[name]
+        return next(algo for algo in tuning["algorithms"] if name in algo)[name]
+
+    factory.load_tuning_file = load_tuning_file
+    factory.find_tuning_algo = find_tuning_algo
 
     def global_camera_info() -> list[dict]:  # picamera2.py: Model, Location, Rotation, Id, Num per camera
         return [{"Model": "imx219", "Location": 2, "Rotation": 180, "Id": "/base/soc/i2c0mux/i2c@1/imx219@10", "Num": 0}]
@@ -280,6 +313,16 @@ def fake_module(**kwargs) -> tuple[types.ModuleType, list[FakePicamera2]]:
     module = types.ModuleType("picamera2")
     module.__file__ = "/usr/lib/python3/dist-packages/picamera2/__init__.py"
     module.Picamera2 = factory
-    return module, made
+    libcamera = types.ModuleType("libcamera")
+    libcamera.ColorSpace = types.SimpleNamespace(Sycc=lambda: "Sycc", Rec709=lambda: "Rec709")
+    return {"picamera2": module, "libcamera": libcamera}, made
+
+
+def install_fake(monkeypatch, **kwargs) -> list[FakePicamera2]:
+    """Put the fake ``picamera2`` and ``libcamera`` in sys.modules for one test (``fake_modules``)."""
+    modules, made = fake_modules(**kwargs)
+    for name, module in modules.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    return made
 
 

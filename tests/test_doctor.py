@@ -9,7 +9,7 @@ import pytest
 from device.cli import main
 from device.config import load_preset
 from device.service.doctor import CHECKS, DoctorSetup, run_checks
-from tests.fake_picamera2 import ManualClock, fake_module
+from tests.fake_picamera2 import ManualClock, install_fake
 from tests.test_picamera2_camera import TIMING, gradient
 
 NAMES = ["camera stack", "camera detected", "sensor mode", "co-MCU", "GPIO edge line", "UART console", "host link",
@@ -45,8 +45,7 @@ def test_the_table_form(capsys, monkeypatch):
     ("coherent_pool=1M 8250.nr_uarts=0 console=tty1 root=PARTUUID=x rootwait modules-load=dwc2,g_serial", True),
 ])
 def test_checks_pass_where_their_part_is_there(tmp_path, monkeypatch, cmdline, ok):
-    module, _ = fake_module(clock=ManualClock(), render=gradient, timing=TIMING)
-    monkeypatch.setitem(sys.modules, "picamera2", module)
+    install_fake(monkeypatch, clock=ManualClock(), render=gradient, timing=TIMING)
     (tmp_path / "cmdline").write_text(cmdline + "\n")
     (tmp_path / "ttyGS0").write_text("")
     (tmp_path / "clocksource").write_text("arch_sys_counter\n")
@@ -63,8 +62,6 @@ def test_checks_pass_where_their_part_is_there(tmp_path, monkeypatch, cmdline, o
 def test_a_mode_the_camera_lacks_fails_the_sensor_mode_check(monkeypatch):
     from device.camera.modes import SENSOR_MODES
 
-    module, _ = fake_module(clock=ManualClock(), render=gradient, timing=TIMING,
-                            modes={"3280x2464": SENSOR_MODES["3280x2464"]})
-    monkeypatch.setitem(sys.modules, "picamera2", module)
+    install_fake(monkeypatch, clock=ManualClock(), render=gradient, timing=TIMING, modes={"3280x2464": SENSOR_MODES["3280x2464"]})
     by = {r.name: r for r in run_checks(DoctorSetup(load_preset("thesis-calibrated")))}
     assert not by["sensor mode"].ok and "1640x1232 is not among the camera's modes (3280x2464)" in by["sensor mode"].detail

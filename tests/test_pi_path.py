@@ -10,14 +10,13 @@ from device.config import ConfigError, config_from_dict, config_to_dict, load_pr
 from device.service.assembly import AssemblyConfig, build_sensor
 from device.sync.gpio_edges import parse_gpio_edge
 from protocol import messages as m
-from tests.fake_picamera2 import ManualClock, fake_module
+from tests.fake_picamera2 import ManualClock, install_fake
 from tests.test_picamera2_camera import TIMING, gradient
 
 
 @pytest.fixture
 def pi_camera(monkeypatch):
-    module, _ = fake_module(clock=ManualClock(), render=gradient, timing=TIMING)
-    monkeypatch.setitem(sys.modules, "picamera2", module)
+    install_fake(monkeypatch, clock=ManualClock(), render=gradient, timing=TIMING)
 
 
 def test_gpio_edge_specs():

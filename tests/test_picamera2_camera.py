@@ -13,7 +13,7 @@ from device.camera.base import CameraError, CaptureTimeout
 from device.camera.modes import MODE5, SENSOR_MODES, readout_geometry
 from device.camera.picamera2_camera import Picamera2Camera, camera_stack_problem
 from device.sim.timing import CameraTimingConfig
-from tests.fake_picamera2 import ManualClock, fake_module
+from tests.fake_picamera2 import ManualClock, install_fake
 
 TIMING = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.04)
 LINE_NS = 1e9 * 3448 / 182.4e6  # imx219.c: IMX219_PPL_MIN / IMX219_PIXEL_RATE
@@ -27,9 +27,7 @@ def install(monkeypatch, **kw):
     kw.setdefault("clock", ManualClock())
     kw.setdefault("render", gradient)
     kw.setdefault("timing", TIMING)
-    module, made = fake_module(**kw)
-    monkeypatch.setitem(sys.modules, "picamera2", module)
-    return made
+    return install_fake(monkeypatch, **kw)
 
 
 def test_readout_geometry_is_the_crop_and_the_shortest_frame_over_its_lines():
@@ -209,3 +207,41 @@ def test_the_device_process_and_sync_run_on_it_through_dropped_frames(monkeypatc
     angles = source.geometry().angles
     depth = np.concatenate([s.ranges_m * np.cos(angles) for s in scans[-5:]])  # the wall's distance ahead
     assert np.isfinite(depth).mean() > 0.5 and np.nanmedian(depth) == pytest.approx(1.5, rel=0.02)
+
+
+def test_the_linear_isp_the_pipeline_expects(monkeypatch):
+    made = install(monkeypatch)
+    Picamera2Camera().start()
+    pc = made[0]
+    contrast = next(a for a in pc.tuning["algorithms"] if "rpi.contrast" in a)["rpi.contrast"]
+    sharpen = next(a for a in pc.tuning["algorithms"] if "rpi.sharpen" in a)["rpi.sharpen"]
+    assert contrast == {"ce_enable": 0, "gamma_curve": [0, 0, 65535, 65535]} and sharpen["strength"] == 0.0
+    assert pc._config["colour_space"] == "Sycc"  # full range
+    assert pc.controls["NoiseReductionMode"] == 0 and pc.controls["Sharpness"] == 0.0
+    # the ISP as picamera2 sets it up, on request
+    made = install(monkeypatch)
+    Picamera2Camera(isp="default").start()
+    assert made[0].tuning is None and made[0]._config["colour_space"] == "Rec709"
+    assert "NoiseReductionMode" not in made[0].controls
+    # no tuning file to make linear: a clear error
+    install(monkeypatch, tuning_files={})
+    with pytest.raises(CameraError, match="no tuning file imx219_noir.json or imx219.json"):
+        Picamera2Camera().start()
+    with pytest.raises(ValueError, match="isp must be"):
+        Picamera2Camera(isp="raw")
+
+
+def test_linear_tuning_leaves_the_sensors_tuning_alone():
+    from device.camera.picamera2_camera import linear_tuning
+    from tests.fake_picamera2 import TUNING_FILES
+
+    def find(t, name):
+        return next(a for a in t["algorithms"] if name in a)[name]
+
+    original = TUNING_FILES["imx219_noir.json"]
+    out = linear_tuning(original, find)
+    assert find(original, "rpi.contrast")["ce_enable"] == 1 and find(original, "rpi.sharpen")["strength"] == 1.0
+    assert find(out, "rpi.contrast")["gamma_curve"] == [0, 0, 65535, 65535]
+    assert find(out, "rpi.black_level") == {"black_level": 4096}  # the rest as it was
+    no_sharpen = {"algorithms": [a for a in original["algorithms"] if "rpi.sharpen" not in a]}
+    assert find(linear_tuning(no_sharpen, find), "rpi.contrast")["ce_enable"] == 0

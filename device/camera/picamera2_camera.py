@@ -18,6 +18,26 @@ cites the kernel and libcamera sources), so image row r is read at SensorTimesta
 process lagged is a gap, not a restart (libcamera framebuffer.cpp: "Gaps in the sequence numbers
 indicate dropped frames").
 
+What the pipeline sees (``isp="linear"``, the default): the Y plane linear in the light and
+full range, as the simulator renders it (device/sim/sensor.py), not what the ISP does by
+default (gamma-encoded, contrast-enhanced, sharpened, denoised, limited range 16-235; the
+simulator models that too, ``SensorParams.isp = "default"``, and BENCHMARKS.md "ISP" says what it
+costs the pipeline). This uses the ISP rather than the raw stream: the ISP still subtracts the
+black level, corrects lens shading and bins nothing away, at no CPU cost, where unpacking and
+cropping the 10-bit raw Bayer mode on the Pi's CPU would cost it milliseconds per frame. How:
+
+* the sensor's own tuning file (``imx219_noir.json`` for the NoIR module, else ``imx219.json``,
+  read with ``Picamera2.load_tuning_file``) with ``rpi.contrast``'s gamma curve made the identity
+  and its contrast enhancement (``ce_enable``) off, and ``rpi.sharpen``'s strength 0, handed to
+  ``Picamera2(camera_num, tuning=...)`` (picamera2.py ``__init__``: a dict is written to a
+  temporary file for ``LIBCAMERA_RPI_TUNING_FILE``) -- see :func:`linear_tuning`;
+* the controls ``NoiseReductionMode`` Off (libcamera control_ids_draft.yaml: "No noise reduction
+  is applied") and ``Sharpness`` 0.0 (control_ids_core.yaml: "A value of 0.0 means no
+  sharpening");
+* the colour space ``Sycc``, whose range is full (libcamera color_space.cpp:
+  ``ColorSpace::Sycc = {Rec709, Srgb, Rec601, Range::Full}``), instead of the limited-range
+  Rec709 picamera2 picks for video of this size.
+
 The Y plane is placed at the top left of a zeroed buffer of the configured size (1664x928 for
 the thesis configuration, docs/thesis-notes.md N6), so that frames from a Pi and from the simulator have one
 layout.
@@ -25,6 +45,7 @@ layout.
 
 from __future__ import annotations
 
+import copy
 import importlib
 import logging
 
@@ -43,6 +64,26 @@ CAMERA_STACK_FIX = ("sudo apt install -y python3-picamera2 (libcamera's Python b
                     "the venv with: python3 -m venv --system-site-packages")
 
 
+#: What the linear ISP sets in the sensor's tuning (see the module docstring).
+LINEAR_GAMMA = [0, 0, 65535, 65535]
+
+
+def linear_tuning(tuning: dict, find_algo) -> dict:
+    """A copy of a Raspberry Pi camera tuning whose Y output is linear: identity gamma curve,
+    no contrast enhancement, no sharpening. ``find_algo(tuning, name)`` is picamera2's
+    ``Picamera2.find_tuning_algo`` (tuning files of version 1 and 2). KeyError/StopIteration
+    when the tuning has no ``rpi.contrast`` (nothing could be made linear)."""
+    out = copy.deepcopy(tuning)
+    contrast = find_algo(out, "rpi.contrast")
+    contrast["ce_enable"] = 0
+    contrast["gamma_curve"] = list(LINEAR_GAMMA)
+    try:
+        find_algo(out, "rpi.sharpen")["strength"] = 0.0
+    except (KeyError, StopIteration):
+        pass  # no sharpening stage in this tuning
+    return out
+
+
 def camera_stack_problem() -> str | None:
     """Why picamera2 (and the libcamera it imports) cannot be imported here, with the fix; None if it can."""
     try:
@@ -57,8 +98,12 @@ class Picamera2Camera:
 
     def __init__(self, width: int = 1664, height: int = 928, exposure_us: float = 40000.0,
                  frame_duration_us: float = 50000.0, analogue_gain: float = 1.0, camera_num: int = 0,
-                 window: ImageWindow = MODE5, buffer_count: int = 6):
-        """``window``: the sensor mode and the crop of it that the stream delivers (SensorConfig.window)."""
+                 window: ImageWindow = MODE5, buffer_count: int = 6, isp: str = "linear"):
+        """``window``: the sensor mode and the crop of it that the stream delivers (SensorConfig.window);
+        ``isp``: "linear" (the module docstring) or "default" (the ISP as picamera2 sets it up)."""
+        if isp not in ("linear", "default"):
+            raise ValueError(f"isp must be 'linear' or 'default', got {isp!r}")
+        self.isp = isp
         output_size = (window.width, window.height)
         if output_size[0] > width or output_size[1] > height:
             raise ValueError(f"output {output_size} does not fit the {width}x{height} frame buffer")
@@ -78,7 +123,7 @@ class Picamera2Camera:
 
     def _controls(self) -> dict:
         d = int(round(self._frame_duration_us))
-        return {
+        controls = {
             "AeEnable": False,
             "AwbEnable": False,
             "ExposureTime": int(round(self._exposure_us)),
@@ -86,6 +131,29 @@ class Picamera2Camera:
             "FrameDurationLimits": (d, d),
             "ScalerCrop": self._crop,
         }
+        if self.isp == "linear":
+            controls.update(NoiseReductionMode=0, Sharpness=0.0)  # 0: NoiseReductionModeOff
+        return controls
+
+    def _open(self, picamera2):
+        """Picamera2 for this camera, with the linear tuning if ``isp`` is "linear"."""
+        if self.isp == "default":
+            return picamera2.Picamera2(self._camera_num), {}
+        cls = picamera2.Picamera2
+        model = cls.global_camera_info()[self._camera_num].get("Model", "imx219")
+        for name in (f"{model}_noir.json", f"{model}.json"):
+            try:
+                tuning = cls.load_tuning_file(name)
+                break
+            except RuntimeError:
+                continue
+        else:
+            raise CameraError(f"no tuning file {model}_noir.json or {model}.json for the linear ISP (python3-libcamera "
+                              "installs them); or run with isp='default'")
+        libcamera = importlib.import_module("libcamera")
+        log.info("ISP: %s with a linear gamma, no contrast enhancement, sharpening or noise reduction, full range", name)
+        return cls(self._camera_num, tuning=linear_tuning(tuning, cls.find_tuning_algo)), {
+            "colour_space": libcamera.ColorSpace.Sycc()}
 
     def start(self) -> None:
         if self._cam is not None:
@@ -94,13 +162,14 @@ class Picamera2Camera:
             picamera2 = importlib.import_module("picamera2")
         except ImportError as exc:
             raise CameraError(f"picamera2 is not installed ({exc}); {CAMERA_STACK_FIX}") from None
-        cam = picamera2.Picamera2(self._camera_num)
+        cam, extra = self._open(picamera2)
         try:
             config = cam.create_video_configuration(
                 main={"size": self._output, "format": "YUV420"},
                 sensor={"output_size": self._sensor, "bit_depth": 10},
                 controls=self._controls(),
                 buffer_count=self._buffer_count,
+                **extra,
             )
             cam.configure(config)
             self._read_mode(cam)
