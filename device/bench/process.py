@@ -95,14 +95,27 @@ def run(args: argparse.Namespace) -> int:
             print(f"laserpi bench process: {exc}")
             return 2
         r.update(measured_on=machine(), cores_at_scan_rate=r["device_ms_per_scan"] * r["scan_rate_hz"] / 1e3)
-        if args.json:
-            print(json.dumps(r))
-            return 0
-        print(f"MEASURED on {r['measured_on']}: {r['scans']} scans at {r['scan_rate_hz']:.2f} Hz, "
-              f"{r['device_ms_per_scan']:.1f} ms CPU per scan (pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync "
-              f"{r['laser_sync_ms_per_scan']:.1f}, other incl. capture {r['other_ms_per_scan']:.1f}) = "
-              f"{r['cores_at_scan_rate']:.2f} cores")
-        return 0
+        lines = [f"MEASURED on {r['measured_on']}: {r['scans']} scans at {r['scan_rate_hz']:.2f} Hz, "
+                 f"{r['device_ms_per_scan']:.1f} ms CPU per scan (pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync "
+                 f"{r['laser_sync_ms_per_scan']:.1f}, other incl. capture {r['other_ms_per_scan']:.1f}) = "
+                 f"{r['cores_at_scan_rate']:.2f} cores"]
+    else:
+        r = simulated_cost(args.warmup, args.seconds)
+        pi_ms = r["device_ms_per_scan"] * args.slowdown
+        r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_core_load_at_10hz=pi_ms / 100.0)
+        lines = [f"{r['scans']} scans at {r['scan_rate_hz']:.2f} Hz: process {r['process_ms_per_scan']:.1f} ms CPU/scan = "
+                 f"simulation {r['simulation_ms_per_scan']:.1f} + device {r['device_ms_per_scan']:.1f} "
+                 f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
+                 f"other {r['other_ms_per_scan']:.1f})",
+                 f"Pi Zero 2 W ESTIMATE, not a measurement (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
+                 f"{100 * pi_ms / 100.0:.0f} % of one of its 4 cores at 10 Hz; on the Pi, `laserpi bench process "
+                 "--stats FILE` measures it"]
+    print(json.dumps(r) if args.json else "\n".join(lines))
+    return 0
+
+
+def simulated_cost(warmup_s: float, seconds: float) -> dict:
+    """CPU per scan of ``laserpi serve --simulate`` read by the host SDK (the module docstring)."""
     import host_sdk
     from device.service.child import start_serve, stop_serve
 
@@ -113,27 +126,14 @@ def run(args: argparse.Namespace) -> int:
         try:
             with host_sdk.LaserPi(str(link), timeout_s=15.0) as sensor:
                 it = sensor.scans()
-                end = time.monotonic() + args.warmup
+                end = time.monotonic() + warmup_s
                 while time.monotonic() < end:
                     next(it)
                 first = json.loads(stats.read_text())
-                end = time.monotonic() + args.seconds
+                end = time.monotonic() + seconds
                 while time.monotonic() < end:
                     next(it)
         finally:
             stop_serve(proc)
         last = json.loads(stats.read_text())
-    r = cost_per_scan(first, last)
-    pi_ms = r["device_ms_per_scan"] * args.slowdown
-    r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_core_load_at_10hz=pi_ms / 100.0)
-    if args.json:
-        print(json.dumps(r))
-        return 0
-    print(f"{r['scans']} scans at {r['scan_rate_hz']:.2f} Hz: process {r['process_ms_per_scan']:.1f} ms CPU/scan = "
-          f"simulation {r['simulation_ms_per_scan']:.1f} + device {r['device_ms_per_scan']:.1f} "
-          f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
-          f"other {r['other_ms_per_scan']:.1f})")
-    print(f"Pi Zero 2 W ESTIMATE, not a measurement (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
-          f"{100 * pi_ms / 100.0:.0f} % of one of its 4 cores at 10 Hz; on the Pi, `laserpi bench process --stats FILE` "
-          "measures it")
-    return 0
+    return cost_per_scan(first, last)

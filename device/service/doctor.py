@@ -27,6 +27,15 @@ class Unmet(Exception):
 
 
 @dataclass(frozen=True)
+class CheckResult:
+    """One check's outcome: its name, whether it passed, and what was found or what to do."""
+
+    name: str
+    ok: bool
+    detail: str
+
+
+@dataclass(frozen=True)
 class DoctorSetup:
     """What the checks look at: the configuration, the co-MCU's UART, the host link's port, the
     GPIO edge line (CHIP:LINE, None: the configuration's), and where the kernel reports its
@@ -39,13 +48,6 @@ class DoctorSetup:
     cmdline: str = "/proc/cmdline"
     clocksource: str = "/sys/devices/system/clocksource/clocksource0/current_clocksource"
     camera_num: int = 0
-
-
-@dataclass(frozen=True)
-class CheckResult:
-    name: str
-    ok: bool
-    detail: str
 
 
 def _picamera2():
