@@ -25,6 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("device.commands.calibrate", "calibrate camera and laser plane from checkerboard frames"),
     "sync-sim": ("device.commands.sync_sim", "simulate laser-camera synchronisation"),
     "serve": ("device.commands.serve", "run the device process (or the simulated sensor)"),
+    "focus": ("device.commands.focus", "focus the lens on the laser line: live width and peak bars (over SSH)"),
+    "doctor": ("device.commands.doctor", "check a Pi's camera, co-MCU, GPIO, UART and host link before serve"),
     "soak": ("device.commands.soak", "long run of the simulated sensor, watching memory and drops"),
     "demo": ("device.commands.demo", "the simulated sensor end to end, read by the host SDK"),
     "bench": ("device.commands.bench", "benchmarks: model, pipeline, protocol, sim"),

@@ -63,6 +63,10 @@ Layout (schema_version 1; SI units unless the key names another unit)::
     min_m = 0.4            # depths the line is searched for: their rows are the region of
     max_m = 3.2            # interest (and the pulse covers their readout)
 
+    [pi]               # optional: how this sensor is wired to its Raspberry Pi
+    gpio_edge = "gpiochip0:17"  # the laser trigger line's GPIO (CHIP:LINE) for edge-timestamp sync;
+                                # absent: PING-only sync, reported as degraded (device/sync/gpio_edges.py)
+
     [post_calibration] # optional, z_corrected = z - sum c_k X^i_k Z^j_k  (eq. 6.5, docs/thesis-notes.md N8)
     terms = [[0, 0], [1, 0], [0, 1]]
     coefficients = [0.0, 0.0, 0.0]
@@ -170,6 +174,7 @@ class SensorConfig:
     mode_left: int = MODE5.left
     mode_top: int = MODE5.top
     operating_point: OperatingPoint = field(default_factory=OperatingPoint)
+    gpio_edge: str | None = None  # [pi] gpio_edge: CHIP:LINE of the laser trigger line, None if not wired
 
     @property
     def window(self) -> ImageWindow:
@@ -303,9 +308,26 @@ def _parse(doc: dict[str, Any], source: str) -> SensorConfig:
     post = _read_post_calibration(_table(doc, "post_calibration", required=False))
     op = _read_dataclass(doc, "operating_point", OperatingPoint)
     _check_operating_point(op, laser, window)
+    gpio_edge = _read_pi(_table(doc, "pi", required=False))
     _no_extra(doc, "top level")
     return SensorConfig(name, width, height, CameraModel(k, dist), plane, beta, active_w, active_h, laser, optics, limits, post,
-                        mode_name, mode_left, mode_top, op)
+                        mode_name, mode_left, mode_top, op, gpio_edge)
+
+
+def _read_pi(t: dict[str, Any] | None) -> str | None:
+    """``[pi]``: the GPIO line of the laser trigger (``gpio_edge``, CHIP:LINE), or None."""
+    if t is None:
+        return None
+    from .sync.gpio_edges import parse_gpio_edge
+
+    gpio_edge = _take(t, "[pi]", "gpio_edge", str, default=None)
+    _no_extra(t, "[pi]")
+    if gpio_edge is not None:
+        try:
+            parse_gpio_edge(gpio_edge)
+        except ValueError as exc:
+            raise ConfigError(f"[pi]: gpio_edge: {exc}") from None
+    return gpio_edge
 
 
 def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWindow) -> None:
@@ -410,6 +432,8 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
     for name in ("laser", "optics", "range", "operating_point"):
         obj = getattr(cfg, name)
         doc[name] = {f: getattr(obj, f) for f in obj.__dataclass_fields__}
+    if cfg.gpio_edge is not None:
+        doc["pi"] = {"gpio_edge": cfg.gpio_edge}
     if cfg.post_calibration is not None:
         p = cfg.post_calibration
         doc["post_calibration"] = {

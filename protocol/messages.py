@@ -66,6 +66,7 @@ class ErrorCode(enum.IntEnum):
     LASER_FAULT = 3  # the co-MCU driving the laser is lost, was reset or latched a fault: laser off, re-syncing
     CAMERA_FAULT = 4  # the camera stalled or failed: laser off, camera being restarted
     PIPELINE_FAULT = 5  # the image pipeline raised on the last frame pair: that scan was skipped
+    SYNC_DEGRADED = 6  # no GPIO edge timestamps of the laser trigger: synchronised by PING alone, less accurately
 
 
 class MessageError(ValueError):

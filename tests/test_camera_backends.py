@@ -5,7 +5,6 @@ import pytest
 
 from device.camera.base import Camera, CameraError, CaptureTimeout, EndOfRecording
 from device.camera.frame import Frame
-from device.camera.modes import MODE5
 from device.camera.picamera2_camera import Picamera2Camera
 from device.camera.replay import ReplayCamera, save_recording
 from device.config import load_preset
@@ -22,6 +21,9 @@ FAST = RenderOptions(ray_samples=4096, background_step=4)
 
 EXACT = CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.04, timestamp_jitter_s=0.0, drop_probability=0.0)
 FRAME_NS = quantise_frame_duration(0.05, 0.04, EXACT) * LINE_NS  # whole lines
+#: SensorTimestamp is the frame start of the whole mode's readout: image row 0 is read the ISP
+#: crop's rows (155 in mode 5) later
+CROP_NS = CFG.window.top * LINE_NS
 
 
 def sim_camera(pulses=None, timing=EXACT, **kw):
@@ -39,7 +41,9 @@ def test_simulated_camera_lights_frames_from_the_pulse_timing():
     lit = [f.lit for f, _ in out]
     assert lit == [True, False, True, False]
     assert [f.seq for f, _ in out] == [0, 1, 2, 3]
-    assert [f.sensor_timestamp_ns for f, _ in out] == [round(10**9 + k * FRAME_NS) for k in range(4)]
+    assert CFG.window.top == 155 and all(f.readout_offset_rows == 155 for f, _ in out)
+    assert [f.sensor_timestamp_ns + CROP_NS for f, _ in out] == [round(10**9 + k * FRAME_NS) for k in range(4)]
+    assert [f.row_exposure_ns(0)[1] for f, _ in out] == [round(10**9 + k * FRAME_NS) for k in range(4)]
     (f0, t0), (f1, t1) = out[0], out[1]
     assert t0.lit_rows.all() and not t1.lit_rows.any()  # 17.4 ms pulse inside the all-rows window
     cols = np.nonzero(np.isfinite(t0.row))[0]
@@ -62,9 +66,9 @@ def test_simulated_camera_skips_dropped_frames_and_reports_jittered_timestamps()
     seqs = [f.seq for f, _ in frames]
     assert seqs == sorted(seqs) and seqs[-1] > 9  # some sequence numbers were dropped
     for f, t in frames:
-        k = round((f.sensor_timestamp_ns - 10**9) / FRAME_NS)
+        k = round((f.sensor_timestamp_ns + CROP_NS - 10**9) / FRAME_NS)
         assert k == f.seq
-        late = f.sensor_timestamp_ns - (10**9 + k * FRAME_NS)
+        late = f.sensor_timestamp_ns + CROP_NS - (10**9 + k * FRAME_NS)
         assert 0 <= late < 1e6  # interrupt latency: never early
         assert f.lit == (k % 2 == 0)  # the pulse train lights even frames, dropped or not
 
@@ -94,7 +98,7 @@ def test_simulated_camera_is_dark_without_pulses_and_partial_when_the_pulse_is_s
 def test_replay_round_trip(tmp_path, kind):
     rng = np.random.default_rng(0)
     frames = [Frame(rng.integers(0, 256, (30, 40), dtype=np.uint8), k, 10**9 + k * 5000, 400.0, 5000.0, LINE_NS,
-                    [True, False, None][k % 3]) for k in range(5)]
+                    [True, False, None][k % 3], readout_offset_rows=k) for k in range(5)]
     path = tmp_path / ("rec.npz" if kind == "npz" else "rec")
     save_recording(path, frames)
     cam = ReplayCamera(path)
@@ -103,8 +107,9 @@ def test_replay_round_trip(tmp_path, kind):
     for f in frames:
         g = cam.capture()
         assert np.array_equal(f.image, g.image)
-        assert (g.seq, g.sensor_timestamp_ns, g.exposure_us, g.frame_duration_us, g.line_time_ns, g.lit) == (
-            f.seq, f.sensor_timestamp_ns, f.exposure_us, f.frame_duration_us, f.line_time_ns, f.lit)
+        assert (g.seq, g.sensor_timestamp_ns, g.exposure_us, g.frame_duration_us, g.line_time_ns, g.lit,
+                g.readout_offset_rows) == (f.seq, f.sensor_timestamp_ns, f.exposure_us, f.frame_duration_us,
+                                           f.line_time_ns, f.lit, f.readout_offset_rows)
     with pytest.raises(EndOfRecording):
         cam.capture()
     looped = ReplayCamera(path, loop=True)
@@ -124,93 +129,6 @@ def test_replay_bad_input(tmp_path):
     assert not (tmp_path / "y.npz").exists()
 
 
-class FakeRequest:
-    def __init__(self, yuv, meta):
-        self.yuv, self.meta, self.released = yuv, meta, False
-
-    def make_array(self, name):
-        assert name == "main"
-        return self.yuv
-
-    def get_metadata(self):
-        return self.meta
-
-    def release(self):
-        self.released = True
-
-
-@pytest.fixture
-def fake_picamera2(mocker):
-    module = mocker.MagicMock(name="picamera2")
-    mocker.patch.dict(sys.modules, {"picamera2": module})
-    return module
-
-
-def test_picamera2_configures_mode5_fixed_exposure(fake_picamera2):
-    cam = Picamera2Camera(exposure_us=30000, frame_duration_us=50000, analogue_gain=4.0)
-    cam.start()
-    pc = fake_picamera2.Picamera2.return_value
-    fake_picamera2.Picamera2.assert_called_once_with(0)
-    kwargs = pc.create_video_configuration.call_args.kwargs
-    assert kwargs["main"] == {"size": (1640, 922), "format": "YUV420"}
-    assert kwargs["sensor"] == {"output_size": (1640, 1232), "bit_depth": 10}
-    pc.configure.assert_called_once_with(pc.create_video_configuration.return_value)
-    controls = pc.set_controls.call_args.args[0]
-    assert controls["AeEnable"] is False and controls["AwbEnable"] is False
-    assert controls["ExposureTime"] == 30000 and controls["AnalogueGain"] == 4.0
-    assert controls["FrameDurationLimits"] == (50000, 50000) and controls["ScalerCrop"] == MODE5.scaler_crop
-    pc.start.assert_called_once()
-    cam.set_frame_duration(40000)
-    assert pc.set_controls.call_args.args[0] == {"FrameDurationLimits": (40000, 40000)}
-    cam.set_exposure(20000)
-    assert pc.set_controls.call_args.args[0] == {"ExposureTime": 20000}
-    cam.stop()
-    pc.stop.assert_called_once() and pc.close.assert_called_once()
-
-
-def test_picamera2_capture_takes_the_luminance_plane_and_metadata(fake_picamera2):
-    cam = Picamera2Camera()
-    cam.start()
-    pc = fake_picamera2.Picamera2.return_value
-    stride = 1664
-    yuv = np.full((922 * 3 // 2, stride), 7, dtype=np.uint8)
-    yuv[:922, :1640] = np.arange(1640, dtype=np.uint64).astype(np.uint8)[None, :]
-    req = FakeRequest(yuv, {"SensorTimestamp": 123456789, "ExposureTime": 39990, "FrameDuration": 50001})
-    pc.wait.return_value = req
-    f = cam.capture(timeout_s=0.5)
-    pc.capture_request.assert_called_once_with(wait=False)
-    assert pc.wait.call_args.kwargs == {"timeout": 0.5}
-    assert req.released
-    assert f.image.shape == (928, 1664)
-    assert np.array_equal(f.image[:922, :1640], yuv[:922, :1640])
-    assert not f.image[922:].any() and not f.image[:, 1640:].any()  # chroma and stride padding are not luminance
-    assert (f.seq, f.sensor_timestamp_ns, f.exposure_us, f.frame_duration_us, f.lit) == (0, 123456789, 39990.0, 50001.0, None)
-    assert cam.capture().seq == 1
-
-
-def test_picamera2_errors(fake_picamera2, mocker):
-    cam = Picamera2Camera()
-    with pytest.raises(CameraError, match="not started"):
-        cam.capture()
-    cam.start()
-    pc = fake_picamera2.Picamera2.return_value
-    pc.wait.side_effect = TimeoutError()
-    with pytest.raises(CaptureTimeout):
-        cam.capture(0.01)
-    timed_out_job = pc.capture_request.return_value
-    pc.wait.side_effect = None
-    pc.capture_request.reset_mock()
-    req = FakeRequest(np.zeros((10, 10), np.uint8), {})
-    pc.wait.return_value = req
-    with pytest.raises(CameraError, match="unexpected YUV420 buffer"):
-        cam.capture()
-    pc.capture_request.assert_not_called()  # the timed-out job was waited on again, not leaked
-    assert pc.wait.call_args.args[0] is timed_out_job
-    assert req.released  # the buffer goes back to the camera even on error
-    with pytest.raises(ValueError):
-        Picamera2Camera(exposure_us=60000, frame_duration_us=50000)
-
-
 def test_picamera2_missing_module_is_a_clear_error(mocker):
     mocker.patch.dict(sys.modules, {"picamera2": None})
     with pytest.raises(CameraError, match="picamera2 is not installed"):
@@ -223,7 +141,7 @@ def test_simulated_camera_from_plain_timing_values():
                           start_ns=2 * 10**9, line_time_ns=LINE_NS, options=FAST)
     cam.start()
     frames = [cam.capture() for _ in range(3)]
-    assert [f.sensor_timestamp_ns for f in frames] == [round(2 * 10**9 + k * FRAME_NS) for k in range(3)]  # no jitter
+    assert [f.sensor_timestamp_ns + CROP_NS for f in frames] == [round(2 * 10**9 + k * FRAME_NS) for k in range(3)]  # no jitter
     assert [f.lit for f in frames] == [True, False, True]
     assert frames[0].exposure_us == pytest.approx(30000.0, abs=LINE_NS / 1e3)  # line-quantised
     with pytest.raises(ValueError, match="not both"):

@@ -158,7 +158,9 @@ def test_simulated_camera_on_the_imx219_clock_lit_by_the_simulated_mcu():
     frames = [cam.capture_with_truth() for _ in range(3)]
     assert [f.seq for f, _ in frames] == [0, 1, 2] and [f.lit for f, _ in frames] == [False, True, False]
     f, truth = frames[1]
-    assert f.sensor_timestamp_ns > int(f1.true_start_s * 1e9)  # metadata: the late interrupt timestamp
+    # metadata: the frame start, the ISP crop's 155 rows before image row 0, stamped late by the interrupt
+    assert f.readout_offset_rows == 155
+    assert f.row_exposure_ns(0)[1] > int(f1.true_start_s * 1e9)
     timing = FrameTiming(int(round(f1.true_start_s * 1e9)), f1.exposure_s * 1e6, f1.line_time_s * 1e9,
                          tuple(mcu.windows(0, 10**10)))
     overlap = row_overlap_s(timing, cfg.height)

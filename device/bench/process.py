@@ -11,14 +11,20 @@ is the device: the pipeline, the synchronisation and co-MCU link, pairing, the s
 Not included: the Pi's own camera capture path (picamera2 hands over the Y plane of each frame in
 its own thread); it is not simulated, so not measured here.
 
+On a Pi, ``--stats FILE`` measures the real figure instead: it reads the stats file of a running
+``laserpi serve --stats-file FILE`` (streaming scans to a host meanwhile) at the start and the end
+of ``--seconds`` and reports the CPU per scan of that process, camera capture included, as a
+measurement on that machine (its model from the device tree). That, not the estimate below, is
+the number to quote for a Pi.
+
 Headroom on a Pi Zero 2 W (4 x Cortex-A53 at 1 GHz) is an estimate: device CPU per scan here
 times ``--slowdown`` (default 15: clock 1 GHz against ~3 GHz, about 2.5x lower IPC of the in-order
 A53, and half the SIMD width of NEON against AVX2 for the numpy/OpenCV-heavy parts; plausible
-range 8-25), against the time between scans on one core (100 ms at 10 Hz).
+range 8-25), against the time a scan may take at its rate on one core.
 
 ``--scan-rate-hz``: the thesis preset made to run at that rate (device/design/report.py
 sensor_at_rate: its laser at the Class 1 power of the rate's firmware envelope) with the co-MCU
-firmware built with that envelope (in firmware_pwm/build/rate-<min period ticks>), serving the
+firmware built with that envelope (in firmware_pwm/build/rate-<min period us>), serving the
 same 1640 points per scan on a link paced like USB CDC (LINK_BAUD) where 921600 baud would not
 carry them (protocol/SPEC.md section 5).
 """
@@ -43,11 +49,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-rate-hz", type=float, default=None,
                         help=f"scans/s (default: the {PRESET} preset's 10; another rate runs the co-MCU firmware "
                              "built for it)")
+    parser.add_argument("--stats", metavar="JSON", default=None,
+                        help="measure a running `laserpi serve --stats-file JSON` (on a Pi: the real figure) instead "
+                             "of a simulated one")
     parser.add_argument("--json", action="store_true")
 
 
-def cost_per_scan(a: dict, b: dict) -> dict:
-    """CPU ms per scan between two stats snapshots of `laserpi serve --stats-file`."""
+def machine() -> str:
+    """The board's model (device tree, as on a Pi) or the CPU architecture."""
+    import platform
+
+    model = Path("/proc/device-tree/model")
+    return model.read_text().rstrip("\x00\n") if model.exists() else f"{platform.machine()} ({platform.node()})"
+
+
+def measure_running(stats: Path, seconds: float) -> dict:
+    """CPU per scan of a running serve from its stats file, ``seconds`` apart: all of it is the device's."""
+    if not stats.exists():
+        raise FileNotFoundError(f"{stats}: no stats file; run `laserpi serve ... --stats-file {stats}` with a host reading scans")
+    first = json.loads(stats.read_text())
+    time.sleep(seconds)
+    last = json.loads(stats.read_text())
+    return cost_per_scan(first, last, simulated=False)
+
+
+def cost_per_scan(a: dict, b: dict, simulated: bool = True) -> dict:
+    """CPU ms per scan between two stats snapshots of `laserpi serve --stats-file`; ``simulated``:
+    the simulation's share (rendering as the camera, the emulator's clock) is subtracted, else
+    the camera's capture is the device's own."""
     scans = b["source"]["scans_made"] - a["source"]["scans_made"]
     if scans <= 0:
         raise ValueError("no scans between the snapshots")
@@ -56,7 +85,7 @@ def cost_per_scan(a: dict, b: dict) -> dict:
         return (b[sub][key] - a[sub][key]) if sub else (b[key] - a[key])
 
     process = d("cpu_process_s")
-    render = d("cpu_camera_s", "source")
+    render = d("cpu_camera_s", "source") if simulated else 0.0
     sim_clock = d("cpu_sim_clock_s")
     device = process - render - sim_clock
     return {
@@ -92,38 +121,54 @@ def rate_arguments(rate_hz: float, tmp: Path) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.stats:
+        try:
+            r = measure_running(Path(args.stats), args.seconds)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"laserpi bench process: {exc}")
+            return 2
+        r.update(measured_on=machine(), cores_at_scan_rate=r["device_ms_per_scan"] * r["scan_rate_hz"] / 1e3)
+        lines = [f"MEASURED on {r['measured_on']}: {r['scans']} scans at {r['scan_rate_hz']:.2f} Hz, "
+                 f"{r['device_ms_per_scan']:.1f} ms CPU per scan (pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync "
+                 f"{r['laser_sync_ms_per_scan']:.1f}, other incl. capture {r['other_ms_per_scan']:.1f}) = "
+                 f"{r['cores_at_scan_rate']:.2f} cores"]
+    else:
+        r = simulated_cost(args.warmup, args.seconds, args.scan_rate_hz)
+        rate_hz = 10.0 if args.scan_rate_hz is None else args.scan_rate_hz
+        pi_ms = r["device_ms_per_scan"] * args.slowdown
+        r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_cores_at_rate=pi_ms * rate_hz / 1e3)
+        lines = [f"{r['scans']} scans at {r['scan_rate_hz']:.2f} Hz: process {r['process_ms_per_scan']:.1f} ms CPU/scan = "
+                 f"simulation {r['simulation_ms_per_scan']:.1f} + device {r['device_ms_per_scan']:.1f} "
+                 f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
+                 f"other {r['other_ms_per_scan']:.1f})",
+                 f"Pi Zero 2 W ESTIMATE, not a measurement (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
+                 f"{100 * r['pi_zero2w_cores_at_rate']:.0f} % of one of its 4 cores at {rate_hz:g} Hz; on the Pi, `laserpi bench process "
+                 "--stats FILE` measures it"]
+    print(json.dumps(r) if args.json else "\n".join(lines))
+    return 0
+
+
+def simulated_cost(warmup_s: float, seconds: float, scan_rate_hz: float | None = None) -> dict:
+    """CPU per scan of ``laserpi serve --simulate`` read by the host SDK (the module docstring)."""
     import host_sdk
     from device.service.child import start_serve, stop_serve
 
     with tempfile.TemporaryDirectory(prefix="laserpi-bench-") as tmp:
         link, stats = Path(tmp) / "laserpi", Path(tmp) / "stats.json"
-        rate = [] if args.scan_rate_hz is None else rate_arguments(args.scan_rate_hz, Path(tmp))
+        rate = [] if scan_rate_hz is None else rate_arguments(scan_rate_hz, Path(tmp))
         proc = start_serve(link, ["--simulate", "--scene", "wall", "--stats-file", str(stats), *rate],
                            log_path=Path(tmp) / "serve.log")
         try:
             with host_sdk.LaserPi(str(link), timeout_s=15.0) as sensor:
                 it = sensor.scans()
-                end = time.monotonic() + args.warmup
+                end = time.monotonic() + warmup_s
                 while time.monotonic() < end:
                     next(it)
                 first = json.loads(stats.read_text())
-                end = time.monotonic() + args.seconds
+                end = time.monotonic() + seconds
                 while time.monotonic() < end:
                     next(it)
         finally:
             stop_serve(proc)
         last = json.loads(stats.read_text())
-    r = cost_per_scan(first, last)
-    pi_ms = r["device_ms_per_scan"] * args.slowdown
-    rate_hz = 10.0 if args.scan_rate_hz is None else args.scan_rate_hz
-    r.update(slowdown=args.slowdown, pi_zero2w_ms_per_scan=pi_ms, pi_zero2w_cores_at_rate=pi_ms * rate_hz / 1e3)
-    if args.json:
-        print(json.dumps(r))
-        return 0
-    print(f"{r['scans']} scans at {r['scan_rate_hz']:.2f} Hz: process {r['process_ms_per_scan']:.1f} ms CPU/scan = "
-          f"simulation {r['simulation_ms_per_scan']:.1f} + device {r['device_ms_per_scan']:.1f} "
-          f"(pipeline {r['pipeline_ms_per_scan']:.1f}, laser/sync {r['laser_sync_ms_per_scan']:.1f}, "
-          f"other {r['other_ms_per_scan']:.1f})")
-    print(f"Pi Zero 2 W estimate (x{args.slowdown:g}): {pi_ms:.0f} ms CPU per scan, "
-          f"{100 * r['pi_zero2w_cores_at_rate']:.0f} % of one of its 4 cores at {rate_hz:g} Hz")
-    return 0
+    return cost_per_scan(first, last)

@@ -12,8 +12,16 @@ class Frame:
     """One luminance frame and its metadata.
 
     ``image``: (height, width) uint8 luminance (the Y plane of YUV420 on a Pi).
-    ``sensor_timestamp_ns``: start of row-0 readout on CLOCK_MONOTONIC (libcamera SensorTimestamp);
-    row r is exposed during [T - exposure + r * line_time, T + r * line_time] (rolling shutter).
+    ``sensor_timestamp_ns``: libcamera's SensorTimestamp T on CLOCK_MONOTONIC: the frame start of
+    the sensor's whole readout (on a Pi the CSI-2 receiver's frame-start interrupt, ``ktime_get_ns()``
+    in raspberrypi/linux drivers/media/platform/bcm2835/bcm2835-unicam.c ``unicam_isr``: "Timestamp is
+    to be when the first data byte was captured, aka frame start"; passed through unchanged as the
+    V4L2 buffer timestamp by raspberrypi/libcamera src/libcamera/pipeline/rpi/vc4/vc4.cpp
+    ``unicamBufferDequeue``, to the microsecond of the V4L2 timeval).
+    ``readout_offset_rows``: the sensor-mode rows read before image row 0 (the ISP's ScalerCrop
+    starts that far down the mode: 155 in mode 5, device/camera/modes.py), so image row r is read
+    at T + (readout_offset_rows + r) * line_time and exposed during the ``exposure`` before that
+    (rolling shutter).
     ``lit``: whether the laser was scheduled to fire in this frame (docs/thesis-notes.md N10), None if unknown.
     """
 
@@ -24,6 +32,7 @@ class Frame:
     frame_duration_us: float
     line_time_ns: float
     lit: bool | None = None
+    readout_offset_rows: int = 0
 
     def __post_init__(self) -> None:
         if self.image.ndim != 2 or self.image.dtype != np.uint8:
@@ -31,5 +40,5 @@ class Frame:
 
     def row_exposure_ns(self, row: int | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(start, end) of the exposure of image row(s) ``row``, CLOCK_MONOTONIC ns."""
-        end = self.sensor_timestamp_ns + np.asarray(row, dtype=np.float64) * self.line_time_ns
+        end = self.sensor_timestamp_ns + (self.readout_offset_rows + np.asarray(row, dtype=np.float64)) * self.line_time_ns
         return end - self.exposure_us * 1e3, end

@@ -168,3 +168,47 @@ class ImageWindow:
 #: The thesis's mode 5 (B.1.4, Table B.3) as picamera2 gets it: the centre 922 rows of the
 #: 1640x1232 binned mode, (1232 - 922) / 2 = 155 above.
 MODE5 = ImageWindow(SENSOR_MODES["1640x1232"], left=0, top=155, width=1640, height=922)
+
+
+@dataclass(frozen=True)
+class ReadoutGeometry:
+    """Where the delivered image sits in the sensor's readout, as libcamera reports it for the
+    configured mode: image row r is read ``first_row + r`` line times after the frame start."""
+
+    first_row: int  # sensor-mode rows read before image row 0 (the ScalerCrop's top, in mode rows)
+    line_time_ns: float  # time between consecutive mode rows
+
+
+def readout_geometry(sensor_size: tuple[int, int], crop_limits: tuple[int, int, int, int],
+                     min_frame_duration_us: float, scaler_crop: tuple[int, int, int, int],
+                     vblank_min_lines: int = IMX219_VBLANK_MIN_LINES) -> ReadoutGeometry:
+    """The readout geometry from what picamera2 reports after ``configure`` (no mode table).
+
+    * ``sensor_size``: the configured sensor mode's output size (``camera_configuration()["sensor"]
+      ["output_size"]``);
+    * ``crop_limits``: the mode's rectangle on the active array, ``camera_controls["ScalerCrop"]``'s
+      maximum (picamera2.py ``sensor_modes``: ``crop_limits = scaler_crop_max``); its height over
+      the mode's height is the vertical binning;
+    * ``min_frame_duration_us``: ``camera_controls["FrameDurationLimits"]``'s minimum, which
+      libcamera's Raspberry Pi IPA sets to the mode's ``minFrameLength * minLineLength``
+      (raspberrypi/libcamera src/ipa/rpi/common/ipa_base.cpp, ``mode_.minFrameDuration``), the
+      frame length being the mode's height plus the sensor's minimum vertical blanking
+      (``vblank_min_lines``, IMX219_VBLANK_MIN in imx219.c; libcamera's ``minFrameLength`` is
+      the driver's height + VBLANK minimum). So the line time includes any line-length
+      adjustment the IPA made for the ISP ("Adjusting mode minimum line length", same file);
+    * ``scaler_crop``: the request metadata's ``ScalerCrop`` (x, y, w, h) on the active array.
+
+    ValueError names a crop outside the mode or a binning that is not whole.
+    """
+    w, h = sensor_size
+    cx, cy, cw, ch = crop_limits
+    if h <= 0 or ch <= 0 or ch % h or cw % w:
+        raise ValueError(f"sensor mode {w}x{h} does not bin evenly from its crop {crop_limits}")
+    binning = ch // h
+    sx, sy, sw, sh = scaler_crop
+    if not (cy <= sy and sy + sh <= cy + ch and cx <= sx and sx + sw <= cx + cw):
+        raise ValueError(f"ScalerCrop {scaler_crop} is not inside the sensor mode's crop {crop_limits}")
+    if not min_frame_duration_us > 0:
+        raise ValueError(f"the shortest frame duration must be positive, got {min_frame_duration_us} us")
+    return ReadoutGeometry(first_row=(sy - cy) // binning,
+                           line_time_ns=min_frame_duration_us * 1e3 / (h + vblank_min_lines))

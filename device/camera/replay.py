@@ -2,7 +2,8 @@
 
 A recording is either one ``.npz`` file (``images`` (N, H, W) uint8 and per-frame arrays
 ``seq``, ``sensor_timestamp_ns``, ``exposure_us``, ``frame_duration_us``, ``line_time_ns``,
-``lit`` (int8: 1 lit, 0 dark, -1 unknown)) or a folder with one PNG per frame and
+``lit`` (int8: 1 lit, 0 dark, -1 unknown), ``readout_offset_rows`` (absent in older recordings:
+0)) or a folder with one PNG per frame and
 ``frames.json`` (``{"frames": [{"file": ..., "seq": ..., ...}, ...]}``), so that frames recorded
 on a Pi can be reprocessed anywhere.
 """
@@ -21,6 +22,7 @@ from .frame import Frame
 
 log = logging.getLogger(__name__)
 FIELDS = ("seq", "sensor_timestamp_ns", "exposure_us", "frame_duration_us", "line_time_ns")
+OPTIONAL_FIELDS = {"readout_offset_rows": 0}  # field: its value in recordings made before it existed
 INDEX_FILE = "frames.json"
 
 
@@ -41,7 +43,7 @@ def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
     if len(shapes) != 1:
         raise ValueError(f"all frames of a recording must have one size, got {sorted(shapes)}")
     if path.suffix == ".npz":
-        arrays = {k: np.array([getattr(f, k) for f in frames]) for k in FIELDS}
+        arrays = {k: np.array([getattr(f, k) for f in frames]) for k in (*FIELDS, *OPTIONAL_FIELDS)}
         arrays["lit"] = np.array([_lit_code(f.lit) for f in frames], dtype=np.int8)
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez_compressed(tmp, images=np.stack([f.image for f in frames]), **arrays)
@@ -55,7 +57,7 @@ def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
         name = f"frame_{f.seq:06d}.png"
         if not cv2.imwrite(str(path / name), f.image):
             raise OSError(f"could not write {path / name}")
-        index.append({"file": name, **{k: getattr(f, k) for k in FIELDS}, "lit": f.lit})
+        index.append({"file": name, **{k: getattr(f, k) for k in (*FIELDS, *OPTIONAL_FIELDS)}, "lit": f.lit})
     (path / INDEX_FILE).write_text(json.dumps({"frames": index}, indent=1))
 
 
@@ -77,7 +79,8 @@ class ReplayCamera:
                 if missing:
                     raise ValueError(f"{self.path}: not a recording, missing array(s) {', '.join(missing)}")
                 self._images = z["images"]
-                self._meta = [dict(zip(FIELDS + ("lit",), vals)) for vals in zip(*(z[k].tolist() for k in FIELDS + ("lit",)))]
+                keys = FIELDS + ("lit",) + tuple(k for k in OPTIONAL_FIELDS if k in z.files)
+                self._meta = [dict(zip(keys, vals)) for vals in zip(*(z[k].tolist() for k in keys))]
             for m in self._meta:
                 m["lit"] = _lit_value(m["lit"])
         else:
@@ -131,4 +134,5 @@ class ReplayCamera:
         image = self._images[i] if self._images is not None else self._read_png(i)
         return Frame(image=np.ascontiguousarray(image), seq=int(m["seq"]), sensor_timestamp_ns=int(m["sensor_timestamp_ns"]),
                      exposure_us=float(m["exposure_us"]), frame_duration_us=float(m["frame_duration_us"]),
-                     line_time_ns=float(m["line_time_ns"]), lit=m["lit"])
+                     line_time_ns=float(m["line_time_ns"]), lit=m["lit"],
+                     readout_offset_rows=int(m.get("readout_offset_rows", OPTIONAL_FIELDS["readout_offset_rows"])))

@@ -27,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-range", type=float, default=10.0, help="(m, default 10)")
     parser.add_argument("--gain", type=float, default=None, help="simulated analogue gain (default: the simulator's, 10)")
     parser.add_argument("--exposure-us", type=float, default=None, help="simulated exposure (default 40000)")
+    parser.add_argument("--isp", choices=("linear", "default"), default="linear",
+                        help="the camera's luminance: linear and full range as LaserPi sets it up (default), or the "
+                             "Raspberry Pi ISP's defaults (gamma, sharpening, denoise, 16-235; device/sim/isp.py)")
     parser.add_argument("--no-lit-rows", action="store_true",
                         help="do not tell the pipeline which rows the pulse lit (as without synchronisation)")
     parser.add_argument("--json", action="store_true", help="print JSON")
@@ -46,12 +49,12 @@ def evaluate(args) -> list[dict]:
     names = list(VARIANTS) if args.pipeline == "all" else [n.strip() for n in args.pipeline.split(",") if n.strip()]
     pipes = [make_pipeline(n, cfg, args.min_range, args.max_range) for n in names]  # validates names first
     pairs = simulated_pairs(cfg, args.scene, args.frames, args.seed,
-                            exposure_us=args.exposure_us or EXPOSURE_US, analog_gain=args.gain)
+                            exposure_us=args.exposure_us or EXPOSURE_US, analog_gain=args.gain, isp=args.isp)
     out = []
     for name, pipe in zip(names, pipes):
         score = run_pipeline(pipe, pairs, use_lit_rows=not args.no_lit_rows)
         s = score.summary()
-        s.update({"variant": name, "scene": args.scene, "frames": args.frames,
+        s.update({"variant": name, "scene": args.scene, "frames": args.frames, "isp": args.isp,
                   "resolution_deg": getattr(pipe, "resolution_deg", float("nan")),
                   "valid_fraction_within_2_5m": score.valid_fraction_within(2.5)})
         out.append(s)

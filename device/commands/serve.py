@@ -1,6 +1,6 @@
 """`laserpi serve`: the device process (or a simulated sensor) on the host link.
 
-    laserpi serve --port /dev/ttyGS0                                  # on a Pi: camera, co-MCU, pipeline
+    laserpi serve --port /dev/ttyGS0 --gpio-edge gpiochip0:17         # on a Pi: camera, co-MCU, pipeline
     laserpi serve --simulate --scene wall --distance-m 2.0 --link /tmp/laserpi   # simulated sensor on a pty
     laserpi serve --simulate --mock --distance-m 2.0 --link /tmp/laserpi         # analytic mock, no images
 
@@ -54,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="points per scan (default: 1640 for --mock, the active image width otherwise)")
     parser.add_argument("--comcu", metavar="DEV", default="/dev/serial0",
                         help="serial device of the co-MCU (ignored with --simulate)")
+    parser.add_argument("--gpio-edge", metavar="CHIP:LINE", default=None,
+                        help="GPIO line of the laser trigger for edge-timestamp sync, e.g. gpiochip0:17 (default: the "
+                             "configuration's [pi] gpio_edge; neither: sync by pings only, reported as degraded)")
     parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
     parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
@@ -154,8 +157,8 @@ def run(args: argparse.Namespace) -> int:
                 return 2
 
             built = build_sensor(AssemblyConfig(simulate=args.simulate, config_path=args.config, preset=args.preset,
-                                                points=args.points, comcu=args.comcu, scene=args.scene,
-                                                distance_m=args.distance_m, seed=args.seed,
+                                                points=args.points, comcu=args.comcu, gpio_edge=args.gpio_edge,
+                                                scene=args.scene, distance_m=args.distance_m, seed=args.seed,
                                                 scan_rate_hz=args.scan_rate_hz, firmware=args.firmware))
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware

@@ -174,7 +174,7 @@ class SyncedLaser:
                 controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges if not e.flags])
                 controller.on_gpio_edges(gpio)
                 info = FrameInfo(frame.seq, frame.sensor_timestamp_ns, frame.exposure_us * 1e-6,
-                                 frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6)
+                                 frame.line_time_ns * 1e-9, frame.frame_duration_us * 1e-6, frame.readout_offset_rows)
                 label = controller.on_frame(info, self.clock_ns())
                 if label.lit is None and controller.state is SyncState.LOCKED:
                     log.debug("frame %d not labelled while locked: %s", frame.seq, label.reason)

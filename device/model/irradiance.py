@@ -51,7 +51,9 @@ def band_irradiance_w_m2(center_nm: float, width_nm: float,
     inside = (wavelength > lo) & (wavelength < hi)
     grid = np.concatenate(([lo], wavelength[inside], [hi]))
     values = np.interp(grid, wavelength, irradiance)
-    return float(np.trapezoid(values, grid))
+    # the trapezoid rule, written out as numpy's np.trapezoid computes it (that name is numpy >= 2;
+    # a Pi runs Raspberry Pi OS bookworm's numpy 1.24, README "On the Pi")
+    return float((np.diff(grid) * (values[1:] + values[:-1]) / 2.0).sum())
 
 
 def _line_area_per_distance(fan_rad: float, line_height_m: float) -> float:

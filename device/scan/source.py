@@ -21,7 +21,9 @@ one scan, and it never raises out of ``next_scan``: every failure degrades and i
   ``laser_retry_s`` until it answers again; while it is away no scan is made;
 * a frame sequence gap (dropped frames, counted) breaks the pairing: no scan from frames that
   are not neighbours;
-* a pipeline exception: that scan is skipped and counted, the error is logged.
+* a pipeline exception: that scan is skipped and counted, the error is logged;
+* a laser synchronised without the trigger line's GPIO edges (``sync_degraded``, PING only):
+  error SYNC_DEGRADED for as long as the process runs.
 
 The scan then gets the host's settings: the region of interest, ``min_quality`` and the median
 filter (protocol/median.py).
@@ -75,7 +77,7 @@ class SensorSource:
 
     def __init__(self, camera: Camera, laser: Laser, pipeline: ScanFunction, geometry: ScanGeometry, *,
                  stall_timeout_s: float = 0.5, laser_retry_s: float = 0.5,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, sync_degraded: bool = False):
         if not stall_timeout_s > 0 or not laser_retry_s > 0:
             raise ValueError(f"stall_timeout_s and laser_retry_s must be positive, got {stall_timeout_s}, {laser_retry_s}")
         self.camera = camera
@@ -95,7 +97,7 @@ class SensorSource:
         self._last_frame_at = 0.0
         self._last_seq: int | None = None
         self._pending: tuple[Frame, bool] | None = None
-        self._errors: set[int] = set()
+        self._errors: set[int] = {m.ErrorCode.SYNC_DEGRADED} if sync_degraded else set()
 
     # ScanSource
     def geometry(self) -> ScanGeometry:

@@ -74,8 +74,10 @@ class AssemblyConfig:
 
     ``config_path``: the sensor configuration file (TOML), else the ``preset``; ``scan_rate_hz``
     overrides its [operating_point] scan_rate_hz; ``points``: points per scan (None: the
-    configuration's active image width); ``comcu``: the co-MCU's serial device on a Pi.
-    ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
+    configuration's active image width); ``comcu``: the co-MCU's serial device on a Pi;
+    ``gpio_edge``: the laser trigger line's GPIO (CHIP:LINE) for edge-timestamp sync on a Pi,
+    overriding the configuration's ``[pi] gpio_edge`` (neither: PING-only sync, reported as
+    degraded). ``simulate``: the simulated hardware instead, seeing ``scene`` (a built-in name, a
     ``wall:...`` spec or a TOML path; "wall" is a wall at ``distance_m``) with noise ``seed``, its
     co-MCU running ``firmware`` (an ELF; None: the production build).
     """
@@ -85,6 +87,7 @@ class AssemblyConfig:
     preset: str = "thesis-calibrated"
     points: int | None = None
     comcu: str = "/dev/serial0"
+    gpio_edge: str | None = None
     scene: str = "wall"
     distance_m: float = 2.0
     seed: int = 0
@@ -104,6 +107,21 @@ class BuiltSensor:
     closers: list
     faults: dict
     hardware: SimulatedHardware | None = None
+
+
+def _open_gpio_edges(spec: str | None):
+    """The laser trigger line's edge source (device/sync/gpio_edges.py) for ``spec`` (CHIP:LINE),
+    None without one; a line that is configured but cannot be opened stops ``serve`` (RuntimeError
+    naming it), rather than quietly syncing by pings."""
+    if spec is None:
+        return None
+    from device.sync.gpio_edges import GpioEdgeSource, parse_gpio_edge
+
+    chip, line = parse_gpio_edge(spec)
+    try:
+        return GpioEdgeSource(chip, line)
+    except OSError as exc:
+        raise RuntimeError(f"GPIO edge line {spec}: {exc} (is the user in the gpio group? laserpi doctor checks)") from exc
 
 
 def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
@@ -148,16 +166,15 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
         faults = {"comcu-reset": hw.reset_mcu,
                   "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
+        degraded = False  # the simulated Pi has the trigger line's edges (hw.gpio_edges)
     else:
-        import importlib.util
-
         import serial
 
-        from device.camera.picamera2_camera import Picamera2Camera
+        from device.camera.picamera2_camera import Picamera2Camera, camera_stack_problem
 
-        if importlib.util.find_spec("picamera2") is None:
-            raise RuntimeError("no camera: picamera2 is not installed (on a Pi: sudo apt install python3-picamera2); "
-                               "use --simulate to run the simulated sensor here")
+        problem = camera_stack_problem()  # a camera that can never start is a stop, not a retry
+        if problem:
+            raise RuntimeError(f"no camera: {problem}; or use --simulate to run the simulated sensor here")
         camera = Picamera2Camera(exposure_us=op.exposure_us, frame_duration_us=frame_duration_s * 1e6,
                                  analogue_gain=op.analog_gain, window=cfg.window)
 
@@ -167,11 +184,20 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
             except serial.SerialException as exc:
                 raise OSError(str(exc)) from exc
 
-        laser = SyncedLaser(open_comcu, sync)  # GPIO edge timestamps (libgpiod) not wired in yet: pings only
+        edges = _open_gpio_edges(setup.gpio_edge or cfg.gpio_edge)
+        if edges is not None:
+            closers.append(edges.close)
+            degraded = False
+        else:
+            log.warning("sync degraded: no GPIO edge line of the laser trigger (serve --gpio-edge CHIP:LINE or [pi] "
+                        "gpio_edge); the laser is synchronised by co-MCU pings alone, with wider guards (HEALTH error "
+                        "SYNC_DEGRADED)")
+            degraded = True
+        laser = SyncedLaser(open_comcu, sync, gpio_edges=None if edges is None else edges.read)
         clock = time.monotonic
         faults, hw = {}, None
     geometry = ScanGeometry(scan.angles.astype(np.float32), op.min_m, op.max_m)
-    source = SensorSource(camera, laser, scan, geometry, clock=clock)
+    source = SensorSource(camera, laser, scan, geometry, clock=clock, sync_degraded=degraded)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
     settings = m.ScanSettings(scan_rate_hz=op.scan_rate_hz, exposure_us=int(op.exposure_us), roi_first=0, roi_count=count,
                               median_window=1, min_quality=0, laser_power_mw=power_mw)

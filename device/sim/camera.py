@@ -3,8 +3,10 @@
 Frame times come from :class:`device.sim.timing.CameraClock` (line-quantised frame duration and
 exposure, changes effective 2 frames later as on the IMX219, timestamp latency jitter, dropped
 frames: a dropped frame's sequence number is skipped). Each frame is rendered at its *true*
-row exposure windows, and its Frame carries the *reported* SensorTimestamp. Whether a frame is
-lit is decided by the pulse source's windows through the rolling shutter, never by a flag.
+row exposure windows, and its Frame carries the *reported* SensorTimestamp: as on a Pi, the frame
+start of the sensor mode's whole readout, ``cfg.window.top`` rows (the ISP's crop, Frame's
+``readout_offset_rows``) before image row 0 is read. Whether a frame is lit is decided by the
+pulse source's windows through the rolling shutter, never by a flag.
 
 Frames are delivered at once, one after the other (``laserpi simulate``, ``evaluate``,
 calibration), or, given the simulated Pi (``hardware``, device/sim/hardware.py), in simulated
@@ -69,6 +71,7 @@ class SimulatedCamera:
             raise ValueError(f"timing has {timing.active_rows} active rows, the frame only {cfg.height}")
         self.renderer = SceneRenderer(cfg, scene, sensor, options, seed)
         self.width, self.height, self.line_time_ns = cfg.width, cfg.height, timing.line_time_s * 1e9
+        self.readout_offset_rows = cfg.window.top
         self.pulses = pulses
         self.hardware = hardware
         self.ready_margin_s = ready_margin_s
@@ -114,8 +117,10 @@ class SimulatedCamera:
         last_end = t_ns + int((self.height - 1) * lt_ns)
         timing = FrameTiming(t_ns, exposure_us, lt_ns, tuple(self.pulses.windows(first_start, last_end)))
         image, truth = self.renderer.render(timing, self._rng)
-        frame = Frame(image, ft.sequence, ft.sensor_timestamp_ns, exposure_us, ft.frame_duration_s * 1e6, lt_ns,
-                      lit=bool(truth.lit_rows.any()))
+        # the clock's T is image row 0's readout; the frame start is the crop's rows before it
+        frame_start_ns = ft.sensor_timestamp_ns - int(round(self.readout_offset_rows * lt_ns))
+        frame = Frame(image, ft.sequence, frame_start_ns, exposure_us, ft.frame_duration_s * 1e6, lt_ns,
+                      lit=bool(truth.lit_rows.any()), readout_offset_rows=self.readout_offset_rows)
         return frame, truth
 
     def capture(self, timeout_s: float = 1.0) -> Frame:

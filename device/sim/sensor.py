@@ -21,9 +21,11 @@ or read noise for the IMX219; where a value is an assumption it says so:
   code 0..232), as libcamera's IMX219 helper computes it.
 * ``e_per_dn`` at gain 1 = full well / (1023 - black): the ADC is assumed to span the full well
   at unity analog gain (ASSUMPTION, the usual design point).
-* The ISP's Y output is modelled linear in the 10-bit signal above black (gamma and contrast
-  curves off, as a measurement pipeline configures it): ``Y = (DN - black) * 255 / (1023 - black)
-  * digital_gain``. ASSUMPTION; a gamma curve would only compress the bright end.
+* The ISP's Y output is linear in the 10-bit signal above black (gamma and contrast curves,
+  sharpening and noise reduction off, full range, as LaserPi sets the camera up:
+  device/camera/picamera2_camera.py): ``Y = (DN - black) * 255 / (1023 - black) * digital_gain``.
+  ``isp = "default"`` instead models the ISP as picamera2 sets it up by default (denoise, the
+  tuning's gamma curve, sharpening, limited range 16-235: device/sim/isp.py).
 
 Shot noise is drawn as a Gaussian of variance N_e (the Poisson limit, eq. A.4) added to the read
 noise, ``n = sqrt(TDN^2 + N_e)`` (eq. A.6). Below ~10 e- this is not Poisson-shaped, but at
@@ -48,8 +50,11 @@ class SensorParams:
     adc_bits: int = 10
     analog_gain: float = 1.0
     digital_gain: float = 1.0
+    isp: str = "linear"  # "linear" (LaserPi's camera set-up) or "default" (device/sim/isp.py)
 
     def __post_init__(self) -> None:
+        if self.isp not in ("linear", "default"):
+            raise ValueError(f"sensor: isp must be 'linear' or 'default', got {self.isp!r}")
         if not 0 < self.qe <= 1:
             raise ValueError(f"sensor: qe must be in (0, 1], got {self.qe}")
         for name in ("full_well_e", "analog_gain", "digital_gain"):
@@ -124,6 +129,10 @@ def sensor_frame(
     # ISP: linear Y above black, 8 bits
     x -= np.float32(params.black_level_dn)
     x *= np.float32(255.0 / (params.max_dn - params.black_level_dn) * params.digital_gain)
+    if params.isp == "default":
+        from .isp import isp_default_y
+
+        return isp_default_y(x)
     np.rint(x, out=x)
     np.clip(x, 0.0, 255.0, out=x)
     return x.astype(np.uint8)

@@ -88,6 +88,7 @@ class FrameInfo:
     exposure_s: float  # ExposureTime metadata (nominal line time x lines)
     line_time_s: float  # nominal line time of the sensor mode
     frame_duration_s: float  # FrameDuration metadata (nominal line time x frame length lines)
+    readout_offset_rows: int = 0  # sensor rows read before image row 0 (device.camera.frame.Frame)
 
 
 class SyncState(enum.Enum):
@@ -370,7 +371,9 @@ class SyncController:
         """
         scale = self.camera.period_s / frame.frame_duration_s * 1e9
         t = self.camera.predict_ns(seq)
-        s, e = roi_exposure_window(t, frame.exposure_s * scale, frame.line_time_s * scale, self.cfg.row_min, self.cfg.row_max)
+        off = frame.readout_offset_rows
+        s, e = roi_exposure_window(t, frame.exposure_s * scale, frame.line_time_s * scale, self.cfg.row_min + off,
+                                   self.cfg.row_max + off)
         return float(s), float(e)
 
     def _start_train(self, frame: FrameInfo, est: ClockEstimate, guard: float) -> None:

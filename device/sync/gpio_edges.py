@@ -1,9 +1,16 @@
 """Laser-trigger edges on a Pi GPIO, timestamped by the kernel (libgpiod v2 edge events).
 
-The co-MCU's laser trigger line is also wired to a Pi GPIO input. The kernel timestamps each
-edge in its interrupt handler on CLOCK_MONOTONIC, the clock of libcamera's SensorTimestamp, so
-pairing these edges with the MCU's own edge ticks maps MCU time to camera time without the
-serial link's latency (``device.sync.clock_map``).
+The co-MCU's laser trigger line is also wired to a Pi GPIO input (``laserpi serve --gpio-edge
+CHIP:LINE``, or ``[pi] gpio_edge`` in the configuration). The kernel timestamps each edge in its
+interrupt handler with ``ktime_get_ns()``, CLOCK_MONOTONIC, unless the line asks for the realtime
+or a hardware clock (torvalds/linux drivers/gpio/gpiolib-cdev.c ``line_event_timestamp``; libgpiod
+v2 requests ``Clock.MONOTONIC`` here explicitly). The camera's SensorTimestamp is ``ktime_get_ns()``
+too, taken in the CSI-2 receiver's frame-start interrupt (raspberrypi/linux
+drivers/media/platform/bcm2835/bcm2835-unicam.c ``unicam_isr``) and passed through by libcamera's
+Raspberry Pi pipeline (src/libcamera/pipeline/rpi/vc4/vc4.cpp); libcamera's control description
+names CLOCK_BOOTTIME, which differs from CLOCK_MONOTONIC only by time spent suspended, and a
+running sensor does not suspend. So pairing these edges with the MCU's own edge ticks maps MCU
+time to camera time without the serial link's latency (``device.sync.clock_map``).
 
 ``gpiod`` (the libgpiod v2 Python bindings, extra ``laserpi[pi]``) is imported only when a
 source is opened, so everything else runs without it.
@@ -14,6 +21,14 @@ from __future__ import annotations
 import logging
 
 log = logging.getLogger(__name__)
+
+
+def parse_gpio_edge(spec: str) -> tuple[str, int]:
+    """``"gpiochip0:17"`` or ``"/dev/gpiochip0:17"`` -> (``"/dev/gpiochip0"``, 17); ValueError otherwise."""
+    chip, sep, line = spec.rpartition(":")
+    if not sep or not chip or not line.isdigit():
+        raise ValueError(f"a GPIO edge line is CHIP:LINE, e.g. gpiochip0:17 (the BCM number of the pin), got {spec!r}")
+    return (chip if chip.startswith("/") else f"/dev/{chip}"), int(line)
 
 
 class GpioEdgeSource:

@@ -6,7 +6,7 @@ three measure the same thing the same way.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,11 +36,12 @@ EXPOSURE_US = 40000.0
 
 def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int = 0, options=None,
                     exposure_us: float = EXPOSURE_US, analog_gain: float | None = None,
-                    pulse_us: float | None = None) -> list[FramePair]:
+                    pulse_us: float | None = None, isp: str = "linear") -> list[FramePair]:
     """``count`` (lit, unlit) pairs of a simulated scene: the camera free-runs, the laser fires
     on every other frame (docs/thesis-notes.md N10), centred on the frame's common exposure window
     (:func:`device.sim.pulses.frame_aligned_train`). Speckle is static (same scene), sensor
-    noise differs per frame."""
+    noise differs per frame. ``isp``: the camera's luminance transfer (device/sim/sensor.py
+    ``SensorParams.isp``)."""
     from ..sim.camera import SimulatedCamera
     from ..sim.pulses import frame_aligned_train
     from ..sim.render import RenderOptions
@@ -56,7 +57,8 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
     train = frame_aligned_train(start_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
     cam = SimulatedCamera(config, get_scene(scene_spec), train, exposure_us=exposure_us, frame_duration_us=frame_us,
                           start_ns=start_ns, seed=seed, options=options or RenderOptions(), line_time_ns=cam_line_ns,
-                          sensor=SIMULATOR_DEFAULT if analog_gain is None else SensorParams(analog_gain=analog_gain))
+                          sensor=replace(SIMULATOR_DEFAULT if analog_gain is None else SensorParams(analog_gain=analog_gain),
+                                         isp=isp))
     cam.start()
     pairs = []
     for _ in range(count):
