@@ -140,11 +140,11 @@ def test_pipeline_exception_skips_the_scan_and_is_counted():
     src, _, _, pipe = make_source(rig)
     calls = {"n": 0}
 
-    def flaky(lit, dark):
+    def flaky(lit, dark, other_dark):
         calls["n"] += 1
         if calls["n"] == 2:
             raise RuntimeError("numerical trouble")
-        return pipe(lit, dark)
+        return pipe(lit, dark, other_dark)
 
     src.pipeline = flaky
     src.start()
@@ -298,10 +298,10 @@ def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
     good = sup.source.pipeline
     failing = threading.Event()
 
-    def flaky(lit, dark):
+    def flaky(lit, dark, other_dark):
         if failing.is_set():
             raise RuntimeError("numerical trouble")
-        return good(lit, dark)
+        return good(lit, dark, other_dark)
 
     sup.source.pipeline = flaky
     host = Host(host_end)

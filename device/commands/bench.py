@@ -16,6 +16,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("device.bench.sim", "scene renderer: ms per frame pair"),
     "protocol": ("device.bench.protocol", "scan encode/decode throughput and bytes per point"),
     "process": ("device.bench.process", "device process: CPU per scan of serve --simulate, Pi Zero 2 W headroom"),
+    "motion": ("device.bench.motion", "the sensor on a moving robot: phantoms, valid columns, CPU; reference against fast"),
 }
 
 

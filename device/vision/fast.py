@@ -100,6 +100,9 @@ class FastParams:
     track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
+    # with both unlit neighbours (step 0): background that moved or flickered
+    moving_noise_ratio: float = 3.0  # a line must exceed this x the column's noise, or it is REJECTED
+    blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -189,17 +192,19 @@ class FastPipeline:
         """Forget the tracked line (the next frame pair gets a full search)."""
         self._track = None
 
-    def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements:
+    def process(self, lit, unlit, lit_rows: np.ndarray | None = None, other_unlit=None) -> ColumnMeasurements:
         import cv2
 
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
+        if other_unlit is not None:
+            lum_unlit = cv2.addWeighted(lum_unlit, 0.5, luminance(other_unlit, "other unlit", shape), 0.5, 0.0)
         p = self.params
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
+            found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
         else:
-            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, *band)
+            found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
             if (np.any(_run_length(lost) >= p.track_lost_run)
@@ -207,7 +212,7 @@ class FastPipeline:
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
                 # may continue outside): search the whole region of interest now
-                found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
+                found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
@@ -233,6 +238,8 @@ class FastPipeline:
             close &= empty
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
+        if other_unlit is not None:
+            status = self._untrusted(status, peak, noise)
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -255,7 +262,8 @@ class FastPipeline:
         """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
         docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
         the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
-        if none), from which tracking sizes the next frame's band."""
+        if none), from which tracking sizes the next frame's band; ``noise`` the column's noise
+        level (its largest smoothed negative difference)."""
         a = lum_lit[self.top + t0 : self.top + t1]
         b = lum_unlit[self.top + t0 : self.top + t1]
         p = self.params
@@ -293,7 +301,7 @@ class FastPipeline:
                                     (idx, c2.row, c2.peak, c2.valid, c2.spread),
                                     (self.geometry.inv_depth, self.geometry.top), (self.top, t0, t1),
                                     self._resolve_params, (found, row, peak, status))
-        return found, row, peak, status, seen
+        return found, row, peak, status, seen, noise
 
     def _padded(self, n: int) -> np.ndarray:
         """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero."""
@@ -310,6 +318,15 @@ class FastPipeline:
         d = padded[self._pad : padded.shape[0] - self._pad]
         return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
                             p.pedestal, 255)
+
+    def _untrusted(self, status: np.ndarray, peak: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """Step 0's rejections: a line that does not stand far enough above what the background
+        left in its column, and "no return" where that residue could hide a line."""
+        p = self.params
+        ok = status == STATUS_U8[ColumnStatus.OK]
+        none = status == STATUS_U8[ColumnStatus.NO_RETURN]
+        bad = (ok & (peak < p.moving_noise_ratio * noise)) | (none & (noise > p.blind_noise))
+        return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height
