@@ -117,6 +117,7 @@ class FakePipeline:
 
     def __init__(self):
         self.pairs = 0
+        self.both = 0  # scans made with both unlit neighbours
 
     def __call__(self, lit: Frame, dark: Frame, other_dark: Frame | None = None) -> ScanRays:
         for d in (dark, other_dark):
@@ -125,6 +126,7 @@ class FakePipeline:
         if other_dark is not None and other_dark.seq == dark.seq:
             raise AssertionError(f"both unlit neighbours of lit frame {lit.seq} are frame {dark.seq}")
         self.pairs += 1
+        self.both += other_dark is not None
         return ScanRays(np.full(N_POINTS, WALL_M, dtype=np.float32), np.full(N_POINTS, 200, dtype=np.uint8),
                         lit.sensor_timestamp_ns, 0)
 

@@ -50,6 +50,7 @@ def test_pairs_lit_and_dark_frames_into_scans():
     src.stop()
     assert len(scans) >= 8  # 40 fps -> 20 pairs/s, minus the frame the laser starts on
     assert pipe.pairs == len(scans) and src.counters.pipeline_errors == 0
+    assert pipe.both >= len(scans) - 1  # every lit frame but the first has the unlit frame before it too
     assert all(s.ranges_m.shape == (N_POINTS,) and np.all(s.ranges_m == WALL_M) for s in scans)
     assert rig.lit_parity is None, "laser must be off after stop"
     assert src.status().errors == ()

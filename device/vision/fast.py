@@ -101,8 +101,12 @@ class FastParams:
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
     # with both unlit neighbours (step 0): background that moved or flickered
-    moving_noise_ratio: float = 3.0  # a line must exceed this x the column's noise, or it is REJECTED
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
+    moved_level: float = 1.5  # a column whose neighbours differ by more than this on average (levels, 4 x 4 means) moved; there
+    moving_noise_ratio: float = 3.0  # a line must exceed this x the column's noise,
+    moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
+    flank_rows: int = 6  # and this many rows above and below it
+    flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -197,14 +201,22 @@ class FastPipeline:
 
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
-        if other_unlit is not None:
-            lum_unlit = cv2.addWeighted(lum_unlit, 0.5, luminance(other_unlit, "other unlit", shape), 0.5, 0.0)
+        background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
+        moved = None
+        if other_unlit is not None:  # step 0
+            other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
+            # averaged over 4 x 4 pixels (sensor noise / 4; a texture that moved stays), per column
+            W, n = background.shape[1], self.rows // 4
+            small = [cv2.resize(x[: 4 * n], (-(-W // 4), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
+            change = cv2.reduce(cv2.absdiff(*small), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
+            moved = np.repeat(change > self.params.moved_level * n, 4)[:W]
+            background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
         p = self.params
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
         else:
-            found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, *band)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
             if (np.any(_run_length(lost) >= p.track_lost_run)
@@ -212,7 +224,7 @@ class FastPipeline:
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
                 # may continue outside): search the whole region of interest now
-                found, row, peak, status, seen, noise = self._search(lum_lit, lum_unlit, 0, self.rows)
+                found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
@@ -238,8 +250,8 @@ class FastPipeline:
             close &= empty
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
-        if other_unlit is not None:
-            status = self._untrusted(status, peak, noise)
+        if moved is not None:
+            status = self._untrusted(status, row, peak, noise, moved, t0)
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -258,14 +270,14 @@ class FastPipeline:
         t1 = min(-(-(tr.last_row + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
         return None if t1 - t0 >= self.rows else (t0, t1)
 
-    def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int):
-        """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
-        docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
+    def _search(self, lum_lit: np.ndarray, background: np.ndarray, t0: int, t1: int):
+        """Find the line in rows [t0, t1) of the band (whole blocks) of ``lum_lit`` against
+        ``background`` (the band's rows of the unlit frame(s)): steps 1-5 of the module docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
         the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
         if none), from which tracking sizes the next frame's band; ``noise`` the column's noise
         level (its largest smoothed negative difference)."""
         a = lum_lit[self.top + t0 : self.top + t1]
-        b = lum_unlit[self.top + t0 : self.top + t1]
+        b = background[t0:t1]
         p = self.params
         W = self.cols.size
         lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
@@ -274,7 +286,7 @@ class FastPipeline:
         # left out: the band's rows are as noisy as the column's own interval, and it saves work.
         # Computed first: it streams the whole band through the cache, the steps below reuse theirs
         noise = np.empty(W)
-        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows],
+        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], background,
                                  noise)
         # the difference goes into a buffer with zero rows above and below (sub-pixel windows at
         # the band's edges need no clamping). A saturated lit pixel that the laser clearly
@@ -319,13 +331,30 @@ class FastPipeline:
         return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
                             p.pedestal, 255)
 
-    def _untrusted(self, status: np.ndarray, peak: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """Step 0's rejections: a line that does not stand far enough above what the background
-        left in its column, and "no return" where that residue could hide a line."""
+    def _untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, noise: np.ndarray,
+                   moved: np.ndarray, t0: int) -> np.ndarray:
+        """Step 0's rejections. In a column whose background moved: a line that does not stand
+        far enough above what the background left there, or does not have a line's shape (wider
+        than a line, or as bright ``flank_rows`` above or below it: a band of moved texture).
+        Anywhere: "no return" where the noise could hide a line."""
         p = self.params
         ok = status == STATUS_U8[ColumnStatus.OK]
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
-        bad = (ok & (peak < p.moving_noise_ratio * noise)) | (none & (noise > p.blind_noise))
+        cols = np.nonzero(ok & moved)[0]
+        # the difference of the last search: band rows t0.. at buffer rows pad..
+        d = self._padded_buf
+        lim = d.shape[0] - 1
+        r = np.rint(row[cols]).astype(np.intp) - (self.top + t0) + self._pad
+        flank = np.maximum(d[clamp(r - p.flank_rows, 0, lim), cols], d[clamp(r + p.flank_rows, 0, lim), cols])
+        k = np.arange(-p.half_width, p.half_width + 1)[:, None]
+        v = d[clamp(r[None, :] + k, 0, lim), cols[None, :]].astype(np.float64)  # the line's profile
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (v * k).sum(axis=0) / v.sum(axis=0)
+            spread = np.sqrt((v * (k - mean) ** 2).sum(axis=0) / v.sum(axis=0))
+        shape = np.zeros(status.size, bool)
+        shape[cols] = ((peak[cols] < p.moving_noise_ratio * noise[cols]) | (flank >= p.flank_fraction * peak[cols])
+                       | ~(spread <= p.moving_max_spread_px))
+        bad = shape | (none & (noise > p.blind_noise))
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
