@@ -215,22 +215,26 @@ def _plot(result: dict, path: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..config import ConfigError
 
-    if args.frames < 1 or args.repeats < 1:
-        print("laserpi bench motion: --frames and --repeats must be >= 1")
-        return 2
     try:
+        if min(args.frames, args.repeats) < 1:
+            raise ValueError("--frames and --repeats must be >= 1")
         result = measure(args)
     except (ConfigError, ValueError) as exc:
         print(f"laserpi bench motion: {exc}")
         return 2
-    if args.png:
-        _plot(result, args.png)
     if args.json:
         print(json.dumps(result, indent=2))
-        return 0
+    else:
+        _print(result, args.frames)
+    if args.png:
+        _plot(result, args.png)
+    return 0
+
+
+def _print(result: dict, frames: int) -> None:
     op = result["operating_point"]
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, OpenCV 1 thread; "
-          f"exposure {op['exposure_us']:g} us, gain {op['analog_gain']:g}, {args.frames} lit frame(s) per point")
+          f"exposure {op['exposure_us']:g} us, gain {op['analog_gain']:g}, {frames} lit frame(s) per point")
     f = lambda v, s: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, s)  # noqa: E731
     print(f"{'point':<22} {'variant':<15} {'gross %':>8} {'false':>6} {'valid %':>8} {'blind %':>8} {'sigma %':>8}")
     for p in result["points"]:
@@ -244,4 +248,3 @@ def run(args: argparse.Namespace) -> int:
           + f"; fast / fast one-unlit = {result['ratio_vs_one_unlit']:.2f}")
     for line in targets(result):
         print(line)
-    return 0

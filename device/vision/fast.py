@@ -1,8 +1,26 @@
 """The fast, accurate pipeline (issue 7): region of interest, vectorised peaks, line fit across
 neighbouring columns, ghost rejection, table triangulation (thesis 6.1 and 6.3, improved).
 
-Per frame pair:
+Per frame pair (or triple):
 
+0. Both unlit neighbours (issue 16; ``process(..., other_unlit=...)``, as the device pairs
+   frames, device/scan/pairing.py). When the robot turns or drives, or something moves, the
+   background of the lit frame is not that of the unlit frame 50 ms away: a textured background
+   leaves bright edges in the difference, which became phantom ranges. With the unlit frames
+   before and after the lit one, the band's background is their mean (the lit frame lies half
+   way between them in time: a smooth motion's residue is second order, and mains flicker,
+   whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
+   neighbours differ (the mean |difference| of 4 x 4 pixel averages above ``moved_level``: the
+   background moved there; sensor noise alone stays below) keeps a line only if the line
+   stands ``moving_noise_ratio`` (3) times above the column's noise level (the residue's largest
+   negative difference, step 1), is no wider than ``moving_max_spread_px`` and has dark flanks
+   ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
+   the laser a narrow line); otherwise it is REJECTED (NaN), never a guess. And any column
+   whose noise level exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
+   robot): REJECTED. A still scene's output differs from the one-neighbour pipeline only by
+   the lower noise of the mean background (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
+   without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
+   uses the nearer unlit frame alone.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -102,8 +120,9 @@ class FastParams:
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
     # with both unlit neighbours (step 0): background that moved or flickered
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
-    moved_level: float = 1.5  # a column whose neighbours differ by more than this on average (levels, 4 x 4 means) moved; there
-    moving_noise_ratio: float = 3.0  # a line must exceed this x the column's noise,
+    moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, 4 x 4 means) moved; there
+    moving_noise_ratio: float = 3.0  # a line must exceed this x the largest noise of the columns
+    moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
     flank_rows: int = 6  # and this many rows above and below it
     flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
@@ -334,9 +353,11 @@ class FastPipeline:
     def _untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, noise: np.ndarray,
                    moved: np.ndarray, t0: int) -> np.ndarray:
         """Step 0's rejections. In a column whose background moved: a line that does not stand
-        far enough above what the background left there, or does not have a line's shape (wider
-        than a line, or as bright ``flank_rows`` above or below it: a band of moved texture).
-        Anywhere: "no return" where the noise could hide a line."""
+        far enough above what the background left there and around it (``moving_noise_columns``),
+        or does not have a line's shape (wider than a line, or as bright ``flank_rows`` above or
+        below it: a band of moved texture). Anywhere: "no return" where the noise could hide a line."""
+        import cv2
+
         p = self.params
         ok = status == STATUS_U8[ColumnStatus.OK]
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
@@ -346,13 +367,17 @@ class FastPipeline:
         lim = d.shape[0] - 1
         r = np.rint(row[cols]).astype(np.intp) - (self.top + t0) + self._pad
         flank = np.maximum(d[clamp(r - p.flank_rows, 0, lim), cols], d[clamp(r + p.flank_rows, 0, lim), cols])
-        k = np.arange(-p.half_width, p.half_width + 1)[:, None]
-        v = d[clamp(r[None, :] + k, 0, lim), cols[None, :]].astype(np.float64)  # the line's profile
+        j = np.arange(-p.half_width, p.half_width + 1)[:, None]
+        v = d[clamp(r[None, :] + j, 0, lim), cols[None, :]].astype(np.float64)  # the line's profile
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = (v * k).sum(axis=0) / v.sum(axis=0)
-            spread = np.sqrt((v * (k - mean) ** 2).sum(axis=0) / v.sum(axis=0))
+            mean = (v * j).sum(axis=0) / v.sum(axis=0)
+            spread = np.sqrt((v * (j - mean) ** 2).sum(axis=0) / v.sum(axis=0))
+        # the residue a moved feature leaves lies beside it (where it was): the noise of the
+        # columns around, ``moving_noise_columns`` each side
+        k = 2 * p.moving_noise_columns + 1
+        around = cv2.dilate(noise.astype(np.float32)[None, :], np.ones((1, k), np.uint8))[0]
         shape = np.zeros(status.size, bool)
-        shape[cols] = ((peak[cols] < p.moving_noise_ratio * noise[cols]) | (flank >= p.flank_fraction * peak[cols])
+        shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
                        | ~(spread <= p.moving_max_spread_px))
         bad = shape | (none & (noise > p.blind_noise))
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
