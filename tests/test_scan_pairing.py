@@ -69,3 +69,27 @@ def test_scan_timing_is_exact_for_rays_on_a_line_and_reports_the_residual_otherw
     assert s.residual_ns > 1e5
     none = scan_timing(np.full(10, np.nan), fallback_ns=7.6e8)
     assert (none.first_ray_ns, none.ray_interval_ns) == (760_000_000, 0)
+
+
+def test_a_scans_rays_are_timed_from_the_rows_their_line_was_found_in():
+    from device.config import load_preset
+    from device.scan.pipeline import ScanPipeline
+    from device.vision.evaluation import simulated_pairs
+    from device.vision.pipelines import make_pipeline
+
+    cfg = load_preset("thesis-calibrated")
+    pair = simulated_pairs(cfg, "wall:distance=2,angle=20", 1, neighbours=True)[0]
+    line_ns, t = cfg.window.mode.line_time_ns, 10**9
+    frames = [Frame(img, seq, t + (seq - 1) * 50_000_000, 40000.0, 50000.0, line_ns)
+              for seq, img in ((0, pair.unlit_before), (1, pair.lit), (2, pair.unlit))]
+    pipe = make_pipeline("fast-com", cfg)
+    scan = ScanPipeline(pipe, 400)
+    rays = scan(frames[1], frames[2], frames[0])
+    meas = pipe.process(pair.lit, pair.unlit, other_unlit=pair.unlit_before)
+    ok = meas.valid
+    times = column_times_ns(frames[1], meas.row[ok])
+    # the rays' times span the columns' own times, and ray 0 is not the frame's SensorTimestamp
+    first, last = rays.first_ray_ns, rays.first_ray_ns + 399 * rays.ray_interval_ns
+    assert min(first, last) >= times.min() - 2e5 and max(first, last) <= times.max() + 2e5
+    assert abs(first - t) > 1e6 and rays.ray_interval_ns != 0
+    assert np.isfinite(rays.ranges).sum() > 300

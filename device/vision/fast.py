@@ -120,7 +120,7 @@ class FastParams:
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
     # with both unlit neighbours (step 0): background that moved or flickered
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
-    moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, 4 x 4 means) moved; there
+    moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
     moving_noise_ratio: float = 3.0  # a line must exceed this x the largest noise of the columns
     moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
@@ -139,6 +139,8 @@ class FastParams:
         if self.track_margin < 0 or self.track_full_every < 1 or self.track_lost_run < 1:
             raise ValueError(f"need track_margin >= 0, track_full_every >= 1, track_lost_run >= 1, got "
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
+        if self.flank_rows < self.half_width:
+            raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
         if not (0 < self.jump_rel < 1 and self.min_peak > 0):
@@ -224,11 +226,12 @@ class FastPipeline:
         moved = None
         if other_unlit is not None:  # step 0
             other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
-            # averaged over 4 x 4 pixels (sensor noise / 4; a texture that moved stays), per column
-            W, n = background.shape[1], self.rows // 4
-            small = [cv2.resize(x[: 4 * n], (-(-W // 4), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
+            # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
+            # a texture that moved stays), then their mean |difference| per 8 columns
+            W, n = background.shape[1], self.rows // 8
+            small = [cv2.resize(x[: 8 * n : 2], (-(-W // 8), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
             change = cv2.reduce(cv2.absdiff(*small), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
-            moved = np.repeat(change > self.params.moved_level * n, 4)[:W]
+            moved = np.repeat(change > self.params.moved_level * n, 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
         p = self.params
         band = self._tracking_band()
@@ -362,13 +365,16 @@ class FastPipeline:
         ok = status == STATUS_U8[ColumnStatus.OK]
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
         cols = np.nonzero(ok & moved)[0]
-        # the difference of the last search: band rows t0.. at buffer rows pad..
+        # the difference of the last search (band rows t0.. at buffer rows pad..) from
+        # flank_rows above each line to flank_rows below it, in one gather
         d = self._padded_buf
-        lim = d.shape[0] - 1
         r = np.rint(row[cols]).astype(np.intp) - (self.top + t0) + self._pad
-        flank = np.maximum(d[clamp(r - p.flank_rows, 0, lim), cols], d[clamp(r + p.flank_rows, 0, lim), cols])
-        j = np.arange(-p.half_width, p.half_width + 1)[:, None]
-        v = d[clamp(r[None, :] + j, 0, lim), cols[None, :]].astype(np.float64)  # the line's profile
+        f, h = p.flank_rows, p.half_width
+        rows = clamp(r[None, :] + np.arange(-f, f + 1)[:, None], 0, d.shape[0] - 1)
+        around_line = d.ravel().take(rows * d.shape[1] + cols[None, :]).astype(np.float32)
+        flank = np.maximum(around_line[0], around_line[-1])
+        v = around_line[f - h : f + h + 1]  # the line's profile
+        j = np.arange(-h, h + 1, dtype=np.float32)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = (v * j).sum(axis=0) / v.sum(axis=0)
             spread = np.sqrt((v * (j - mean) ** 2).sum(axis=0) / v.sum(axis=0))
