@@ -10,7 +10,8 @@ Per frame pair (or triple):
    before and after the lit one, the band's background is their mean (the lit frame lies half
    way between them in time: a smooth motion's residue is second order, and mains flicker,
    whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
-   neighbours differ (the mean |difference| of 4 x 4 pixel averages above ``moved_level``: the
+   neighbours differ (the mean |difference| of their 8-column x 4-row block means, every other
+   row, above ``moved_level``: the
    background moved there; sensor noise alone stays below) keeps a line only if the line
    stands ``moving_noise_ratio`` (3) times above the column's noise level (the residue's largest
    negative difference, step 1), is no wider than ``moving_max_spread_px`` and has dark flanks
