@@ -13,8 +13,9 @@ Per frame pair (or triple):
    neighbours differ (the mean |difference| of their 8-column x 4-row block means, every other
    row, above ``moved_level``: the
    background moved there; sensor noise alone stays below) keeps a line only if the line
-   stands ``moving_noise_ratio`` (3) times above the column's noise level (the residue's largest
-   negative difference, step 1), is no wider than ``moving_max_spread_px`` and has dark flanks
+   stands ``moving_noise_ratio`` (3) times above the noise level (the residue's largest negative
+   difference, step 1) of the columns within ``moving_noise_columns`` (16; a moved feature leaves
+   its residue where it was), is no wider than ``moving_max_spread_px`` and has dark flanks
    ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
    the laser a narrow line); otherwise it is REJECTED (NaN), never a guess. And any column
    whose noise level exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
