@@ -14,6 +14,7 @@ import numpy as np
 from device.camera.frame import Frame
 from device.camera.modes import MODE5
 from device.laser.base import LaserError
+from device.scan.pipeline import ScanRays
 from protocol.server import ScanGeometry
 
 N_POINTS = 32
@@ -116,12 +117,18 @@ class FakePipeline:
 
     def __init__(self):
         self.pairs = 0
+        self.both = 0  # scans made with both unlit neighbours
 
-    def __call__(self, lit: Frame, dark: Frame) -> tuple[np.ndarray, np.ndarray]:
-        if lit.lit is not True or dark.lit is not False or abs(lit.seq - dark.seq) != 1:
-            raise AssertionError(f"bad pair: lit {lit.seq} ({lit.lit}), dark {dark.seq} ({dark.lit})")
+    def __call__(self, lit: Frame, dark: Frame, other_dark: Frame | None = None) -> ScanRays:
+        for d in (dark, other_dark):
+            if d is not None and (lit.lit is not True or d.lit is not False or abs(lit.seq - d.seq) != 1):
+                raise AssertionError(f"bad pair: lit {lit.seq} ({lit.lit}), dark {d.seq} ({d.lit})")
+        if other_dark is not None and other_dark.seq == dark.seq:
+            raise AssertionError(f"both unlit neighbours of lit frame {lit.seq} are frame {dark.seq}")
         self.pairs += 1
-        return np.full(N_POINTS, WALL_M, dtype=np.float32), np.full(N_POINTS, 200, dtype=np.uint8)
+        self.both += other_dark is not None
+        return ScanRays(np.full(N_POINTS, WALL_M, dtype=np.float32), np.full(N_POINTS, 200, dtype=np.uint8),
+                        lit.sensor_timestamp_ns, 0)
 
 
 def fake_geometry() -> ScanGeometry:

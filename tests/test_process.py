@@ -58,6 +58,7 @@ def test_pairs_lit_and_dark_frames_into_scans():
     src.stop()
     assert len(scans) >= 8  # 40 fps -> 20 pairs/s, minus the frame the laser starts on
     assert pipe.pairs == len(scans) and src.counters.pipeline_errors == 0
+    assert pipe.both >= len(scans) - 1  # every lit frame but the first has the unlit frame before it too
     assert all(s.ranges_m.shape == (N_POINTS,) and np.all(s.ranges_m == WALL_M) for s in scans)
     assert rig.lit_parity is None, "laser must be off after stop"
     assert src.status().errors == ()
@@ -140,11 +141,11 @@ def test_pipeline_exception_skips_the_scan_and_is_counted():
     src, _, _, pipe = make_source(rig)
     calls = {"n": 0}
 
-    def flaky(lit, dark):
+    def flaky(lit, dark, other_dark):
         calls["n"] += 1
         if calls["n"] == 2:
             raise RuntimeError("numerical trouble")
-        return pipe(lit, dark)
+        return pipe(lit, dark, other_dark)
 
     src.pipeline = flaky
     src.start()
@@ -301,10 +302,10 @@ def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
     good = sup.source.pipeline
     failing = threading.Event()
 
-    def flaky(lit, dark):
+    def flaky(lit, dark, other_dark):
         if failing.is_set():
             raise RuntimeError("numerical trouble")
-        return good(lit, dark)
+        return good(lit, dark, other_dark)
 
     sup.source.pipeline = flaky
     host = Host(host_end)

@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "protocol": ("device.bench.protocol", "scan encode/decode throughput and bytes per point"),
     "process": ("device.bench.process", "device process: CPU per scan of serve --simulate, Pi Zero 2 W headroom"),
     "ros2": ("device.bench.ros2", "laserpi ros2: rate and latency from scan arrival to a DDS subscriber, p50/p99"),
+    "motion": ("device.bench.motion", "the sensor on a moving robot: phantoms, valid columns, CPU; reference against fast"),
 }
 
 

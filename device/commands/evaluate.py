@@ -1,8 +1,24 @@
-"""`laserpi evaluate`: run pipeline variants over simulated frame pairs against ground truth.
+"""`laserpi evaluate`: run pipeline variants over simulated frame pairs against ground truth,
+or one pipeline over any recording.
 
-Reports per variant: sub-pixel RMS error of the line row, range error (mean, std, p95 of |e|)
-and valid-column share by distance bin, valid share of all columns with a return, false returns
-on columns without one, gross errors (> 5 %), and the effective angular resolution.
+``--scene``: renders frame pairs (each lit frame with the unlit frames before and after it when
+the scene moves, device/scan/pairing.py) and reports per variant: sub-pixel RMS error of the
+line row, range error (mean, std, p95 of |e|) and valid-column share by distance bin, valid
+share of all columns with a return, false returns on columns without one, gross errors (> 5 %),
+and the effective angular resolution.
+
+``--recording FRAMES.npz --out OUT.npz``: runs one pipeline (default: the device's,
+device/service/assembly.py PIPELINE, with the configuration's [operating_point] depth limits)
+over a recording in the ReplayCamera format (device/camera/replay.py: frames in time order with
+their lit flags), each lit frame with its unlit neighbours as the device pairs them. OUT.npz
+holds, per scan in time order, every array indexed by image column (W = the image width):
+``row`` (n, W) sub-pixel image row of the line, NaN where none; ``points`` (n, W, 3) the
+camera-frame point in metres, NaN where none; ``status`` (n, W) ColumnStatus
+(device/vision/measurements.py; 255 for a column the pipeline does not process, e.g. the
+reference's odd columns); ``time_ns`` (n, W) when the column's line was lit
+(device/scan/timing.py), NaN where none; ``lit_seq`` (n,) the lit frame's seq. With ``--truth
+TRUTH.npz`` (as ``laserpi simulate`` writes it: per frame, with ``seq``) it also prints the
+scores against the lit frames' truth.
 """
 
 from __future__ import annotations
@@ -11,20 +27,28 @@ import argparse
 import json
 import math
 
+from .argtypes import add_motion_arguments, scene_with_motion
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", required=True,
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--scene",
                         help="scene name (wall, room, corridor, clutter, targets, near, far, sunlight, glossy-floor, "
-                             "empty), 'wall:distance=2,reflectivity=0.1', or a scene .toml")
-    parser.add_argument("--pipeline", default="fast-com",
-                        help="variant name, comma-separated list, or 'all' (default fast-com)")
+                             "empty, office, person, door), 'wall:distance=2,reflectivity=0.1', or a scene .toml")
+    source.add_argument("--recording", help="a recording (FRAMES.npz or a frames.json folder) to reprocess")
+    parser.add_argument("--out", help="with --recording: write the per-scan results to this .npz")
+    parser.add_argument("--truth", help="with --recording: score against this truth.npz (from laserpi simulate)")
+    parser.add_argument("--pipeline",
+                        help="variant name, comma-separated list, or 'all' (default fast-com; with --recording one "
+                             "variant, default the device's)")
     parser.add_argument("--frames", type=int, default=3, help="frame pairs to render (default 3)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="thesis-calibrated", help="sensor preset (default thesis-calibrated)")
     parser.add_argument("--config", help="sensor configuration TOML (instead of --preset)")
-    parser.add_argument("--min-range", type=float, default=0.1,
-                        help="fast pipeline depth limits: its region of interest (m, default 0.1)")
-    parser.add_argument("--max-range", type=float, default=10.0, help="(m, default 10)")
+    parser.add_argument("--min-range", type=float, default=None,
+                        help="fast pipeline depth limits: its region of interest (m, default 0.1; with --recording "
+                             "the configuration's [operating_point])")
+    parser.add_argument("--max-range", type=float, default=None, help="(m, default 10)")
     parser.add_argument("--gain", type=float, default=None, help="simulated analogue gain (default: the simulator's, 10)")
     parser.add_argument("--exposure-us", type=float, default=None, help="simulated exposure (default 40000)")
     parser.add_argument("--isp", choices=("linear", "default"), default="linear",
@@ -33,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-lit-rows", action="store_true",
                         help="do not tell the pipeline which rows the pulse lit (as without synchronisation)")
     parser.add_argument("--json", action="store_true", help="print JSON")
+    add_motion_arguments(parser)
 
 
 def _config(args):
@@ -42,14 +67,19 @@ def _config(args):
 
 
 def evaluate(args) -> list[dict]:
+    from ..sim.scene import get_scene
     from ..vision.evaluation import EXPOSURE_US, run_pipeline, simulated_pairs
     from ..vision.pipelines import VARIANTS, make_pipeline
 
     cfg = _config(args)
-    names = list(VARIANTS) if args.pipeline == "all" else [n.strip() for n in args.pipeline.split(",") if n.strip()]
-    pipes = [make_pipeline(n, cfg, args.min_range, args.max_range) for n in names]  # validates names first
-    pairs = simulated_pairs(cfg, args.scene, args.frames, args.seed,
-                            exposure_us=args.exposure_us or EXPOSURE_US, analog_gain=args.gain, isp=args.isp)
+    pipeline = args.pipeline or "fast-com"
+    names = list(VARIANTS) if pipeline == "all" else [n.strip() for n in pipeline.split(",") if n.strip()]
+    lo = 0.1 if args.min_range is None else args.min_range
+    hi = 10.0 if args.max_range is None else args.max_range
+    pipes = [make_pipeline(n, cfg, lo, hi) for n in names]  # validates names first
+    scene = scene_with_motion(get_scene(args.scene), args)
+    pairs = simulated_pairs(cfg, scene, args.frames, args.seed, exposure_us=args.exposure_us or EXPOSURE_US,
+                            analog_gain=args.gain, isp=args.isp, neighbours=not scene.still)
     out = []
     for name, pipe in zip(names, pipes):
         score = run_pipeline(pipe, pairs, use_lit_rows=not args.no_lit_rows)
@@ -59,6 +89,97 @@ def evaluate(args) -> list[dict]:
                   "valid_fraction_within_2_5m": score.valid_fraction_within(2.5)})
         out.append(s)
     return out
+
+
+NOT_PROCESSED = 255  # status of a column the pipeline does not process
+
+
+def reprocess(args) -> dict:
+    """``--recording``: one pipeline over every lit frame of a recording (module docstring)."""
+    import numpy as np
+
+    from ..camera.base import EndOfRecording
+    from ..camera.replay import ReplayCamera
+    from ..scan.pairing import NeighbourPairing
+    from ..scan.timing import column_times_ns
+    from ..service.assembly import PIPELINE
+    from ..vision.evaluation import Score
+    from ..vision.pipelines import make_pipeline
+
+    cfg = _config(args)
+    op = cfg.operating_point
+    name = args.pipeline or PIPELINE
+    if "," in name or name == "all":
+        raise ValueError(f"--recording runs one pipeline, got {name!r}")
+    lo = op.min_m if args.min_range is None else args.min_range
+    hi = op.max_m if args.max_range is None else args.max_range
+    pipe = make_pipeline(name, cfg, lo, hi)
+    cam = ReplayCamera(args.recording)
+    if (cam.width, cam.height) != (cfg.width, cfg.height):
+        raise ValueError(f"{args.recording}: frames are {cam.width}x{cam.height}, the configuration "
+                         f"{cfg.name!r} expects {cfg.width}x{cfg.height}")
+    truth = _load_truth(args.truth, cfg) if args.truth else None
+    pairing, neighbours, unknown = NeighbourPairing(), [], 0
+    cam.start()
+    while True:
+        try:
+            frame = cam.capture()
+        except EndOfRecording:
+            break
+        if frame.lit is None:  # no lit flag: this frame cannot be paired, nor across it
+            unknown += 1
+            pairing.reset()
+            continue
+        found = pairing.push(frame, frame.lit)
+        neighbours += [found] if found else []
+    last = pairing.flush()
+    neighbours += [last] if last else []
+    if not neighbours:
+        raise ValueError(f"{args.recording}: no lit frame with an unlit neighbour"
+                         + (f" ({unknown} frames have no lit flag)" if unknown else ""))
+    W = cfg.width
+    n = len(neighbours)
+    out = {"row": np.full((n, W), np.nan), "points": np.full((n, W, 3), np.nan),
+           "status": np.full((n, W), NOT_PROCESSED, np.uint8), "time_ns": np.full((n, W), np.nan),
+           "lit_seq": np.array([f.lit.seq for f in neighbours], np.int64)}
+    score = Score()
+    if hasattr(pipe, "reset"):
+        pipe.reset()
+    for k, f in enumerate(neighbours):
+        meas = pipe.process(f.lit, f.unlit, other_unlit=f.other_unlit)
+        c = np.asarray(meas.column)
+        out["row"][k, c], out["points"][k, c], out["status"][k, c] = meas.row, meas.points, meas.status
+        out["time_ns"][k, c] = column_times_ns(f.lit, meas.row)
+        if truth is not None:
+            if f.lit.seq not in truth:
+                raise ValueError(f"{args.truth}: no truth for frame seq {f.lit.seq}")
+            score.add(meas, truth[f.lit.seq])
+    if args.out:
+        np.savez_compressed(args.out, **out)
+    result = {"variant": name, "recording": args.recording, "scans": n, "frames_without_lit_flag": unknown,
+              "out": args.out}
+    if truth is not None:
+        result.update(score.summary())
+        result["valid_fraction_within_2_5m"] = score.valid_fraction_within(2.5)
+        result["resolution_deg"] = getattr(pipe, "resolution_deg", float("nan"))
+    return result
+
+
+def _load_truth(path: str, cfg) -> dict:
+    """{seq: FrameTruth} of a truth.npz as ``laserpi simulate`` writes it."""
+    import numpy as np
+
+    from ..sim.truth import FrameTruth
+
+    with np.load(path) as z:
+        missing = [k for k in ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows") if k not in z.files]
+        if missing:
+            raise ValueError(f"{path}: not a truth file of laserpi simulate, missing {', '.join(missing)}")
+        if z["row"].shape[1] != cfg.width:
+            raise ValueError(f"{path}: truth is {z['row'].shape[1]} columns wide, the configuration {cfg.width}")
+        return {int(s): FrameTruth(z["row"][i], z["range_m"][i], z["angle_rad"][i], z["points"][i], z["surface"][i],
+                                   z["lit_rows"][i], z["time_ns"][i] if "time_ns" in z.files else None)
+                for i, s in enumerate(z["seq"])}
 
 
 def _fmt(v, spec=".3f") -> str:
@@ -72,9 +193,14 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 1:
         print("laserpi evaluate: --frames must be >= 1")
         return 2
+    if args.recording is None and (args.out or args.truth):
+        print("laserpi evaluate: --out and --truth go with --recording")
+        return 2
     try:
+        if args.recording is not None:
+            return _report_recording(reprocess(args), args.json)
         results = evaluate(args)
-    except (ConfigError, SceneError, ValueError) as exc:
+    except (ConfigError, SceneError, ValueError, OSError) as exc:
         print(f"laserpi evaluate: {exc}")
         return 2
     if args.json:
@@ -82,15 +208,32 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(f"scene {args.scene}, {args.frames} frame pair(s), simulated (sensor noise, speckle, rolling shutter)")
     for s in results:
-        print(f"\n{s['variant']}: sub-pixel RMS {_fmt(s['subpixel_rms_px'])} px (bias {_fmt(s['subpixel_bias_px'], '+.3f')}), "
-              f"valid {_fmt(s['valid_fraction'])} of {s['columns_with_return']} columns with a return "
-              f"({_fmt(s['valid_fraction_within_2_5m'])} within 2.5 m), false returns "
-              f"{_fmt(s['false_return_fraction'], '.4f')} of {s['columns_without_return']} empty columns, "
-              f"gross errors {_fmt(s['gross_error_fraction'], '.4f')}, resolution {_fmt(s['resolution_deg'], '.2f')} deg")
-        if s["range_error_by_distance"]:
-            print(f"  {'range bin (m)':>14} {'columns':>8} {'valid':>6} {'mean %':>8} {'std %':>7} {'p95 %':>7}")
-        for b in s["range_error_by_distance"]:
-            lo, hi = b["bin_m"]
-            print(f"  {lo:>6.1f} - {hi:<5.1f} {b['columns']:>8d} {_fmt(b['valid_fraction'], '.3f'):>6} "
-                  f"{_fmt(b['mean_pct'], '+.2f'):>8} {_fmt(b['std_pct'], '.2f'):>7} {_fmt(b['p95_abs_pct'], '.2f'):>7}")
+        _print_score(s)
     return 0
+
+
+def _report_recording(result: dict, as_json: bool) -> int:
+    if as_json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"{result['recording']}: {result['scans']} scan(s) by {result['variant']}"
+          + (f" -> {result['out']}" if result["out"] else "")
+          + (f"; {result['frames_without_lit_flag']} frame(s) without a lit flag skipped"
+             if result["frames_without_lit_flag"] else ""))
+    if "valid_fraction" in result:
+        _print_score(result)
+    return 0
+
+
+def _print_score(s: dict) -> None:
+    print(f"\n{s['variant']}: sub-pixel RMS {_fmt(s['subpixel_rms_px'])} px (bias {_fmt(s['subpixel_bias_px'], '+.3f')}), "
+          f"valid {_fmt(s['valid_fraction'])} of {s['columns_with_return']} columns with a return "
+          f"({_fmt(s['valid_fraction_within_2_5m'])} within 2.5 m), false returns "
+          f"{_fmt(s['false_return_fraction'], '.4f')} of {s['columns_without_return']} empty columns, "
+          f"gross errors {_fmt(s['gross_error_fraction'], '.4f')}, resolution {_fmt(s['resolution_deg'], '.2f')} deg")
+    if s["range_error_by_distance"]:
+        print(f"  {'range bin (m)':>14} {'columns':>8} {'valid':>6} {'mean %':>8} {'std %':>7} {'p95 %':>7}")
+    for b in s["range_error_by_distance"]:
+        lo, hi = b["bin_m"]
+        print(f"  {lo:>6.1f} - {hi:<5.1f} {b['columns']:>8d} {_fmt(b['valid_fraction'], '.3f'):>6} "
+              f"{_fmt(b['mean_pct'], '+.2f'):>8} {_fmt(b['std_pct'], '.2f'):>7} {_fmt(b['p95_abs_pct'], '.2f'):>7}")

@@ -2,9 +2,12 @@
 
 Writes to ``--out DIR``: ``frames.npz`` (a recording ReplayCamera plays back), ``truth.npz``
 (per frame: ``row`` (N, W), ``range_m``, ``angle_rad``, ``points`` (N, W, 3), ``surface``,
-``lit_rows`` (N, H)), ``metadata.json`` (scene, configuration, seed, timing, render options,
+``lit_rows`` (N, H), ``time_ns`` (N, W): when each column's laser light came, NaN for a still
+scene, where it does not matter, and where there is no return; ``seq`` (N,)), ``metadata.json`` (scene, configuration, seed, timing, render options,
 sensor constants) and with ``--png`` ``scene.png``, the scene from above with the laser hits.
 The laser fires on every ``--every``-th frame (a pulse schedule, see device/sim/pulses.py).
+The sensor can move and the light flicker (``--yaw-rate-deg-s``, ``--speed-m-s``,
+``--ambient-scale``, ``--flicker-hz``, ``--flicker-depth``, or the scene's own, device/sim/scene.py).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import json
 import math
 from pathlib import Path
 
-from .argtypes import positive_float
+from .argtypes import add_motion_arguments, positive_float, scene_with_motion
 
 EFFECTS = ("noise", "speckle", "ambient", "gloss", "texture", "rolling_shutter")
 
@@ -38,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--isp-denoise", type=float, default=0.0, help="ISP denoise strength 0..1 (default off)")
     parser.add_argument("--isp-sharpen", type=float, default=0.0, help="ISP sharpening amount 0..2 (default off)")
     parser.add_argument("--off", action="append", default=[], choices=EFFECTS, help="switch an effect off (repeatable)")
+    add_motion_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         cfg = load_config(args.config) if args.config else load_preset("thesis-calibrated")
-        scene = get_scene(args.scene)
+        scene = scene_with_motion(get_scene(args.scene), args)
         sensor = SIMULATOR_DEFAULT if args.analog_gain is None else dataclasses.replace(SIMULATOR_DEFAULT, analog_gain=args.analog_gain)
     except (ConfigError, SceneError, ValueError) as exc:
         print(f"error: {exc}")
@@ -89,8 +93,11 @@ def run(args: argparse.Namespace) -> int:
     cam.stop()
     frames, truths = [f for f, _ in shots], [t for _, t in shots]
     save_recording(out / "frames.npz", frames)
-    np.savez_compressed(out / "truth.npz", **{k: np.stack([getattr(t, k) for t in truths])
-                                              for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")})
+    nan = np.full(cfg.width, np.nan)
+    np.savez_compressed(out / "truth.npz", seq=np.array([f.seq for f in frames]),
+                        time_ns=np.stack([nan if t.time_ns is None else t.time_ns for t in truths]),
+                        **{k: np.stack([getattr(t, k) for t in truths])
+                           for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")})
     r = cam.renderer
     meta = {
         "scene": scene.name, "config": cfg.name, "seed": args.seed, "frames": args.frames,
@@ -100,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
         "ambient_w_m2": r.ambient_w_m2, "render_options": dataclasses.asdict(options),
         "sensor": dataclasses.asdict(sensor), "noise_model": "Gaussian shot (var = N_e) + read noise, 10-bit ADC, linear 8-bit Y",
         "lit": [f.lit for f in frames], "seq": [f.seq for f in frames], "simulated": True,
+        "motion": {"yaw_rate_deg_s": math.degrees(scene.motion.yaw_rate_rad_s), "speed_m_s": scene.motion.speed_m_s,
+                   "objects_move": scene.objects_move},
+        "ambient_scale": scene.ambient_scale, "flicker": dataclasses.asdict(scene.flicker),
     }
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))
     valid = np.isfinite(truths[0].row)

@@ -1,20 +1,34 @@
-"""A frame pair -> ranges and quality on the scan's uniform angles: what the scan source
-(device/scan/source.py) runs for each pair, made of a device.vision Pipeline by ScanPipeline."""
+"""A lit frame and its unlit neighbours -> ranges, quality and times on the scan's uniform
+angles: what the scan source (device/scan/source.py) runs for each lit frame, made of a
+device.vision Pipeline by ScanPipeline."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from device.camera.frame import Frame
 from device.model.scan_frame import uniform_angles
+from device.scan.timing import column_times_ns, scan_timing
 
 if TYPE_CHECKING:
     from device.vision.measurements import Pipeline
 
-#: (lit, dark) -> ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry.
-ScanFunction = Callable[[Frame, Frame], tuple[np.ndarray, np.ndarray]]
+@dataclass(frozen=True)
+class ScanRays:
+    """Ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry, and
+    when ray 0 was measured and the step per ray (device.scan.timing)."""
+
+    ranges: np.ndarray
+    quality: np.ndarray
+    first_ray_ns: int
+    ray_interval_ns: int
+
+
+#: (lit, the nearest unlit neighbour, the other unlit neighbour or None) -> ScanRays.
+ScanFunction = Callable[[Frame, Frame, "Frame | None"], ScanRays]
 
 
 class ScanPipeline:
@@ -31,10 +45,10 @@ class ScanPipeline:
         self.angle_min, self.angle_max = float(a.min()), float(a.max())
         self.angles = uniform_angles(self.angle_min, self.angle_max, count)
 
-    def __call__(self, lit: Frame, dark: Frame) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, lit: Frame, dark: Frame, other_dark: Frame | None = None) -> ScanRays:
         from device.vision.measurements import to_laser_scan
 
-        meas = self.pipeline.process(lit, dark)
+        meas = self.pipeline.process(lit, dark, other_unlit=other_dark)
         _, ranges = to_laser_scan(meas, self.angle_min, self.angle_max, self.angles.size)
         ok = np.isfinite(meas.angle)
         order = np.argsort(meas.angle[ok])
@@ -43,4 +57,8 @@ class ScanPipeline:
         nearest = np.where(np.abs(a[idx - 1] - self.angles) <= np.abs(a[np.minimum(idx, a.size - 1)] - self.angles),
                            idx - 1, np.minimum(idx, a.size - 1))
         quality = np.where(np.isfinite(ranges), np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8)
-        return ranges.astype(np.float32), quality
+        times = column_times_ns(lit, np.asarray(meas.row, dtype=np.float64)[ok][order])[nearest]
+        g = self.pipeline.geometry
+        timing = scan_timing(np.where(np.isfinite(ranges), times, np.nan),
+                             column_times_ns(lit, np.array((g.roi_lo.min() + g.roi_hi.max()) / 2)))
+        return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns)

@@ -6,12 +6,12 @@ Composed of narrow interfaces so that the same orchestration runs on a Pi and in
   (no frame in time: CaptureTimeout, or None);
 * the laser (device.laser.base.Laser): the line laser pulsed by the co-MCU and kept in step with
   the camera: ``start(frame)``, ``stop()``, ``frame_lit(frame)``, ``locked``;
-* the scan function (device.scan.pipeline.ScanFunction): ``(lit, dark) -> (ranges_m, quality)``
-  on the scan's angles; a device.vision pipeline through ScanPipeline.
+* the scan function (device.scan.pipeline.ScanFunction): ``(lit, dark, other_dark) -> ScanRays``
+  (ranges, quality and ray times on the scan's angles); a device.vision pipeline through ScanPipeline.
 
 ``SensorSource`` joins them into the ScanSource the link server (protocol/server.py) streams from.
-It pairs each lit frame with its neighbouring unlit frame (frame differencing, docs/thesis-notes.md N10) into
-one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
+It pairs each lit frame with its neighbouring unlit frames (frame differencing, docs/thesis-notes.md N10;
+both neighbours, device/scan/pairing.py) into one scan, and it never raises out of ``next_scan``: every failure degrades and is reported in
 ``status()`` (HEALTH.errors, codes protocol.messages.ErrorCode, and HEALTH's fault counters) and
 ``LinkSupervisor.health()`` (device/link/supervisor.py) instead:
 
@@ -42,6 +42,7 @@ import numpy as np
 from device.camera.base import Camera, CaptureTimeout
 from device.camera.frame import Frame
 from device.laser.base import Laser, LaserError
+from device.scan.pairing import NeighbourPairing
 from device.scan.pipeline import ScanFunction
 from protocol import messages as m
 from protocol.median import median_filter
@@ -96,7 +97,7 @@ class SensorSource:
         self._next_laser_try = 0.0
         self._last_frame_at = 0.0
         self._last_seq: int | None = None
-        self._pending: tuple[Frame, bool] | None = None
+        self._pairing = NeighbourPairing()
         self._errors: set[int] = {m.ErrorCode.SYNC_DEGRADED} if sync_degraded else set()
 
     # ScanSource
@@ -124,7 +125,7 @@ class SensorSource:
         with self._io:
             self._running = False
             self._laser_off()
-            self._pending = None
+            self._pairing.reset()
             try:
                 self.camera.stop()
             except Exception as exc:  # a failed camera must not keep the laser or the process hostage
@@ -182,20 +183,16 @@ class SensorSource:
             gap = frame.seq - self._last_seq - 1
             if gap > 0:
                 self.counters.frames_dropped += gap
-            self._pending = None
+            self._pairing.reset()
         self._last_seq = frame.seq
         cpu = time.thread_time()
         lit = self._service_laser(frame, now)
         self.counters.cpu_laser_s += time.thread_time() - cpu
         if lit is None:
-            self._pending = None
+            self._pairing.reset()
             return None
-        if self._pending is None or self._pending[1] == lit:
-            self._pending = (frame, lit)
-            return None
-        (other, _), self._pending = self._pending, None
-        lit_frame, dark_frame = (frame, other) if lit else (other, frame)
-        return self._scan(lit_frame, dark_frame)
+        frames = self._pairing.push(frame, lit)
+        return None if frames is None else self._scan(frames.lit, frames.unlit, frames.other_unlit)
 
     def _service_laser(self, frame: Frame, now: float) -> bool | None:
         try:
@@ -227,19 +224,19 @@ class SensorSource:
             self._errors.discard(m.ErrorCode.SYNC_LOST)
         return lit
 
-    def _scan(self, lit: Frame, dark: Frame) -> SourceScan | None:
+    def _scan(self, lit: Frame, dark: Frame, other_dark: Frame | None) -> SourceScan | None:
         n = self._geometry.angles.size
         cpu = time.thread_time()
         try:
-            ranges, quality = self.pipeline(lit, dark)
-            ranges = np.asarray(ranges, dtype=np.float32)
-            quality = np.asarray(quality, dtype=np.uint8)
+            rays = self.pipeline(lit, dark, other_dark)
+            ranges = np.asarray(rays.ranges, dtype=np.float32)
+            quality = np.asarray(rays.quality, dtype=np.uint8)
             if ranges.shape != (n,) or quality.shape != (n,):
                 raise ValueError(f"pipeline returned {ranges.shape} ranges and {quality.shape} qualities for {n} angles")
         except Exception as exc:
             self.counters.pipeline_errors += 1
             self._errors.add(m.ErrorCode.PIPELINE_FAULT)
-            log.exception("pipeline failed on frames %d/%d: %s", lit.seq, dark.seq, exc)
+            log.exception("pipeline failed on lit frame %d: %s", lit.seq, exc)
             return None
         finally:
             self.counters.cpu_pipeline_s += time.thread_time() - cpu
@@ -252,14 +249,16 @@ class SensorSource:
         if s.median_window > 1:
             ranges = median_filter(ranges, s.median_window)
         self.counters.scans_made += 1
-        return SourceScan(lit.sensor_timestamp_ns // 1000, ranges, quality, first_index=s.roi_first)
+        # the host's region of interest starts at ray roi_first: its time moves with it
+        first_ns = rays.first_ray_ns + s.roi_first * rays.ray_interval_ns
+        return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first, ray_interval_ns=rays.ray_interval_ns)
 
     # failures
     def _camera_failed(self, why: str) -> None:
         log.error("camera fault (%s): laser off, restarting the camera", why)
         self._errors.add(m.ErrorCode.CAMERA_FAULT)
         self._laser_off()
-        self._pending = None
+        self._pairing.reset()
         self._restart_camera()
 
     def _restart_camera(self, first: bool = False) -> None:

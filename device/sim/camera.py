@@ -69,7 +69,7 @@ class SimulatedCamera:
                              f"{timing.frame_duration_s * 1e6:g} us")
         if timing.active_rows > cfg.height:
             raise ValueError(f"timing has {timing.active_rows} active rows, the frame only {cfg.height}")
-        self.renderer = SceneRenderer(cfg, scene, sensor, options, seed)
+        self.renderer = SceneRenderer(cfg, scene, sensor, options, seed, time_zero_ns=int(round(timing.start_time_s * 1e9)))
         self.width, self.height, self.line_time_ns = cfg.width, cfg.height, timing.line_time_s * 1e9
         self.readout_offset_rows = cfg.window.top
         self.pulses = pulses
@@ -87,6 +87,7 @@ class SimulatedCamera:
         if self.hardware is not None:
             start_s = self.hardware.now_ns() * 1e-9 + 0.05
             self.clock = CameraClock(replace(self._timing, start_time_s=start_s), self._clock_rng)
+            self.renderer.time_zero_ns = int(round(start_s * 1e9))
             self._next = None
         self._running = True
 

@@ -51,8 +51,26 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    every frame (unless two offsets coincide), but a frame's spatial pattern is a shifted copy of
    part of an earlier frame's (``noise_table=False`` draws afresh, several times slower).
 
+8. *Flicker* (device/sim/motion.py): the ambient light of a row is its irradiance's mean over
+   that row's own exposure window, so the flicker's phase changes from row to row.
+9. *Motion* (issue 16, device/sim/motion.py: the sensor on a robot, moving objects). A scene
+   in which something moves is rendered per frame instead of from the static caches. The
+   background: each row's exposure window is cut into ``n`` equal time slices (so that the image
+   moves at most ``RenderOptions.motion_blur_px`` between two: motion blur), and in each slice
+   every row is cast from where the sensor was at that row's own time (the rolling shutter: each
+   row sees the scene where it was then; translation gives depth-dependent parallax), against
+   the objects where they were (a block of rows per object position: an object moves < 2 mm
+   in that time); a ray every ``motion_step`` pixels, bilinearly interpolated. The laser: the
+   time the pulse lights the frame is cut into slices likewise; in each the laser curve is cast
+   from the sensor's pose then, with its own speckle (speckle decorrelates as the spot moves over
+   the surface), and lights each row for that row's overlap with the slice. The truth of a column
+   is the mean over the slices weighted by that light (the centroid of the smeared line: what a
+   perfect pipeline measures), with its time (``FrameTruth.time_ns``); a column lit in less than
+   half of that light by a surface has no return. Glossy ghosts are not rendered for a moving
+   scene.
+
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
-(no gloss, no ambient, no pulse) costs nothing.
+(no gloss, no ambient, no pulse, no motion) costs nothing.
 
 Anchoring (device.sim.anchoring; BENCHMARKS.md "Simulator"). The thesis's reference pipeline
 (device.vision.reference) at the thesis geometry (thesis-calibrated, 25 mW, 17.4 ms pulse, 40 ms
@@ -88,6 +106,7 @@ from ..model.camera import project_points, undistort_robust, pixel_grid
 from ..model.scan_frame import scan_frame, to_scan_plane
 from ..model.irradiance import band_irradiance_w_m2
 from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
+from .motion import flicker_mean, image_speed_px_s, rotation_z, scene_at, sensor_pose
 from .scene import AMBIENT_FRACTION, Floor, Scene, Wall
 from .sensor import SIMULATOR_DEFAULT, SensorParams, sensor_frame
 from .special import erf
@@ -121,6 +140,9 @@ class RenderOptions:
     noise_table: bool = True  # draw noise from a cached table (fast) instead of per frame
     isp_denoise: float = 0.0  # ISP spatial denoise: blend towards a 3x3 Gaussian, 0 (off) .. 1
     isp_sharpen: float = 0.0  # ISP sharpening: unsharp-mask amount (5x5 Gaussian), 0 (off) .. 2
+    motion_step: int = 4  # moving scenes: background rays every N pixels, per frame
+    motion_blur_px: float = 4.0  # moving scenes: the image moves at most this far between two time slices ...
+    max_time_slices: int = 12  # ... with at most this many slices per exposure (and per pulse)
 
     def __post_init__(self) -> None:
         if not 0 <= self.speckle_contrast <= 1:
@@ -139,8 +161,11 @@ class RenderOptions:
         if not 0 <= self.isp_denoise <= 1 or not 0 <= self.isp_sharpen <= 2:
             raise ValueError(f"render: isp_denoise must be in [0, 1] and isp_sharpen in [0, 2], got "
                              f"{self.isp_denoise}, {self.isp_sharpen}")
-        if self.ray_samples < 16 or self.background_step < 1:
-            raise ValueError("render: ray_samples must be >= 16 and background_step >= 1")
+        if self.ray_samples < 16 or self.background_step < 1 or self.motion_step < 1:
+            raise ValueError("render: ray_samples must be >= 16, background_step and motion_step >= 1")
+        if not self.motion_blur_px > 0 or self.max_time_slices < 1:
+            raise ValueError(f"render: motion_blur_px must be positive and max_time_slices >= 1, got "
+                             f"{self.motion_blur_px}, {self.max_time_slices}")
 
     def without(self, *effects: str) -> "RenderOptions":
         """These options with the named effects switched off, e.g. ``without('noise', 'speckle')``."""
@@ -183,9 +208,9 @@ def ambient_irradiance_w_m2(scene: Scene, cfg: SensorConfig) -> float:
     """In-band ambient irradiance on the scene's surfaces: the scene's own figure, or its fraction
     (AMBIENT_FRACTION) of the AM1.5 solar irradiance through the configured bandpass (thesis 3.4)."""
     if scene.ambient_w_m2 is not None:
-        return scene.ambient_w_m2
+        return scene.ambient_w_m2 * scene.ambient_scale
     sun = band_irradiance_w_m2(cfg.laser.wavelength_m * 1e9, cfg.optics.bandpass_width_m * 1e9)
-    return AMBIENT_FRACTION[scene.ambient] * sun
+    return AMBIENT_FRACTION[scene.ambient] * sun * scene.ambient_scale
 
 
 def photons_per_joule(wavelength_m: float) -> float:
@@ -241,11 +266,13 @@ class SceneRenderer:
 
     ``render(timing, rng)`` -> (uint8 image, FrameTruth); ``expected_electrons(timing)`` -> the
     noise-free expected electrons per pixel (float32) that the sensor model turns into a frame.
+    ``time_zero_ns``: CLOCK_MONOTONIC of the scene's time zero (motion and flicker, step 8-9).
     """
 
     def __init__(self, cfg: SensorConfig, scene: Scene, sensor: SensorParams = SIMULATOR_DEFAULT,
-                 options: RenderOptions = RenderOptions(), seed: int = 0):
+                 options: RenderOptions = RenderOptions(), seed: int = 0, time_zero_ns: int = 0):
         self.cfg, self.scene, self.sensor, self.options, self.seed = cfg, scene, sensor, options, seed
+        self.time_zero_ns = time_zero_ns
         self.height, self.width = cfg.height, cfg.width
         self.active_height = cfg.active_height or cfg.height
         self.active_width = cfg.active_width or cfg.width
@@ -260,24 +287,36 @@ class SceneRenderer:
         ghosts = self._ghosts(lit, k_col) if options.gloss else []
         self._splat = self._splat_table([primary, *ghosts])
         self.ambient_w_m2 = ambient_irradiance_w_m2(scene, cfg)
-        self._ambient = self._ambient_rate() if options.ambient and self.ambient_w_m2 > 0 else None
+        lit_by_ambient = options.ambient and self.ambient_w_m2 > 0
+        self._ambient = self._ambient_rate() if lit_by_ambient and scene.still else None
+        self._moving_rays = self._background_rays(options.motion_step) if lit_by_ambient and not scene.still else None
+        self._k_col = k_col
         self._normals = None
 
     # ------------------------------------------------------------ static geometry
-    def _laser_curve(self, k_col: float) -> tuple[_Crossings, dict]:
+    def _laser_curve(self, k_col: float, pose: tuple[float, float, float] | None = None,
+                     prims=None) -> tuple[_Crossings, dict]:
+        """The lit curve (step 1); for a moving scene with the sensor at ``pose`` (yaw, x, y) in
+        the scene's frame and the scene's primitives ``prims`` at that time."""
         cfg = self.cfg
+        prims = self._prims if prims is None else prims
         half = cfg.laser.fan_angle_rad / 2
         theta = np.linspace(-half, half, self.options.ray_samples)
         dirs = np.stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)], axis=-1)
-        hits = cast(np.zeros(3), dirs, laser_prims(self._prims))
+        origin, camera, dirs_w = np.zeros(3), self.camera_scan, dirs
+        if pose is not None:
+            rot = rotation_z(np.float64(pose[0]))
+            origin = np.array([pose[1], pose[2], 0.0])
+            camera, dirs_w = origin + rot @ self.camera_scan, dirs @ rot.T
+        hits = cast(origin, dirs_w, laser_prims(prims))
         hit = hits.surface >= 0
         p_scan = dirs * np.where(hit, hits.t, 0.0)[:, None]
-        cos_i = np.abs(np.sum(hits.normal * dirs, axis=-1))
+        cos_i = np.abs(np.sum(hits.normal * dirs_w, axis=-1))
         refl = self._reflectivity(hits)
         lit = {"p_scan": p_scan, "hit": hit, "surface": hits.surface, "r": hits.t, "cos_i": cos_i, "refl": refl}
         # visible from the camera: nothing between the optical centre and the point
-        to_p = p_scan - self.camera_scan
-        seen = cast(self.camera_scan, to_p, self._prims)
+        to_p = (p_scan - self.camera_scan) if pose is None else (origin + dirs_w * np.where(hit, hits.t, 0.0)[:, None] - camera)
+        seen = cast(camera, to_p, prims)
         visible = hit & (seen.t >= 1 - 1e-7)
         cross = self._project_and_resample(p_scan, visible, hits.surface, k_col * refl * cos_i / np.where(hit, hits.t, 1.0))
         return cross, lit
@@ -302,7 +341,8 @@ class SceneRenderer:
                 continue
             f = 1.0
             if self.options.texture and s.material.texture != "plain":
-                f = texture_factor(s.material.texture, hits.texcoord[m], s.material.texture_scale_m, self._tex_seed + i)
+                f = texture_factor(s.material.texture, hits.texcoord[m], s.material.texture_scale_m, self._tex_seed + i,
+                                   s.material.texture_depth)
             refl[m] = np.minimum(s.material.reflectivity * f, 1.0)
         return refl
 
@@ -365,8 +405,10 @@ class SceneRenderer:
         inten = (inten - inten.mean()) / inten.std()
         return np.clip(1.0 + self.options.speckle_contrast * inten, 0.0, None)
 
-    def _splat_table(self, curves: Sequence[_Crossings]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(flat pixel index, electrons/s, row) of the laser line, duplicates summed."""
+    def _splat_table(self, curves: Sequence[_Crossings],
+                     speckle_rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(flat pixel index, electrons/s, row) of the laser line, duplicates summed; coherent
+        speckle from ``speckle_rng`` (default: this scene's, static)."""
         cols = np.concatenate([c.col for c in curves])
         rows = np.concatenate([c.row for c in curves])
         rate = np.concatenate([c.rate for c in curves])
@@ -383,7 +425,8 @@ class SceneRenderer:
             o = self.cfg.optics
             r, frac = coherent_line_profiles(
                 rows, line_sigma, opt.blur_sigma_px, o.pixel_pitch_m / (2 * self.cfg.laser.wavelength_m * o.f_number),
-                opt.speckle_contrast, half, opt.speckle_subsamples, self._speckle_rng(0xC0E7), opt.defocus_sigma_px)
+                opt.speckle_contrast, half, opt.speckle_subsamples,
+                speckle_rng if speckle_rng is not None else self._speckle_rng(0xC0E7), opt.defocus_sigma_px)
         else:
             r = np.floor(rows)[:, None] + np.arange(-half, half + 1)[None, :]
             s2 = math.sqrt(2) * sigma[:, None]
@@ -401,23 +444,35 @@ class SceneRenderer:
         summed = np.bincount(inv, weights=val)
         return uniq, summed.astype(np.float32), uniq // self.width
 
-    def _ambient_rate(self) -> np.ndarray:
-        """(H, W) float32 ambient electrons per second per pixel, zero outside the active area."""
-        step = self.options.background_step
+    def _background_rays(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rays every ``step`` pixels of the active area: ((hh, ww, 3) directions in the scan
+        frame, (hh, ww) valid)."""
         hh, ww = -(-self.active_height // step), -(-self.active_width // step)
         grid = pixel_grid(ww, hh) * step + (step - 1) / 2
         un = undistort_robust(grid.reshape(-1, 2), self.cfg.camera, tol_px=1e-3)
         xy = np.where(un.valid[:, None], un.xy, 0.0)
         d_cam = np.concatenate([xy, np.ones_like(xy[:, :1])], axis=-1)
-        d_scan = d_cam @ self.frame.rotation.T
-        hits = cast(self.camera_scan, d_scan, self._prims)
+        return (d_cam @ self.frame.rotation.T).reshape(hh, ww, 3), un.valid.reshape(hh, ww)
+
+    def _background_reflectivity(self, origin: np.ndarray, d_scan: np.ndarray, prims) -> np.ndarray:
+        """Reflectivity seen along rays ``origin + t d_scan`` ((N, 3) or (3,), (N, 3)), backdrop included."""
+        hits = cast(origin, d_scan, prims)
         refl = self._reflectivity(hits)
         nohit = hits.surface < 0
         if nohit.any() and self.options.texture:  # backdrop: texture by direction
             az = np.arctan2(d_scan[nohit, 1], d_scan[nohit, 0]) * 40
-            el = d_scan[nohit, 2] / np.linalg.norm(d_scan[nohit], axis=-1) * 40
+            d = d_scan[nohit]
+            el = d[:, 2] / np.sqrt(np.einsum("ij,ij->i", d, d)) * 40
             refl[nohit] *= 1 + 0.3 * (2 * value_noise(az, el, self.seed + 99) - 1)
-        refl[~un.valid] = 0.0
+        return refl
+
+    def _ambient_rate(self) -> np.ndarray:
+        """(H, W) float32 ambient electrons per second per pixel, zero outside the active area."""
+        step = self.options.background_step
+        d_scan, valid = self._background_rays(step)
+        hh, ww = valid.shape
+        refl = self._background_reflectivity(self.camera_scan, d_scan.reshape(-1, 3), self._prims)
+        refl[~valid.ravel()] = 0.0
         rate = (refl * self.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)).reshape(hh, ww)
         full = np.repeat(np.repeat(rate, step, axis=0), step, axis=1)[: self.active_height, : self.active_width]
         out = np.zeros((self.height, self.width), dtype=np.float32)
@@ -428,7 +483,11 @@ class SceneRenderer:
     def expected_electrons(self, timing: FrameTiming) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) float32 expected electrons and the (H,) per-row pulse overlap in seconds."""
         overlap = row_overlap_s(timing, self.height, self.options.rolling_shutter)
-        if self._ambient is not None:
+        if self._ambient is not None and self.scene.flicker.depth:
+            start, end = self._row_windows_s(timing)
+            e = self._ambient * (np.float32(timing.exposure_us * 1e-6) * flicker_mean(self.scene.flicker, start, end)
+                                 .astype(np.float32))[:, None]
+        elif self._ambient is not None:
             e = self._ambient * np.float32(timing.exposure_us * 1e-6)
         else:
             e = np.zeros((self.height, self.width), dtype=np.float32)
@@ -439,7 +498,11 @@ class SceneRenderer:
 
     def render(self, timing: FrameTiming, rng: np.random.Generator) -> tuple[np.ndarray, FrameTruth]:
         """One frame (uint8 (H, W)) and its ground truth; deterministic for the rng's state."""
-        e, overlap = self.expected_electrons(timing)
+        if self.scene.still:
+            e, overlap = self.expected_electrons(timing)
+            truth = replace(self.truth_template, lit_rows=overlap > 0)
+        else:
+            e, overlap, truth = self._moving_frame(timing, np.random.default_rng(rng.integers(2**63)))
         normals = None
         if self.options.noise and self.options.noise_table:
             n = e.size
@@ -450,7 +513,113 @@ class SceneRenderer:
         image = sensor_frame(e, rng if self.options.noise else None, self.sensor, normals=normals)
         if self.options.isp_denoise or self.options.isp_sharpen:
             image = isp_filter(image, self.options.isp_denoise, self.options.isp_sharpen)
-        return image, replace(self.truth_template, lit_rows=overlap > 0)
+        return image, truth
+
+    # ------------------------------------------------------------ per frame, moving scenes (step 9)
+    def _row_windows_s(self, timing: FrameTiming) -> tuple[np.ndarray, np.ndarray]:
+        """(H,) start and end of each row's exposure, seconds after the scene's time zero."""
+        lt = timing.line_time_ns if self.options.rolling_shutter else 0.0
+        end = (timing.sensor_timestamp_ns - self.time_zero_ns + np.arange(self.height) * lt) * 1e-9
+        return end - timing.exposure_us * 1e-6, end
+
+    def _slices(self, span_s: float) -> int:
+        """Time slices for a span: the image moves at most motion_blur_px between two."""
+        speed = image_speed_px_s(self.scene, self.cfg.camera.intrinsics.fx)
+        return int(min(max(math.ceil(speed * span_s / self.options.motion_blur_px), 1), self.options.max_time_slices))
+
+    def _moving_frame(self, timing: FrameTiming, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, FrameTruth]:
+        e = np.zeros((self.height, self.width), dtype=np.float32)
+        if self._moving_rays is not None:
+            self._moving_background(timing, e)
+        overlap = np.zeros(self.height)
+        parts = []  # (FrameTruth of a slice, (H,) seconds each row is lit in it, slice time)
+        t0, t1 = (timing.sensor_timestamp_ns - timing.exposure_us * 1e3,
+                  timing.sensor_timestamp_ns + (self.height - 1) * timing.line_time_ns)
+        for on, off in timing.pulses_ns:
+            a, b = max(on, t0), min(off, t1)
+            if b <= a:
+                continue
+            n = self._slices((b - a) * 1e-9)
+            for k in range(n):
+                lo, hi = a + (b - a) * k / n, a + (b - a) * (k + 1) / n
+                t_s = ((lo + hi) / 2 - self.time_zero_ns) * 1e-9
+                ov = row_overlap_s(replace(timing, pulses_ns=((lo, hi),)), self.height, self.options.rolling_shutter)
+                if not ov.any():
+                    continue
+                # when each row got this slice's light: the middle of its exposure's overlap with the slice
+                start, end = self._row_windows_s(timing)
+                t_rows = (np.maximum(start, (lo - self.time_zero_ns) * 1e-9) + np.minimum(end, (hi - self.time_zero_ns) * 1e-9)) / 2
+                pose = tuple(float(x) for x in sensor_pose(self.scene.motion, t_s))
+                cross, _ = self._laser_curve(self._k_col, pose, primitives(scene_at(self.scene, t_s)))
+                flat, val, rows = self._splat_table([cross], rng)
+                if flat.size:
+                    e.ravel()[flat] += val * ov[rows].astype(np.float32)
+                overlap += ov
+                parts.append((self._truth(cross), ov, t_rows))
+        if not parts:  # an unlit frame: where the line would have been, mid-exposure of the middle row
+            t_s = ((t0 + t1) / 2 - self.time_zero_ns) * 1e-9
+            pose = tuple(float(x) for x in sensor_pose(self.scene.motion, t_s))
+            cross, _ = self._laser_curve(self._k_col, pose, primitives(scene_at(self.scene, t_s)))
+            parts.append((self._truth(cross), np.ones(self.height), np.full(self.height, t_s)))
+        return e, overlap, self._mean_truth(parts, overlap > 0)
+
+    def _moving_background(self, timing: FrameTiming, e: np.ndarray) -> None:
+        """Adds the ambient light of a moving scene to ``e`` (step 9)."""
+        import cv2
+
+        d_scan, valid = self._moving_rays
+        hh, ww = valid.shape
+        step = self.options.motion_step
+        start, end = self._row_windows_s(timing)
+        exposure_s = timing.exposure_us * 1e-6
+        n = self._slices(exposure_s)
+        gain = self.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)
+        grid_rows = np.minimum(np.arange(hh) * step + (step - 1) // 2, self.height - 1)
+        block = 16  # grid rows per position of the moving objects
+        h, w = self.active_height, self.active_width
+        for k in range(n):
+            t_row = start[grid_rows] + (k + 0.5) * exposure_s / n
+            yaw, x, y = sensor_pose(self.scene.motion, t_row)
+            origin = np.stack([x, y, np.zeros_like(x)], -1) + rotation_z(yaw) @ self.camera_scan  # (hh, 3)
+            c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]  # each grid row's directions turned by its yaw
+            d_w = np.stack([c * d_scan[..., 0] - s * d_scan[..., 1], s * d_scan[..., 0] + c * d_scan[..., 1],
+                            d_scan[..., 2]], -1)
+            refl = np.empty((hh, ww))
+            for r0 in range(0, hh, block):
+                r1 = min(r0 + block, hh)
+                prims = primitives(scene_at(self.scene, float(t_row[(r0 + r1) // 2])))
+                o = np.repeat(origin[r0:r1], ww, axis=0)
+                refl[r0:r1] = self._background_reflectivity(o, d_w[r0:r1].reshape(-1, 3), prims).reshape(r1 - r0, ww)
+            refl[~valid] = 0.0
+            full = cv2.resize(refl.astype(np.float32), (ww * step, hh * step), interpolation=cv2.INTER_LINEAR)[:h, :w]
+            lo = start + k * exposure_s / n
+            light = (exposure_s / n * gain * flicker_mean(self.scene.flicker, lo, lo + exposure_s / n)).astype(np.float32)
+            e[:h, :w] += full * light[:h, None]
+
+    def _mean_truth(self, parts: list, lit_rows: np.ndarray) -> FrameTruth:
+        """The truth of a moving frame: each column's mean over the laser's time slices weighted by
+        the light each gave the column's line (step 9)."""
+        W = self.width
+        rows = np.stack([p.row for p, _, _ in parts])  # (S, W)
+        present = np.isfinite(rows)
+        ref_row = np.where(present, rows, 0.0).sum(axis=0) / np.maximum(present.sum(axis=0), 1)
+        ref = np.clip(np.rint(ref_row), 0, self.height - 1).astype(np.intp)
+        weight = np.stack([ov[ref] for _, ov, _ in parts])  # (S, W) light of each slice at the column's line
+        w_in = np.where(present, weight, 0.0)
+        total, lit = weight.sum(axis=0), w_in.sum(axis=0)
+        has = (lit > 0) & (lit >= 0.5 * total)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wn = w_in / lit
+        mean = lambda a: np.sum(np.where(present[..., None] if a.ndim == 3 else present, a, 0.0) *  # noqa: E731
+                                (wn[..., None] if a.ndim == 3 else wn), axis=0)
+        row = np.where(has, mean(rows), np.nan)
+        points = np.where(has[:, None], mean(np.stack([p.points for p, _, _ in parts])), np.nan)
+        times = np.stack([t[ref] for _, _, t in parts])  # (S, W)
+        time_ns = np.where(has, mean(times) * 1e9 + self.time_zero_ns, np.nan)
+        surface = np.stack([p.surface for p, _, _ in parts])[np.argmax(w_in, axis=0), np.arange(W)]
+        angle, rng_m = to_scan_plane(points, self.frame)
+        return FrameTruth(row, np.where(has, rng_m, np.inf), np.where(has, angle, np.nan), points,
+                          np.where(has, surface, -1), lit_rows, time_ns)
 
 
 def speckle_pattern_weights(contrast: float) -> np.ndarray:

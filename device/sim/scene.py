@@ -25,15 +25,36 @@ layout (walls, boxes, cylinders as vertical prisms with a height range) plus an 
     center = [1.2, -0.4]
     radius = 0.1
 
-Every surface takes ``reflectivity`` (diffuse, (0, 1]), ``gloss`` ([0, 1)), ``texture`` and
-``texture_scale_m``. Errors name the file, the surface and the field.
+Every surface takes ``reflectivity`` (diffuse, (0, 1]), ``gloss`` ([0, 1)), ``texture``,
+``texture_scale_m`` and ``texture_depth`` (the texture's contrast: reflectivity x (1 +- depth),
+default 0.3; a poster or a door frame against a pale wall is 0.8 or more).
+
+Motion (issue 16; device/sim/motion.py moves everything, at time t seconds after the scene's
+time zero, which the simulated camera puts at its first frame's exposure)::
+
+    ambient_scale = 3.0         # the ambient irradiance times this (a window, a halogen lamp)
+    flicker_hz = 100.0          # the ambient light's flicker (twice the mains frequency) ...
+    flicker_depth = 0.3         # ... and its modulation depth: irradiance x (1 + depth sin 2 pi f t)
+    [motion]                    # the sensor on a robot: a constant yaw rate and forward speed
+    yaw_rate_deg_s = 90.0       # counter-clockwise (REP 103), about the scan frame's z axis
+    speed_m_s = 0.5             # along the sensor's x axis (forward)
+    [[cylinder]]                # a person crossing: a moving box or cylinder
+    center = [1.5, -1.0]
+    radius = 0.2
+    velocity = [0.0, 1.2]       # m/s in the scene's frame
+    [[wall]]                    # a door swinging about its hinge ('from')
+    from = [1.2, 0.3]
+    to = [1.2, 1.1]
+    swing_deg_s = 90.0          # counter-clockwise
+
+A scene with none of these is still: rendered exactly as before.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +82,9 @@ class Material:
     gloss: float = 0.0
     texture: str = "noise"
     texture_scale_m: float = 0.05
+    # left out of repr (the speckle's random numbers are keyed by the scene's repr): scenes that
+    # differ only in texture contrast or motion keep one speckle pattern
+    texture_depth: float = field(default=0.3, repr=False)
 
 
 @dataclass(frozen=True)
@@ -69,6 +93,7 @@ class Wall:
     end: tuple[float, float]
     z_range: tuple[float, float] = (-1.0, 2.0)
     material: Material = Material()
+    swing_rad_s: float = field(default=0.0, repr=False)  # a door: turns about ``start`` (counter-clockwise)
 
 
 @dataclass(frozen=True)
@@ -78,6 +103,7 @@ class Box:
     yaw_rad: float = 0.0
     z_range: tuple[float, float] = (-1.0, 2.0)
     material: Material = Material()
+    velocity: tuple[float, float] = field(default=(0.0, 0.0), repr=False)  # m/s
 
     def corners(self) -> list[tuple[float, float]]:
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
@@ -94,12 +120,33 @@ class Cylinder:
     radius: float
     z_range: tuple[float, float] = (-1.0, 2.0)
     material: Material = Material()
+    velocity: tuple[float, float] = field(default=(0.0, 0.0), repr=False)  # m/s (a person crossing)
 
 
 @dataclass(frozen=True)
 class Floor:
     z: float
     material: Material = Material(reflectivity=0.3)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The sensor's motion: a constant yaw rate (rad/s, counter-clockwise) and forward speed (m/s)."""
+
+    yaw_rate_rad_s: float = 0.0
+    speed_m_s: float = 0.0
+
+    @property
+    def still(self) -> bool:
+        return self.yaw_rate_rad_s == 0 and self.speed_m_s == 0
+
+
+@dataclass(frozen=True)
+class Flicker:
+    """Mains flicker of the ambient light: irradiance x (1 + depth sin(2 pi hz t))."""
+
+    hz: float = 100.0
+    depth: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -111,11 +158,24 @@ class Scene:
     floor: Floor | None = None
     ambient: str = "indoor"  # a key of AMBIENT_FRACTION
     ambient_w_m2: float | None = None  # in-band irradiance on surfaces, overrides ``ambient``
+    # issue 16, left out of repr like Material.texture_depth
+    ambient_scale: float = field(default=1.0, repr=False)
+    flicker: Flicker = field(default=Flicker(), repr=False)
+    motion: Motion = field(default=Motion(), repr=False)
     surfaces: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # one id per surface: walls, then boxes, then cylinders, then the floor
         object.__setattr__(self, "surfaces", (*self.walls, *self.boxes, *self.cylinders, *((self.floor,) if self.floor else ())))
+
+    @property
+    def objects_move(self) -> bool:
+        return any(w.swing_rad_s for w in self.walls) or any(o.velocity != (0.0, 0.0) for o in (*self.boxes, *self.cylinders))
+
+    @property
+    def still(self) -> bool:
+        """Nothing moves: neither the sensor nor an object (flicker may still change the light)."""
+        return self.motion.still and not self.objects_move
 
 
 # ---------------------------------------------------------------- parsing and validation
@@ -155,6 +215,7 @@ def _material(t: dict, where: str, default_reflectivity: float = 0.5) -> Materia
         gloss=_num(t, where, "gloss", 0.0, lo=0.0, hi=1.0, hi_open=True),
         texture=tex,
         texture_scale_m=_num(t, where, "texture_scale_m", 0.05, lo=0.0, lo_open=True),
+        texture_depth=_num(t, where, "texture_depth", 0.3, lo=0.0, hi=1.0),
     )
 
 
@@ -201,7 +262,7 @@ def _parse(doc: dict[str, Any], source: str) -> Scene:
         a, b = _pair(t, w, "from"), _pair(t, w, "to")
         if math.dist(a, b) < 1e-6:
             raise SceneError(f"{w}: 'from' and 'to' are the same point; a wall needs a length")
-        walls.append(Wall(a, b, _z_range(t, w), _material(t, w)))
+        walls.append(Wall(a, b, _z_range(t, w), _material(t, w), math.radians(_num(t, w, "swing_deg_s", 0.0))))
         _done(t, w)
     for i, t in enumerate(_list(doc, "box")):
         w = f"box[{i}]"
@@ -209,13 +270,13 @@ def _parse(doc: dict[str, Any], source: str) -> Scene:
         if not (s[0] > 0 and s[1] > 0):
             raise SceneError(f"{w}: 'size' must be two positive lengths, got {list(s)}")
         yaw = math.radians(_num(t, w, "yaw_deg", 0.0))
-        boxes.append(Box(c, s, yaw, _z_range(t, w), _material(t, w)))
+        boxes.append(Box(c, s, yaw, _z_range(t, w), _material(t, w), _pair(t, w, "velocity", (0.0, 0.0))))
         _done(t, w)
     for i, t in enumerate(_list(doc, "cylinder")):
         w = f"cylinder[{i}]"
         c = _pair(t, w, "center")
         r = _num(t, w, "radius", lo=0.0, lo_open=True)
-        cyls.append(Cylinder(c, r, _z_range(t, w), _material(t, w)))
+        cyls.append(Cylinder(c, r, _z_range(t, w), _material(t, w), _pair(t, w, "velocity", (0.0, 0.0))))
         _done(t, w)
     floor = None
     if "floor" in doc:
@@ -226,8 +287,19 @@ def _parse(doc: dict[str, Any], source: str) -> Scene:
         z = _num(t, "[floor]", "z", hi=0.0, hi_open=True)
         floor = Floor(z, _material(t, "[floor]", 0.3))
         _done(t, "[floor]")
+    motion = Motion()
+    if "motion" in doc:
+        t = doc.pop("motion")
+        if not isinstance(t, dict):
+            raise SceneError("[motion] must be a table")
+        t = dict(t)
+        motion = Motion(math.radians(_num(t, "[motion]", "yaw_rate_deg_s", 0.0)), _num(t, "[motion]", "speed_m_s", 0.0))
+        _done(t, "[motion]")
+    scale = _num(doc, "top level", "ambient_scale", 1.0, lo=0.0)
+    flicker = Flicker(_num(doc, "top level", "flicker_hz", 100.0, lo=0.0, lo_open=True),
+                      _num(doc, "top level", "flicker_depth", 0.0, lo=0.0, hi=1.0))
     _done(doc, "top level")
-    return Scene(name, tuple(walls), tuple(boxes), tuple(cyls), floor, ambient, ambient_w)
+    return Scene(name, tuple(walls), tuple(boxes), tuple(cyls), floor, ambient, ambient_w, scale, flicker, motion)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -266,6 +338,29 @@ def wall_scene(distance_m: float = 2.0, angle_deg: float = 0.0, reflectivity: fl
     h = width_m / 2
     w = Wall((px - h * tx, py - h * ty), (px + h * tx, py + h * ty), (-1.0, 2.0), Material(reflectivity, 0.0, texture))
     return Scene(f"wall-{distance_m:g}m-{angle_deg:g}deg-{reflectivity:g}", walls=(w,), ambient=ambient)
+
+
+def with_motion(scene: Scene, yaw_rate_deg_s: float | None = None, speed_m_s: float | None = None,
+                ambient_scale: float | None = None, flicker_hz: float | None = None,
+                flicker_depth: float | None = None) -> Scene:
+    """``scene`` with the given motion, ambient scale and flicker in place of its own (None: keep)."""
+    motion, flicker = scene.motion, scene.flicker
+    if yaw_rate_deg_s is not None:
+        motion = replace(motion, yaw_rate_rad_s=math.radians(yaw_rate_deg_s))
+    if speed_m_s is not None:
+        motion = replace(motion, speed_m_s=speed_m_s)
+    if flicker_hz is not None:
+        if not flicker_hz > 0:
+            raise SceneError(f"flicker frequency must be positive, got {flicker_hz} Hz")
+        flicker = replace(flicker, hz=flicker_hz)
+    if flicker_depth is not None:
+        if not 0 <= flicker_depth <= 1:
+            raise SceneError(f"flicker depth must be in [0, 1], got {flicker_depth}")
+        flicker = replace(flicker, depth=flicker_depth)
+    if ambient_scale is not None and not ambient_scale >= 0:
+        raise SceneError(f"ambient scale must be >= 0, got {ambient_scale}")
+    scale = scene.ambient_scale if ambient_scale is None else ambient_scale
+    return replace(scene, motion=motion, flicker=flicker, ambient_scale=scale)
 
 
 def scene_names() -> list[str]:

@@ -17,6 +17,8 @@ class FrameTruth:
     ``points``: (W, 3) true 3-D laser point in the camera frame (metres), NaN for no return.
     ``surface``: (W,) int id of the scene surface hit (-1 none), to tell depth jumps apart.
     ``lit_rows``: (H,) bool, rows whose exposure overlapped the laser pulse.
+    ``time_ns``: (W,) CLOCK_MONOTONIC of the column's laser light (the mean time of the light that
+    made its line), NaN where none; None for a still scene (time does not matter there).
     """
 
     row: np.ndarray
@@ -25,3 +27,4 @@ class FrameTruth:
     points: np.ndarray
     surface: np.ndarray
     lit_rows: np.ndarray
+    time_ns: np.ndarray | None = None

@@ -26,6 +26,7 @@ class FramePair:
     unlit: np.ndarray
     truth: FrameTruth  # of the lit frame
     lit_rows: np.ndarray  # (H,) rows the pulse lit in the lit frame
+    unlit_before: np.ndarray | None = None  # the unlit frame before the lit one (``neighbours=True``)
 
 
 #: Operating point of the simulated camera: the simulator's defaults (device/sim/render.py,
@@ -34,14 +35,16 @@ class FramePair:
 EXPOSURE_US = 40000.0
 
 
-def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int = 0, options=None,
+def simulated_pairs(config: SensorConfig, scene_spec, count: int, seed: int = 0, options=None,
                     exposure_us: float = EXPOSURE_US, analog_gain: float | None = None,
-                    pulse_us: float | None = None, isp: str = "linear") -> list[FramePair]:
+                    pulse_us: float | None = None, isp: str = "linear", neighbours: bool = False) -> list[FramePair]:
     """``count`` (lit, unlit) pairs of a simulated scene: the camera free-runs, the laser fires
     on every other frame (docs/thesis-notes.md N10), centred on the frame's common exposure window
     (:func:`device.sim.pulses.frame_aligned_train`). Speckle is static (same scene), sensor
-    noise differs per frame. ``isp``: the camera's luminance transfer (device/sim/sensor.py
-    ``SensorParams.isp``)."""
+    noise differs per frame. ``scene_spec``: a name or spec for get_scene, or a Scene. ``isp``: the
+    camera's luminance transfer (device/sim/sensor.py ``SensorParams.isp``). ``neighbours``: the
+    camera starts with an unlit frame, so that every lit frame also has the unlit frame before it
+    (``FramePair.unlit_before``; the device's pipeline takes both, issue 16)."""
     from ..sim.camera import SimulatedCamera
     from ..sim.pulses import frame_aligned_train
     from ..sim.render import RenderOptions
@@ -54,17 +57,21 @@ def simulated_pairs(config: SensorConfig, scene_spec: str, count: int, seed: int
     start_ns = 1_000_000_000
     cam_line_ns = config.window.mode.line_time_ns
     pulse = config.laser.pulse_s * 1e6 if pulse_us is None else pulse_us
-    train = frame_aligned_train(start_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
-    cam = SimulatedCamera(config, get_scene(scene_spec), train, exposure_us=exposure_us, frame_duration_us=frame_us,
+    first_lit_ns = start_ns + int(round(frame_us * 1e3)) if neighbours else start_ns
+    train = frame_aligned_train(first_lit_ns, frame_us, exposure_us, cam_line_ns, config.height, pulse, every=2)
+    scene = get_scene(scene_spec) if isinstance(scene_spec, str) else scene_spec
+    cam = SimulatedCamera(config, scene, train, exposure_us=exposure_us, frame_duration_us=frame_us,
                           start_ns=start_ns, seed=seed, options=options or RenderOptions(), line_time_ns=cam_line_ns,
                           sensor=replace(SIMULATOR_DEFAULT if analog_gain is None else SensorParams(analog_gain=analog_gain),
                                          isp=isp))
     cam.start()
     pairs = []
+    before = cam.capture_with_truth()[0].image if neighbours else None
     for _ in range(count):
         lit, truth = cam.capture_with_truth()
         unlit, _ = cam.capture_with_truth()
-        pairs.append(FramePair(lit.image, unlit.image, truth, truth.lit_rows))
+        pairs.append(FramePair(lit.image, unlit.image, truth, truth.lit_rows, before))
+        before = unlit.image if neighbours else None
     return pairs
 
 
@@ -158,6 +165,10 @@ def run_pipeline(pipeline, pairs: list[FramePair], use_lit_rows: bool = True) ->
     if hasattr(pipeline, "reset"):
         pipeline.reset()
     for p in pairs:
-        meas = pipeline.process(p.lit, p.unlit, lit_rows=p.lit_rows if use_lit_rows else None)
+        rows = p.lit_rows if use_lit_rows else None
+        if p.unlit_before is None:
+            meas = pipeline.process(p.lit, p.unlit, lit_rows=rows)
+        else:
+            meas = pipeline.process(p.lit, p.unlit, lit_rows=rows, other_unlit=p.unlit_before)
         score.add(meas, p.truth)
     return score

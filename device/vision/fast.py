@@ -1,8 +1,28 @@
 """The fast, accurate pipeline (issue 7): region of interest, vectorised peaks, line fit across
 neighbouring columns, ghost rejection, table triangulation (thesis 6.1 and 6.3, improved).
 
-Per frame pair:
+Per frame pair (or triple):
 
+0. Both unlit neighbours (issue 16; ``process(..., other_unlit=...)``, as the device pairs
+   frames, device/scan/pairing.py). When the robot turns or drives, or something moves, the
+   background of the lit frame is not that of the unlit frame 50 ms away: a textured background
+   leaves bright edges in the difference, which became phantom ranges. With the unlit frames
+   before and after the lit one, the band's background is their mean (the lit frame lies half
+   way between them in time: a smooth motion's residue is second order, and mains flicker,
+   whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
+   neighbours differ (the mean |difference| of their 8-column x 4-row block means, every other
+   row, above ``moved_level``: the
+   background moved there; sensor noise alone stays below) keeps a line only if the line
+   stands ``moving_noise_ratio`` (3) times above the noise level (the residue's largest negative
+   difference, step 1) of the columns within ``moving_noise_columns`` (16; a moved feature leaves
+   its residue where it was), is no wider than ``moving_max_spread_px`` and has dark flanks
+   ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
+   the laser a narrow line); otherwise it is REJECTED (NaN), never a guess. And any column
+   whose noise level exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
+   robot): REJECTED. A still scene's output differs from the one-neighbour pipeline only by
+   the lower noise of the mean background (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
+   without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
+   uses the nearer unlit frame alone.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -100,6 +120,14 @@ class FastParams:
     track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
+    # with both unlit neighbours (step 0): background that moved or flickered
+    blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
+    moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
+    moving_noise_ratio: float = 3.0  # a line must exceed this x the largest noise of the columns
+    moving_noise_columns: int = 16  # this many either side,
+    moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
+    flank_rows: int = 6  # and this many rows above and below it
+    flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -113,6 +141,8 @@ class FastParams:
         if self.track_margin < 0 or self.track_full_every < 1 or self.track_lost_run < 1:
             raise ValueError(f"need track_margin >= 0, track_full_every >= 1, track_lost_run >= 1, got "
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
+        if self.flank_rows < self.half_width:
+            raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
         if not (0 < self.jump_rel < 1 and self.min_peak > 0):
@@ -189,17 +219,28 @@ class FastPipeline:
         """Forget the tracked line (the next frame pair gets a full search)."""
         self._track = None
 
-    def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements:
+    def process(self, lit, unlit, lit_rows: np.ndarray | None = None, other_unlit=None) -> ColumnMeasurements:
         import cv2
 
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
+        background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
+        moved = None
+        if other_unlit is not None:  # step 0
+            other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
+            # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
+            # a texture that moved stays), then their mean |difference| per 8 columns
+            W, n = background.shape[1], self.rows // 8
+            small = [cv2.resize(x[: 8 * n : 2], (-(-W // 8), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
+            change = cv2.reduce(cv2.absdiff(*small), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
+            moved = np.repeat(change > self.params.moved_level * n, 8)[:W]
+            background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
         p = self.params
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
         else:
-            found, row, peak, status, seen = self._search(lum_lit, lum_unlit, *band)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
             if (np.any(_run_length(lost) >= p.track_lost_run)
@@ -207,7 +248,7 @@ class FastPipeline:
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
                 # may continue outside): search the whole region of interest now
-                found, row, peak, status, seen = self._search(lum_lit, lum_unlit, 0, self.rows)
+                found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
@@ -233,6 +274,8 @@ class FastPipeline:
             close &= empty
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
+        if moved is not None:
+            status = self._untrusted(status, row, peak, noise, moved, t0)
         if lit_rows is not None:
             status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -251,13 +294,14 @@ class FastPipeline:
         t1 = min(-(-(tr.last_row + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
         return None if t1 - t0 >= self.rows else (t0, t1)
 
-    def _search(self, lum_lit: np.ndarray, lum_unlit: np.ndarray, t0: int, t1: int):
-        """Find the line in rows [t0, t1) of the band (whole blocks): steps 1-5 of the module
-        docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
+    def _search(self, lum_lit: np.ndarray, background: np.ndarray, t0: int, t1: int):
+        """Find the line in rows [t0, t1) of the band (whole blocks) of ``lum_lit`` against
+        ``background`` (the band's rows of the unlit frame(s)): steps 1-5 of the module docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
         the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
-        if none), from which tracking sizes the next frame's band."""
+        if none), from which tracking sizes the next frame's band; ``noise`` the column's noise
+        level (its largest smoothed negative difference)."""
         a = lum_lit[self.top + t0 : self.top + t1]
-        b = lum_unlit[self.top + t0 : self.top + t1]
+        b = background[t0:t1]
         p = self.params
         W = self.cols.size
         lo, hi = clamp(self.lo - t0, 0, t1 - t0), clamp(self.hi - t0, 0, t1 - t0)
@@ -266,7 +310,7 @@ class FastPipeline:
         # left out: the band's rows are as noisy as the column's own interval, and it saves work.
         # Computed first: it streams the whole band through the cache, the steps below reuse theirs
         noise = np.empty(W)
-        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], lum_unlit[self.top : self.top + self.rows],
+        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], background,
                                  noise)
         # the difference goes into a buffer with zero rows above and below (sub-pixel windows at
         # the band's edges need no clamping). A saturated lit pixel that the laser clearly
@@ -293,7 +337,7 @@ class FastPipeline:
                                     (idx, c2.row, c2.peak, c2.valid, c2.spread),
                                     (self.geometry.inv_depth, self.geometry.top), (self.top, t0, t1),
                                     self._resolve_params, (found, row, peak, status))
-        return found, row, peak, status, seen
+        return found, row, peak, status, seen, noise
 
     def _padded(self, n: int) -> np.ndarray:
         """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero."""
@@ -310,6 +354,41 @@ class FastPipeline:
         d = padded[self._pad : padded.shape[0] - self._pad]
         return refine_peaks(d if cols is self.cols else d[:, cols], k, p.estimator, lo, hi, 1.0, 0.0, p.half_width,
                             p.pedestal, 255)
+
+    def _untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, noise: np.ndarray,
+                   moved: np.ndarray, t0: int) -> np.ndarray:
+        """Step 0's rejections. In a column whose background moved: a line that does not stand
+        far enough above what the background left there and around it (``moving_noise_columns``),
+        or does not have a line's shape (wider than a line, or as bright ``flank_rows`` above or
+        below it: a band of moved texture). Anywhere: "no return" where the noise could hide a line."""
+        import cv2
+
+        p = self.params
+        ok = status == STATUS_U8[ColumnStatus.OK]
+        none = status == STATUS_U8[ColumnStatus.NO_RETURN]
+        cols = np.nonzero(ok & moved)[0]
+        # the difference of the last search (band rows t0.. at buffer rows pad..) from
+        # flank_rows above each line to flank_rows below it, in one gather
+        d = self._padded_buf
+        r = np.rint(row[cols]).astype(np.intp) - (self.top + t0) + self._pad
+        f, h = p.flank_rows, p.half_width
+        rows = clamp(r[None, :] + np.arange(-f, f + 1)[:, None], 0, d.shape[0] - 1)
+        around_line = d.ravel().take(rows * d.shape[1] + cols[None, :]).astype(np.float32)
+        flank = np.maximum(around_line[0], around_line[-1])
+        v = around_line[f - h : f + h + 1]  # the line's profile
+        j = np.arange(-h, h + 1, dtype=np.float32)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (v * j).sum(axis=0) / v.sum(axis=0)
+            spread = np.sqrt((v * (j - mean) ** 2).sum(axis=0) / v.sum(axis=0))
+        # the residue a moved feature leaves lies beside it (where it was): the noise of the
+        # columns around, ``moving_noise_columns`` each side
+        k = 2 * p.moving_noise_columns + 1
+        around = cv2.dilate(noise.astype(np.float32)[None, :], np.ones((1, k), np.uint8))[0]
+        shape = np.zeros(status.size, bool)
+        shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
+                       | ~(spread <= p.moving_max_spread_px))
+        bad = shape | (none & (noise > p.blind_noise))
+        return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height

@@ -125,9 +125,9 @@ class ReferencePipeline:
             self._blend = blur * (1.0 - p.blend) + self._blend * p.blend
         return self._blend
 
-    def process(self, lit, unlit, lit_rows: np.ndarray | None = None) -> ColumnMeasurements:
-        """Steps 1-7. ``lit_rows`` is accepted for the common interface and ignored (the thesis
-        has no notion of partly lit frames)."""
+    def process(self, lit, unlit, lit_rows: np.ndarray | None = None, other_unlit=None) -> ColumnMeasurements:
+        """Steps 1-7. ``lit_rows`` and ``other_unlit`` are accepted for the common interface and
+        ignored (the thesis has no notion of partly lit frames, and differences one pair)."""
         frame = self.filtered(lit, unlit)
         p = self.params
         cols = self.columns

@@ -1,0 +1,270 @@
+"""`laserpi bench motion`: the sensor on a moving robot (issue 16), reference against fast.
+
+Every sweep point renders one simulated sequence (device/sim/render.py step 9): the scene
+(``office``: a bright, textured near-infrared background; ``person``: a person crossing) at the
+device's operating point (the configuration's [operating_point]: exposure, gain, depth range;
+20 frames/s, every other frame lit by a pulse covering every row's exposure, as
+device/service/assembly.py places it), the sensor turning and driving at the point's yaw rate and
+speed, in the point's ambient light (x the default indoor) with or without 100 Hz flicker
+(depth 0.3). Each lit frame is processed
+
+- ``reference``: the thesis pipeline, lit minus the unlit frame after it;
+- ``fast one-unlit``: the device's pipeline before issue 16 (fast-com-track, lit minus the unlit
+  frame after it);
+- ``fast``: the device's pipeline now: both unlit neighbours (device/scan/pairing.py,
+  device.vision.fast step 0).
+
+Measured against the truth at each column's light's time: gross errors (a valid range > 5 %
+off the truth) as a share of the columns with a true return; false returns (a valid range where
+there is none); valid share of the columns with a true return; "blind" columns (+inf, "nothing
+there", where there is a surface); the range error's sigma (%, valid columns without the gross
+errors). Speed beside it: CPU time per lit frame of each variant on the still office scene
+(median of ``--repeats`` calls, one thread), and its ratio to ``fast one-unlit``. And the static
+accuracy as ``laserpi bench pipeline`` measures it (fast-com, 90 % walls at 2 m and 3 m, the
+simulator's 40 ms exposure), with one unlit frame and with both neighbours, on the same frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+
+#: (label, scene, yaw deg/s, speed m/s, ambient x indoor, flicker depth)
+SWEEP = (
+    ("still", "office", 0, 0.0, 3, 0.0),
+    ("yaw 14", "office", 14, 0.0, 3, 0.0),
+    ("yaw 45", "office", 45, 0.0, 3, 0.0),
+    ("yaw 90", "office", 90, 0.0, 3, 0.0),
+    ("yaw 180", "office", 180, 0.0, 3, 0.0),
+    ("speed 0.5", "office", 0, 0.5, 3, 0.0),
+    ("speed 1.0", "office", 0, 1.0, 3, 0.0),
+    ("yaw 90, 1x", "office", 90, 0.0, 1, 0.0),
+    ("yaw 90, 10x", "office", 90, 0.0, 10, 0.0),
+    ("yaw 180, 1 m/s, 10x", "office", 180, 1.0, 10, 0.0),
+    ("flicker", "office", 0, 0.0, 3, 0.3),
+    ("flicker, yaw 90", "office", 90, 0.0, 3, 0.3),
+    ("person", "person", 0, 0.0, 3, 0.0),
+    ("person, yaw 45", "person", 45, 0.0, 3, 0.0),
+)
+VARIANTS = ("reference", "fast one-unlit", "fast")
+FLICKER_HZ = 100.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=3, help="lit frames per sweep point (default 3)")
+    parser.add_argument("--repeats", type=int, default=30, help="timed calls per variant (default 30)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--preset", default="thesis-calibrated")
+    parser.add_argument("--points", help="comma-separated labels of the sweep points to run (default all)")
+    parser.add_argument("--png", help="write the plot to this PNG")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+
+
+def sequence(cfg, scene, lit_frames: int, seed: int):
+    """(lit, unlit after, unlit before, truth) of ``lit_frames`` lit frames at the operating point."""
+    from ..vision.evaluation import simulated_pairs
+
+    op = cfg.operating_point
+    pulse_us = op.exposure_us + (cfg.height - 1) * cfg.window.mode.line_time_ns * 1e-3  # every row's whole exposure
+    return simulated_pairs(cfg, scene, lit_frames, seed, exposure_us=op.exposure_us, analog_gain=op.analog_gain,
+                           pulse_us=pulse_us, neighbours=True)
+
+
+def _pipelines(cfg):
+    from ..service.assembly import PIPELINE
+    from ..vision.pipelines import make_pipeline
+
+    op = cfg.operating_point
+    return {"reference": make_pipeline("reference", cfg), "fast one-unlit": make_pipeline(PIPELINE, cfg, op.min_m, op.max_m),
+            "fast": make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)}
+
+
+def _process(name, pipe, pair):
+    if name == "fast":
+        return pipe.process(pair.lit, pair.unlit, pair.lit_rows, other_unlit=pair.unlit_before)
+    return pipe.process(pair.lit, pair.unlit, pair.lit_rows)
+
+
+def score(meas_truths) -> dict:
+    import numpy as np
+
+    from ..vision.evaluation import GROSS_ERROR_REL
+    from ..vision.measurements import ColumnStatus
+
+    n_true = n_empty = valid = gross = false = blind = 0
+    rel = []
+    for meas, truth in meas_truths:
+        c = meas.column
+        has = np.isfinite(truth.row[c]) & np.isfinite(truth.range_m[c])
+        ok = meas.valid & np.isfinite(meas.range)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            e = (meas.range - truth.range_m[c]) / truth.range_m[c]
+        n_true += int(has.sum())
+        n_empty += int((~has).sum())
+        valid += int((has & ok).sum())
+        false += int((~has & ok).sum())
+        bad = has & ok & (np.abs(e) > GROSS_ERROR_REL)
+        gross += int(bad.sum())
+        blind += int((has & (meas.status == ColumnStatus.NO_RETURN)).sum())
+        rel.append(e[has & ok & ~bad])
+    rel = np.concatenate(rel) if rel else np.zeros(0)
+    return {"columns_with_return": n_true, "columns_without_return": n_empty,
+            "valid_fraction": valid / n_true if n_true else float("nan"),
+            "gross_fraction": gross / n_true if n_true else float("nan"), "gross": gross, "false_returns": false,
+            "blind_fraction": blind / n_true if n_true else float("nan"),
+            "sigma_pct": float(np.std(rel) * 100) if rel.size > 1 else float("nan")}
+
+
+def measure(args) -> dict:
+    import cv2
+
+    from ..config import load_preset
+    from ..sim.scene import get_scene, with_motion
+
+    cv2.setNumThreads(1)
+    cfg = load_preset(args.preset)
+    wanted = None if not args.points else {p.strip() for p in args.points.split(",")}
+    unknown = (wanted or set()) - {s[0] for s in SWEEP}
+    if unknown:
+        raise ValueError(f"unknown sweep point(s) {', '.join(sorted(unknown))}; choose from {', '.join(s[0] for s in SWEEP)}")
+    points = []
+    timing_pairs = None
+    for label, scene_name, yaw, speed, ambient, flicker in SWEEP:
+        if wanted is not None and label not in wanted:
+            continue
+        scene = with_motion(get_scene(scene_name), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient,
+                            flicker_hz=FLICKER_HZ, flicker_depth=flicker)
+        pairs = sequence(cfg, scene, args.frames, args.seed)
+        if label == "still":
+            timing_pairs = pairs
+        row = {"point": label, "scene": scene_name, "yaw_deg_s": yaw, "speed_m_s": speed, "ambient_x": ambient,
+               "flicker_depth": flicker}
+        for name, pipe in _pipelines(cfg).items():
+            row[name] = score([(_process(name, pipe, p), p.truth) for p in pairs])
+        points.append(row)
+    if timing_pairs is None:
+        timing_pairs = sequence(cfg, get_scene("office"), 1, args.seed)
+    ms = {}
+    for name, pipe in _pipelines(cfg).items():
+        times = []
+        for _ in range(max(args.repeats, 1)):
+            t0 = time.thread_time()
+            _process(name, pipe, timing_pairs[0])
+            times.append(time.thread_time() - t0)
+        times.sort()
+        ms[name] = times[len(times) // 2] * 1e3
+    return {"points": points, "ms_per_lit_frame": ms, "static": static_accuracy(cfg, args.frames, args.seed), "ratio_vs_one_unlit": ms["fast"] / ms["fast one-unlit"],
+            "operating_point": {"exposure_us": cfg.operating_point.exposure_us,
+                                "analog_gain": cfg.operating_point.analog_gain}}
+
+
+def static_accuracy(cfg, frames: int, seed: int) -> dict:
+    """Range error (1 sigma, %) of fast-com on still 90 % walls, one unlit frame against both."""
+    from ..vision.evaluation import FramePair, run_pipeline, simulated_pairs
+    from ..vision.pipelines import make_pipeline
+
+    out = {}
+    for i, d in enumerate((2, 3)):
+        pairs = simulated_pairs(cfg, f"wall:distance={d},reflectivity=0.9", frames, seed + i, neighbours=True)
+        one = [FramePair(p.lit, p.unlit, p.truth, p.lit_rows) for p in pairs]
+        for label, pp in (("one-unlit", one), ("both", pairs)):
+            score = run_pipeline(make_pipeline("fast-com", cfg), pp)
+            out[f"{label} {d} m"] = {"sigma_pct": score.range_error_near(float(d))[1],
+                                     "valid_fraction": score.summary()["valid_fraction"]}
+    return out
+
+
+def targets(result: dict) -> list[str]:
+    """The issue's targets, each met or not, with the worst number."""
+    out = []
+    fast = [(p, p["fast"]) for p in result["points"]]
+    for label, pts in (("gross errors <= 0.1 % of the columns with a return, no false returns, up to 180 deg/s, "
+                        "1 m/s, 10x ambient", fast),):
+        worst_g = max((s["gross_fraction"] for _, s in pts), default=float("nan"))
+        worst_f = max((s["false_returns"] for _, s in pts), default=0)
+        out.append(f"{'MET' if worst_g <= 0.001 and worst_f == 0 else 'NOT MET'}: {label} "
+                   f"(worst gross {worst_g * 100:.2f} %, worst false returns {worst_f})")
+    slow = [(p, s) for p, s in fast if p["scene"] == "office" and p["yaw_deg_s"] <= 90 and p["ambient_x"] <= 3
+            and p["speed_m_s"] == 0]
+    worst_v = min((s["valid_fraction"] for _, s in slow), default=float("nan"))
+    out.append(f"{'MET' if worst_v >= 0.9 else 'NOT MET'}: valid >= 90 % of the wall's columns up to 90 deg/s at "
+               f"3x ambient (worst {worst_v * 100:.1f} %)")
+    r = result["ratio_vs_one_unlit"]
+    out.append(f"{'MET' if r <= 1.5 else 'NOT MET'}: pipeline time <= 1.5x today's on a still scene ({r:.2f}x)")
+    return out
+
+
+def _plot(result: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    pts = result["points"]
+    x = np.arange(len(pts))
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    colours = {"reference": "tab:red", "fast one-unlit": "tab:orange", "fast": "tab:blue"}
+    w = 0.27
+    for k, name in enumerate(VARIANTS):
+        axes[0].bar(x + (k - 1) * w, [p[name]["gross_fraction"] * 100 for p in pts], w, color=colours[name],
+                    label=f"{name} ({result['ms_per_lit_frame'][name]:.2f} ms)")
+        axes[1].bar(x + (k - 1) * w, [p[name]["false_returns"] for p in pts], w, color=colours[name])
+        axes[2].bar(x + (k - 1) * w, [p[name]["valid_fraction"] * 100 for p in pts], w, color=colours[name])
+    axes[0].axhline(0.1, color="k", lw=0.8, ls="--")
+    axes[0].set_yscale("symlog", linthresh=0.1)
+    axes[0].set_ylabel("gross errors\n(% of columns\nwith a return)")
+    axes[1].set_ylabel("false returns\n(columns)")
+    axes[2].axhline(90, color="k", lw=0.8, ls="--")
+    axes[2].set_ylabel("valid (%)")
+    axes[2].set_xticks(x, [p["point"] for p in pts], rotation=35, ha="right", fontsize=8)
+    axes[0].legend(fontsize=8, title="variant (CPU per lit frame, still scene)", title_fontsize=8)
+    axes[0].set_title("LaserPi on a moving robot (simulated; office and person scenes; dashed: the targets)")
+    for ax in axes:
+        ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..config import ConfigError
+
+    try:
+        if min(args.frames, args.repeats) < 1:
+            raise ValueError("--frames and --repeats must be >= 1")
+        result = measure(args)
+    except (ConfigError, ValueError) as exc:
+        print(f"laserpi bench motion: {exc}")
+        return 2
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print(result, args.frames)
+    if args.png:
+        _plot(result, args.png)
+    return 0
+
+
+def _print(result: dict, frames: int) -> None:
+    op = result["operating_point"]
+    print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, OpenCV 1 thread; "
+          f"exposure {op['exposure_us']:g} us, gain {op['analog_gain']:g}, {frames} lit frame(s) per point")
+    f = lambda v, s: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, s)  # noqa: E731
+    print(f"{'point':<22} {'variant':<15} {'gross %':>8} {'false':>6} {'valid %':>8} {'blind %':>8} {'sigma %':>8}")
+    for p in result["points"]:
+        for name in VARIANTS:
+            s = p[name]
+            print(f"{p['point'] if name == VARIANTS[0] else '':<22} {name:<15} {f(s['gross_fraction'] * 100, '8.2f')} "
+                  f"{s['false_returns']:>6d} {f(s['valid_fraction'] * 100, '8.1f')} {f(s['blind_fraction'] * 100, '8.1f')} "
+                  f"{f(s['sigma_pct'], '8.2f')}")
+    ms = result["ms_per_lit_frame"]
+    print("CPU per lit frame (still office scene): " + ", ".join(f"{n} {ms[n]:.3f} ms" for n in VARIANTS)
+          + f"; fast / fast one-unlit = {result['ratio_vs_one_unlit']:.2f}")
+    print("still 90 % walls, fast-com (range error 1 sigma, valid): " + ", ".join(
+        f"{k} {v['sigma_pct']:.3f} % {v['valid_fraction']:.3f}" for k, v in result["static"].items()))
+    for line in targets(result):
+        print(line)

@@ -1,0 +1,54 @@
+"""When each ray of a scan was measured, under the rolling shutter (issue 16).
+
+Row r of a frame is exposed during [T - E + r t_line, T + r t_line] (T: SensorTimestamp, the
+start of row 0's readout; device/camera/frame.py). The device's laser pulse covers the whole
+exposure of every row the line can land in (device/service/assembly.py: exposure + the region
+of interest's rows), so the light of a column's line arrived evenly over its row's exposure: the
+column was measured at that window's middle, ``T - E / 2 + row t_line``. A column's time thus
+follows from the row its line was found in, and differs from column to column with the range
+(a near return lies in other rows than a far one): up to (rows of the region of interest) x
+t_line, 2.8 ms for the thesis geometry's 0.4-3.2 m.
+
+A LaserScan has one time per ray on a line: ``stamp + i time_increment``. The scan's
+``device_time`` and ``ray_interval_ns`` are the least-squares line through the measured rays'
+times (device time of ray 0, and the step per ray), so they are exact for a scan whose rows
+change linearly across it (a flat wall seen squarely is close to that) and otherwise off by the
+residual, which :func:`scan_timing` returns; where no ray was measured, the middle of the region
+of interest's rows. A host de-skews a scan with odometry by moving each ray i by the robot's
+motion between ``device_time + i time_increment`` and the time it wants the scan at (README,
+"Scans on a moving robot").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from device.camera.frame import Frame
+
+
+def column_times_ns(frame: Frame, rows: np.ndarray) -> np.ndarray:
+    """CLOCK_MONOTONIC ns at which each column's line (sub-pixel ``rows``, NaN: none) was lit."""
+    start, end = frame.row_exposure_ns(np.asarray(rows, dtype=np.float64))
+    return (start + end) / 2
+
+
+@dataclass(frozen=True)
+class ScanTiming:
+    first_ray_ns: int  # device time of ray 0
+    ray_interval_ns: int  # step per ray (may be negative: the rays' order is the scan's, not the rows')
+    residual_ns: float  # largest |measured ray time - the line| over the rays with a time
+
+
+def scan_timing(times_ns: np.ndarray, fallback_ns: float) -> ScanTiming:
+    """The line ``first + i interval`` through the rays' times (NaN: no time), least squares;
+    ``fallback_ns`` for every ray when fewer than two have a time."""
+    t = np.asarray(times_ns, dtype=np.float64)
+    i = np.nonzero(np.isfinite(t))[0]
+    if i.size < 2:
+        return ScanTiming(int(round(fallback_ns)), 0, 0.0)
+    slope = round(float(np.polyfit(i.astype(np.float64), t[i] - t[i].mean(), 1)[0]))
+    first = float(np.mean(t[i] - slope * i))
+    residual = float(np.max(np.abs(t[i] - (first + slope * i))))
+    return ScanTiming(int(round(first)), int(slope), residual)

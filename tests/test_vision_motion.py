@@ -1,0 +1,99 @@
+"""The pipeline on a moving robot (issue 16): phantoms from a moved background, columns that
+cannot be trusted, the static accuracy with both unlit neighbours, and reprocessing a recording."""
+
+import json
+
+import numpy as np
+import pytest
+
+from device.bench.motion import _pipelines, _process, score, sequence
+from device.cli import main
+from device.config import load_preset
+from device.sim.scene import get_scene, with_motion
+from device.vision.evaluation import FramePair, run_pipeline, simulated_pairs
+from device.vision.measurements import ColumnStatus
+from device.vision.pipelines import make_pipeline
+
+CFG = load_preset("thesis-calibrated")
+
+
+@pytest.fixture(scope="module")
+def turning_office():
+    """The office in 3x the indoor light, the robot turning at 45 deg/s: 2 lit frames."""
+    return sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=45, ambient_scale=3), 2, 0)
+
+
+def test_a_moved_background_gives_no_phantoms_and_no_false_no_return(turning_office):
+    pipes = _pipelines(CFG)
+    before = score([(_process("fast one-unlit", pipes["fast one-unlit"], p), p.truth) for p in turning_office])
+    now = score([(_process("fast", pipes["fast"], p), p.truth) for p in turning_office])
+    # the pipeline as it was: many ranges > 5 % off, and "nothing there" on many columns of a wall
+    assert before["gross"] > 50 and before["blind_fraction"] > 0.1
+    assert now["false_returns"] == 0
+    assert now["gross"] <= before["gross"] / 5 and now["gross_fraction"] < 0.005
+    assert now["blind_fraction"] < 0.02
+    assert now["sigma_pct"] < before["sigma_pct"]
+
+
+def test_a_column_that_cannot_be_trusted_is_rejected_never_no_return(turning_office):
+    pipe = make_pipeline("fast-com", CFG, CFG.operating_point.min_m, CFG.operating_point.max_m)
+    p = turning_office[1]
+    meas = pipe.process(p.lit, p.unlit, p.lit_rows, other_unlit=p.unlit_before)
+    rejected = meas.status == ColumnStatus.REJECTED
+    assert rejected.sum() > 100 and np.all(np.isnan(meas.range[rejected]))
+    has = np.isfinite(p.truth.range_m)
+    assert np.mean(np.isposinf(meas.range[has])) < 0.02  # a surface is almost never called "nothing there"
+
+
+@pytest.mark.parametrize("distance,max_sigma_pct", [(2, 0.36), (3, 0.7)])
+def test_a_still_wall_is_measured_as_accurately_with_both_neighbours(distance, max_sigma_pct):
+    pairs = simulated_pairs(CFG, f"wall:distance={distance},reflectivity=0.9", 3, distance - 2, neighbours=True)
+    one = [FramePair(p.lit, p.unlit, p.truth, p.lit_rows) for p in pairs]
+    s_one, s_both = (run_pipeline(make_pipeline("fast-com", CFG), pp) for pp in (one, pairs))
+    assert s_both.range_error_near(distance)[1] < max_sigma_pct
+    assert s_both.range_error_near(distance)[1] <= s_one.range_error_near(distance)[1] * 1.05
+    assert s_both.summary()["valid_fraction"] >= s_one.summary()["valid_fraction"] - 0.01
+
+
+def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--scene", "person", "--frames", "5", "--out", str(sim), "--exposure-us", "9200",
+                 "--analog-gain", "4", "--yaw-rate-deg-s", "20", "--off", "speckle"]) == 0
+    out = tmp_path / "out.npz"
+    capsys.readouterr()
+    assert main(["evaluate", "--recording", str(sim / "frames.npz"), "--out", str(out), "--truth",
+                 str(sim / "truth.npz"), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["variant"] == "fast-com-track" and result["scans"] == 3  # the device's pipeline, lit frames 0, 2, 4
+    assert result["columns_with_return"] > 1000 and result["false_return_fraction"] == 0
+    z = np.load(out)
+    W = CFG.width
+    assert z["row"].shape == (3, W) and z["points"].shape == (3, W, 3) and z["status"].shape == (3, W)
+    assert list(z["lit_seq"]) == [0, 2, 4]
+    ok = z["status"] == ColumnStatus.OK
+    assert ok.sum() > 1000 and np.all(np.isfinite(z["points"][ok])) and np.all(np.isnan(z["row"][~ok]))
+    truth = np.load(sim / "truth.npz")
+    row_err = np.abs(z["row"][ok] - truth["row"][[0, 2, 4]][ok])
+    assert np.nanmedian(row_err) < 0.3
+    # the reference processes every other column: the others are marked
+    assert main(["evaluate", "--recording", str(sim / "frames.npz"), "--out", str(out), "--pipeline", "reference"]) == 0
+    z = np.load(out)
+    assert np.all(z["status"][:, 1::2] == 255) and np.any(z["status"][:, ::2] == ColumnStatus.OK)
+
+
+def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
+    from device.camera.frame import Frame
+    from device.camera.replay import save_recording
+
+    small = tmp_path / "small.npz"
+    save_recording(small, [Frame(np.zeros((10, 20), np.uint8), i, i * 10**6, 100.0, 1000.0, 10.0, lit=i % 2 == 0)
+                           for i in range(4)])
+    assert main(["evaluate", "--recording", str(small)]) == 2
+    assert "frames are 20x10" in capsys.readouterr().out
+    unknown = tmp_path / "unknown.npz"
+    save_recording(unknown, [Frame(np.zeros((CFG.height, CFG.width), np.uint8), i, i * 10**6, 100.0, 1000.0, 10.0)
+                             for i in range(3)])
+    assert main(["evaluate", "--recording", str(unknown)]) == 2
+    assert "3 frames have no lit flag" in capsys.readouterr().out
+    assert main(["evaluate", "--scene", "wall", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "--out and --truth go with --recording" in capsys.readouterr().out
