@@ -678,7 +678,9 @@ def violation_kind(v: dict) -> str:
 
 def merge(results: list[BatchResult]) -> dict:
     """One summary of many batches (JSON-ready)."""
-    paths: dict[str, list[int]] = {f"fault.{bit.name.lower()}": [0, 0] for bit in mcu.Fault}  # all kinds shown
+    # shown also when never taken: every fault kind, and a boot the fuzz did not cause (watchdog)
+    paths: dict[str, list[int]] = {p: [0, 0] for p in [f"fault.{bit.name.lower()}" for bit in mcu.Fault]
+                                   + ["boot.unexpected"]}
     for r in results:
         for p, (s, n) in r.paths.items():
             acc = paths.setdefault(p, [0, 0])
