@@ -1,5 +1,5 @@
 """The co-MCU's eye-safety envelope under random command sequences, judged on the true laser pin
-(device/firmware_fuzz.py; the full run is `laserpi fuzz-firmware`, see BENCHMARKS.md).
+(device/sim/firmware_fuzz.py; the full run is `laserpi fuzz-firmware`, see BENCHMARKS.md).
 
 The first tests feed the pin checker made-up pin logs, one broken rule each, so that a checker
 that stopped seeing a violation fails here.  The last runs 300 sequences on the production ELF.
@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from device.firmware_fuzz import CYCLES_PER_MS, Envelope, PinLog, check_pin, fuzz
+from device.sim.firmware_fuzz import CYCLES_PER_MS, Envelope, PinLog, check_pin, fuzz
 from device.model.envelope import parse_makefile_envelope
+from protocol import mcu
 
 ENV = Envelope(max_pulse_ticks=34_800, max_duty_ppm=200_000, min_period_ticks=180_000)
 MS = 2000  # ticks
@@ -98,9 +99,10 @@ def test_300_random_sequences_keep_the_envelope_on_the_true_pin(emulator):
     harness, elf = emulator
     result = fuzz(300, seed=13, batch=300, harness=harness, elf=elf)
     makefile = parse_makefile_envelope((Path(elf).parents[1] / "Makefile").read_text())
-    assert result["envelope"] == {"max_pulse_ticks": makefile.max_pulse_ticks,
+    per_us = mcu.TICKS_PER_SECOND // 1_000_000  # the emulated 16 MHz build's ticks per microsecond
+    assert result["envelope"] == {"max_pulse_ticks": makefile.max_pulse_us * per_us,
                                   "max_duty_ppm": makefile.max_duty_ppm,
-                                  "min_period_ticks": makefile.min_period_ticks}
+                                  "min_period_ticks": makefile.min_period_us * per_us}
     paths = {p: n["times"] for p, n in result["paths"].items()}
     taken = {  # the fuzz really exercised the firmware: each path at least this often (seed 13
         # takes each 1.7 to 5 times as often)

@@ -1,5 +1,5 @@
 """`laserpi fuzz-firmware`: the co-MCU's eye-safety envelope under random command sequences in
-the emulator, judged on the true laser pin (device/firmware_fuzz.py: the rules, what a sequence
+the emulator, judged on the true laser pin (device/sim/firmware_fuzz.py: the rules, what a sequence
 is, the paths counted).
 
     laserpi fuzz-firmware --sequences 100000 --jobs 2 --seed 1 --json
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from device.sim.comcu_emulator import HARNESS, build_emulator
-    from device.firmware_fuzz import fuzz
+    from device.sim.firmware_fuzz import fuzz
 
     if args.elf is None:
         harness, elf = build_emulator()
