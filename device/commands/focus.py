@@ -108,9 +108,9 @@ def run(args: argparse.Namespace) -> int:
     latest = {}
     scan = source.pipeline
 
-    def tap(lit, dark):
+    def tap(lit, dark, other_dark=None):
         latest["pair"] = (lit.image[:, :width], dark.image[:, :width])
-        return scan(lit, dark)
+        return scan(lit, dark, other_dark)
 
     source.pipeline = tap
     source.apply(built.settings)

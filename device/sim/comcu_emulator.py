@@ -135,14 +135,14 @@ class SteppedMcuPort:
                 self.timer_starts.append(int(rest.split()[0]))
             elif kind == "crash":
                 raise EmulatorError(f"simulated MCU crashed: {line.strip()}")
-        raise EmulatorError(f"harness exited: {self._proc.stderr.read()}")
+        raise EmulatorError(f"harness exited ({self._proc.wait()}): {self._proc.stderr.read()}")
 
     def _command(self, line: str) -> None:
         try:
             self._proc.stdin.write(line + "\n")
             self._proc.stdin.flush()
         except BrokenPipeError:
-            raise EmulatorError(f"harness exited: {self._proc.stderr.read()}") from None
+            raise EmulatorError(f"harness exited ({self._proc.wait()}): {self._proc.stderr.read()}") from None
 
     def close(self) -> None:
         if self._proc.poll() is None:
