@@ -221,6 +221,15 @@ class Info(_Message):
     ticks_per_second: int
     min_period_ticks: int   # shortest rise-to-rise (and fall-to-fall) interval of two pulses
 
+    @property
+    def first_rise_min_ticks(self) -> int:
+        """Earliest tick of this boot a pulse may rise at.  The firmware boots as if a pulse of
+        max_pulse_ticks had just ended at tick 0 (firmware_pwm/src/core.c, core_init: the pulse
+        before a reset may have ended at the reset), so the first rise needs both the rate rule's
+        min_period_ticks and the duty rule's off time after the longest pulse."""
+        duty_gap = -(-self.max_pulse_ticks * (1_000_000 - self.max_duty_ppm) // self.max_duty_ppm)
+        return max(self.min_period_ticks, duty_gap)
+
 
 MESSAGES: dict[int, type[_Message]] = {
     cls.MSG_TYPE: cls

@@ -49,15 +49,20 @@ def relaxed_emulator():
 
 @pytest.fixture
 def link(emulator):
+    """The production firmware, run past its boot's quiet time (test_first_rise_after_a_boot)."""
     port = SteppedMcuPort(*emulator)
-    yield port, CoMcu(port)
+    comcu = CoMcu(port)
+    port.advance_to_tick(comcu.info().first_rise_min_ticks)
+    yield port, comcu
     port.close()
 
 
 @pytest.fixture
 def relaxed_link(relaxed_emulator):
     port = SteppedMcuPort(*relaxed_emulator)
-    yield port, CoMcu(port)
+    comcu = CoMcu(port)
+    port.advance_to_tick(comcu.info().first_rise_min_ticks)
+    yield port, comcu
     port.close()
 
 
@@ -498,3 +503,33 @@ def test_a_reset_in_the_middle_of_a_pulse_leaves_the_laser_off(link, cause, flag
     reports = comcu.edges()
     assert len(reports) >= 3
     assert_pin_follows_reports(port, reports, first_pulse=before)
+
+
+@pytest.mark.parametrize("cause", ["power", "wdt"])
+def test_first_rise_after_a_boot_keeps_the_envelope_across_the_reset(link, cause):
+    """A reset erases the interlock's history, not the light the eye had: the pulse before it
+    may have ended at the reset.  Booted, the firmware lights nothing before
+    Info.first_rise_min_ticks (as if the longest pulse had just ended at tick 0), so on the pin
+    rise to rise, fall to fall and the duty gap hold across the reset too."""
+    port, comcu = link
+    info = comcu.info()
+    width = info.max_pulse_ticks
+    comcu.schedule(comcu.ping().mcu_ticks + 20 * MS, MIN_PERIOD, width)
+    advance_into_pulse(port, comcu, width / 2e6 - 0.001)  # near the end of the longest pulse
+    assert port.edges[-1][1] == 1
+    reset_cycle, rise_before = port.cycle, port.edges[-1][0]
+    port.reset(cause)
+    port.advance(0.005)  # booted, a few ms into its quiet time
+    port.reset_input_buffer()
+    quiet = comcu.info().first_rise_min_ticks
+    assert quiet == max(MIN_PERIOD, -(-width * (1_000_000 - info.max_duty_ppm) // info.max_duty_ppm))
+    with pytest.raises(CoMcuNack, match="envelope"):
+        comcu.schedule(quiet - 1, MIN_PERIOD, width)
+    comcu.schedule(quiet, MIN_PERIOD, width)
+    run_with_heartbeats(port, comcu, quiet / 2e6)
+    comcu.stop()
+    (rise, fall), = [p for p in pin_pulses(port) if p[0] > reset_cycle][:1]
+    assert port.timer_count_at(rise) - 1 == quiet, "the first rise is the scheduled one"
+    assert rise - rise_before >= MIN_PERIOD * CYCLES_PER_TICK, "rise to rise across the reset"
+    assert fall - reset_cycle >= MIN_PERIOD * CYCLES_PER_TICK, "fall to fall across the reset"
+    assert (rise - reset_cycle) * info.max_duty_ppm >= width * CYCLES_PER_TICK * (1_000_000 - info.max_duty_ppm)

@@ -116,9 +116,4 @@ def test_300_random_sequences_keep_the_envelope_on_the_true_pin(emulator):
     }
     assert {p: paths.get(p, 0) for p in taken if paths.get(p, 0) < taken[p]} == {}
     assert paths.get("boot.unexpected", 0) == 0, "no boot but the resets the fuzz made (no watchdog reset)"
-    # One known gap of the firmware (BENCHMARKS.md, "Firmware envelope fuzz"; open in issue 13): it
-    # keeps no memory of its last pulse across a reset.  Any other violation fails here (the cut
-    # pulse's fall, the other gap the full run found, is now recorded after the cut); drop this
-    # allowance once the firmware closes the gap.
-    known = {name for name in result["violations_by_kind"] if "(across reset)" in name}
-    assert {name: k["first"] for name, k in result["violations_by_kind"].items() if name not in known} == {}
+    assert {name: k["first"] for name, k in result["violations_by_kind"].items()} == {}

@@ -22,6 +22,7 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
     with SteppedMcuPort(*emulator) as port:
         comcu = CoMcu(port)
         sched = CoMcuTrain(comcu)
+        port.advance_to_tick(comcu.info().first_rise_min_ticks)
         first = comcu.ping().mcu_ticks + 60 * MS
         sched.schedule(first, period, width, pattern)
         _run(port, comcu, 0.13)  # lit pulse 0 (0-12.5 ms after first) is over, the next (at 100 ms) not begun

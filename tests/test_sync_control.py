@@ -173,3 +173,17 @@ def test_thesis_p_controller_gain_is_0_233_f():
     ctrl.on_frame(FrameInfo(0, int((10 * p + 0.1 * p) * 1e9), 0.005, MODE5.mode.line_time_s, p), 0)
     f = 1 / rec.calls[-1][1]
     assert f == pytest.approx(30 + 7 * 0.1, rel=1e-6)  # P = 7 at 30 Hz on e/p = 0.1
+
+
+def test_the_first_train_waits_for_the_co_mcus_quiet_time_after_its_boot():
+    """The firmware lights nothing before Info.first_rise_min_ticks of a boot (it may not know
+    when the last pulse before a reset ended): the controller places its first train after that
+    tick, instead of having it refused.  The simulated MCU boots at 0; a quiet time of 3 s here."""
+    quiet_ticks = int(3.0 * McuConfig().tick_hz)
+    r = run(replace(BASE, seconds=8.0, sync={"first_rise_min_tick": quiet_ticks}))
+    lit = r.frames["label"] == 1
+    assert lit.any() and r.metrics["final_state"] == "locked"
+    assert r.frames["T"][lit].min() >= 3.0
+    _assert_clean(r.metrics)
+    free = run(replace(BASE, seconds=8.0))  # the same run without it lights before 3 s
+    assert free.frames["T"][free.frames["label"] == 1].min() < 3.0

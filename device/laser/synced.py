@@ -118,8 +118,10 @@ class SyncedLaser:
                 if fresh:
                     self.comcu = LockedComcu(self.open_comcu())
                 self.comcu.stop()  # whatever an earlier run left scheduled
-                tick_hz = self.comcu.info().ticks_per_second  # the firmware's clock, whatever its build
-                controller = SyncController(replace(self.sync, tick_hz=tick_hz), CoMcuTrain(self.comcu))
+                info = self.comcu.info()  # the firmware's clock and envelope, whatever its build
+                controller = SyncController(replace(self.sync, tick_hz=info.ticks_per_second,
+                                                    first_rise_min_tick=info.first_rise_min_ticks),
+                                            CoMcuTrain(self.comcu))
                 for _ in range(self.pings_at_start):
                     self._ping(controller)
                 self.comcu.edges()  # drop reports of an older schedule

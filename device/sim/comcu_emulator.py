@@ -110,12 +110,11 @@ class SteppedMcuPort:
     def advance(self, seconds: float) -> None:
         self.run_cycles(int(round(seconds * CPU_HZ)))
 
-    def reset(self, cause: str = "power") -> None:
-        """Resets the MCU now, as a power-on (``"power"``) or a watchdog (``"wdt"``) reset does:
-        every register is cleared (the laser pin becomes an input) and the firmware boots."""
-        if cause not in ("power", "wdt"):
-            raise ValueError(f"reset cause must be 'power' or 'wdt', got {cause!r}")
-        self._command(f"reset {cause}")
+    def advance_to_tick(self, tick: int) -> None:
+        """Runs until this boot's Timer1 count reaches ``tick`` (at once if it has), e.g. past
+        ``mcu.Info.first_rise_min_ticks``, before which the firmware lights nothing after a boot."""
+        start = self.timer_starts[-1]
+        self.run_cycles(max(start + tick * CYCLES_PER_TICK - self.cycle, 0))
 
     def run_cycles(self, cycles: int) -> None:
         self._command(f"run {int(cycles)}")

@@ -40,8 +40,8 @@ The commands (COMMANDS, by weight):
     stop            STOP at a random moment
     stop_mid_pulse  STOP timed to arrive while a pulse is high
     stop_schedule   STOP, then at once a SCHEDULE whose first rise is on or next to the rate or
-                    duty boundary after the last pulse on the pin (in three of ten without
-                    waiting for the STOP's ACK)
+                    duty boundary after the last pulse on the pin, or, early in a boot, the end of
+                    its quiet time (in three of ten without waiting for the STOP's ACK)
     heartbeat       HEARTBEAT
     silence         60-200 ms without a byte (the heartbeat timeout)
     garbage         1-90 random bytes, half of them delimiters
@@ -91,6 +91,12 @@ class Envelope:
     def min_gap(self, width: int) -> int:
         """Shortest off time after or before a pulse of `width` ticks under the duty rule."""
         return -(-width * (1_000_000 - self.max_duty_ppm) // self.max_duty_ppm)
+
+    @property
+    def first_rise_min_ticks(self) -> int:
+        """Earliest rise of a boot: the firmware boots as if the longest pulse had ended at tick 0
+        (core_init).  Only aimed at by the generator; the pin check measures the pulses themselves."""
+        return max(self.min_period_ticks, self.min_gap(self.max_pulse_ticks))
 
 
 # ---- the envelope on the pin (pure: a pin log in, violations out) --------------------------------
@@ -513,14 +519,21 @@ class FuzzDriver:
         """STOP, then a SCHEDULE on or next to the boundary after the last pulse on the pin."""
         env, now = self.envelope, self.now_ticks()
         msg = random_schedule(self.rng, env, now)
+        boundaries = []
         if self.port.edges and not self.pin_high():  # the last pulse in MCU ticks (pin count - 1)
             rise, fall = (self.ticks_at(c) - 1 for c, _ in self.port.edges[-2:])
-            first = self.rng.choice((rise + env.min_period_ticks,                       # rise to rise
-                                     fall + env.min_period_ticks - msg.width_ticks,     # fall to fall
-                                     fall + env.min_gap(max(msg.width_ticks, fall - rise))))  # duty
-            first += self.rng.choice((-2, -1, 0, 1, 2, self.rng.randint(-5 * MS, 5 * MS)))
+            boundaries += [rise + env.min_period_ticks,                        # rise to rise
+                           fall + env.min_period_ticks - msg.width_ticks,      # fall to fall
+                           fall + env.min_gap(max(msg.width_ticks, fall - rise))]  # duty
+        if now < env.first_rise_min_ticks:  # a boot's quiet time (the last pulse may be before the reset)
+            boundaries.append(env.first_rise_min_ticks)
+        if boundaries:
+            aim = self.rng.choice(boundaries)
+            first = aim + self.rng.choice((-2, -1, 0, 1, 2, self.rng.randint(-5 * MS, 5 * MS)))
             if first > now + 3 * MS:
                 msg = dataclasses.replace(msg, first_rise_ticks=first)
+                if aim == env.first_rise_min_ticks:
+                    self.events.append(("schedule.at_the_end_of_a_boot_quiet_time", self.sequence))
         stop = self.send(mcu.Stop())
         if self.rng.random() < 0.7:  # else back to back: the SCHEDULE is on its way before the ACK
             self.run(20 * CYCLES_PER_MS, until=lambda: "outcome" in stop.extra, step=CYCLES_PER_MS // 4)

@@ -115,6 +115,7 @@ class SyncConfig:
     frame_duration_s: float
     pattern: tuple[bool, ...] = (True, False)
     tick_hz: float = 2e6
+    first_rise_min_tick: int = 0  # the co-MCU lights nothing before this tick of its boot (mcu.Info.first_rise_min_ticks)
     guard_sigmas: float = 5.0
     guard_headroom: float = 1.3  # a new train's guard over the one needed now, so it is not widened every frame
     narrow_interval_s: float = 1.0  # narrow the guard (a new schedule) at most this often
@@ -384,7 +385,7 @@ class SyncController:
         seq = frame.sequence + 1
         while True:
             ws, we = self._window_ns(seq, frame)
-            if ws - guard * 1e9 > earliest:
+            if ws - guard * 1e9 > earliest and est.pi_to_mcu_tick(ws - guard * 1e9) >= cfg.first_rise_min_tick:
                 break
             seq += 1
         t0 = math.floor(float(est.pi_to_mcu_tick(ws - guard * 1e9)))

@@ -69,6 +69,21 @@ uint8_t pattern_min_spacing(uint32_t mask, uint8_t n)
     return best;
 }
 
+/* The interlock's memory across a reset.  A reset (power-on, brown-out, watchdog, the external
+ * pin) erases the last pulse's edges, but not the eye's exposure to it: the pulse before the reset
+ * may have ended at the reset itself.  So the firmware boots as if a pulse of the longest width had
+ * just fallen at tick 0 and as if it had been of zero width for the rate rule: the first rise must
+ * then come at least max(interlock_min_gap(MAX_PULSE_TICKS), MIN_PERIOD_TICKS) after tick 0.
+ * Tick 0 is when timer1_start() started Timer1, after the reset: at the reset every I/O register,
+ * TCCR1B included, returns to its initial value (datasheet 11.1 "Resetting the AVR": "All I/O
+ * Registers are set to their initial value"; 16.11.2: TCCR1B initial value 0, clock stopped), and
+ * the pin is an input, held low by the driver's pull-down, from the reset on (11.1: "The I/O ports
+ * of the AVR are immediately reset to their initial state when a reset source goes active").  So
+ * tick 0 is never before the last pre-reset fall, and both rules hold across the reset with the
+ * pre-reset pulse as w1: its rise and fall were at or before tick 0 (file comment's proof with
+ * w1 = 0 and a gap measured from tick 0).  The cost: nothing can light in the first
+ * MIN_PERIOD_TICKS after a boot (90 ms in the default build); the Pi schedules its first pulse
+ * well after the INFO that a boot sends. */
 void core_init(core_t *c, uint8_t reset_cause)
 {
     uint8_t *p = (uint8_t *)c;
@@ -76,6 +91,8 @@ void core_init(core_t *c, uint8_t reset_cause)
         p[i] = 0;
     c->reset_cause = reset_cause;
     c->state = STATE_IDLE;
+    c->have_last = 1;                                   /* last_rise = last_fall = 0: tick 0 */
+    c->last_min_gap = interlock_min_gap(MAX_PULSE_TICKS);
 }
 
 /* ---- replies ---------------------------------------------------------------------------- */

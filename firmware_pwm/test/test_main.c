@@ -35,9 +35,19 @@ static int checks, failures;
  * for tick T shows on the pin at T + 1. */
 #define PIN_LAG 1
 
+/* Every run powers the MCU on at tick 1000, and the interlock keeps the laser off for
+ * MIN_PERIOD_TICKS after a boot (core_init: the pulse before a reset may have ended at it).  So
+ * begin_run lets the idle MCU run to BOOTED + 1000 before a test starts, and the tests' times are
+ * T(the times of a run that starts at tick 1000) = BOOTED + those times.  BOOTED is a whole number of Timer1
+ * overflows, so the guards, which run at the overflows, act at the same points of every pulse
+ * whatever the build's MIN_PERIOD_TICKS.  test_boot_memory tests the first MIN_PERIOD itself. */
+#define BOOTED ((uint64_t)((MIN_PERIOD_TICKS + 1000UL) / 65536UL + 1UL) * 65536UL)
+#define T(ticks) (BOOTED + (uint64_t)(ticks))
+
 /* ---- the core's intended pulses, recorded at the hardware layer's calls into it ---------- */
 #define MAX_INTENDED FAKE_MAX_EDGES
 static uint64_t intended_rise[MAX_INTENDED], intended_fall[MAX_INTENDED], planned_fall;
+static uint64_t scheduled_fall[MAX_INTENDED]; /* where the core placed each pulse's fall (0: unknown) */
 static uint32_t n_intended;
 static int intent_in_flight;
 
@@ -61,6 +71,8 @@ uint64_t __wrap_core_rise_done(core_t *c, uint64_t t)
     }
     uint64_t fall = __real_core_rise_done(c, t);
     planned_fall = model_time(fall);
+    if (n_intended < MAX_INTENDED)
+        scheduled_fall[n_intended] = planned_fall;
     return fall;
 }
 
@@ -86,6 +98,7 @@ uint8_t __wrap_hw_force_off(uint64_t *rose_at)
     int on_pin = fake.n_edges >= 2 && fake.edge_level[fake.n_edges - 2] == 1 &&
                  fake.edge_t[fake.n_edges - 2] > model_time(*rose_at);
     if (risen && on_pin && n_intended < MAX_INTENDED) {
+        scheduled_fall[n_intended] = 0;
         intended_rise[n_intended] = model_time(*rose_at);
         intended_fall[n_intended++] = fake.edge_t[fake.n_edges - 1];
     }
@@ -141,6 +154,7 @@ static void begin_run_named(core_t *c, const char *name)
     fake_reset(c, 1000, 0);
     n_intended = 0;
     intent_in_flight = 0;
+    fake_run(BOOTED + 1000);
 }
 #define begin_run(c) begin_run_named((c), __func__)
 
@@ -337,7 +351,7 @@ static void test_schedule_pattern(void)
 {
     core_t c;
     begin_run(&c);
-    uint64_t first = 200000;
+    uint64_t first = T(200000);
     uint32_t period = 100000, width = 20000; /* 20 fps, every other frame lit: 10 Hz */
     frame_t r = schedule(&c, first, period, width, 0x1, 2, 0);
     CHECK(r.msg_type == MSG_ACK && r.payload[0] == MSG_SCHEDULE, "ack, got 0x%02x", r.msg_type);
@@ -364,19 +378,19 @@ static void test_refusals(void)
     core_t c;
     begin_run(&c);
     struct { uint64_t first; uint32_t period, width, mask; uint8_t n, reason; } cases[] = {
-        {200000, 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
-        {200000, 100000, 20001, 1, 1, NACK_ENVELOPE_DUTY},   /* 20.001 % */
-        {200000, 50000, 20001, 1, 2, NACK_ENVELOPE_DUTY},    /* every other: > 20 % of 100000 */
-        {200000, 90000, 20000, 0x3, 3, NACK_ENVELOPE_DUTY}, /* two adjacent frames lit */
-        {200000, 100000, 10000, 0, 2, NACK_BAD_PATTERN},
-        {200000, 100000, 10000, 0x4, 2, NACK_BAD_PATTERN},
-        {200000, 100000, 10000, 1, 33, NACK_BAD_PATTERN},
-        {200000, 100000, 10, 1, 1, NACK_BAD_VALUE},
-        {1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
-        {1000 + MAX_LEAD_TICKS + 1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
-        {200000, MIN_PERIOD_TICKS - 1, 1000, 1, 1, NACK_ENVELOPE_RATE},      /* short pulses, too often */
-        {200000, MIN_PERIOD_TICKS / 2 - 1, 1000, 1, 2, NACK_ENVELOPE_RATE},  /* every other frame */
-        {200000, MIN_PERIOD_TICKS - 1, 1000, 0x5, 3, NACK_ENVELOPE_RATE},    /* 101: slot 2 then slot 0 */
+        {T(200000), 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
+        {T(200000), 100000, 20001, 1, 1, NACK_ENVELOPE_DUTY},   /* 20.001 % */
+        {T(200000), 50000, 20001, 1, 2, NACK_ENVELOPE_DUTY},    /* every other: > 20 % of 100000 */
+        {T(200000), 90000, 20000, 0x3, 3, NACK_ENVELOPE_DUTY}, /* two adjacent frames lit */
+        {T(200000), 100000, 10000, 0, 2, NACK_BAD_PATTERN},
+        {T(200000), 100000, 10000, 0x4, 2, NACK_BAD_PATTERN},
+        {T(200000), 100000, 10000, 1, 33, NACK_BAD_PATTERN},
+        {T(200000), 100000, 10, 1, 1, NACK_BAD_VALUE},
+        {T(1000), 200000, 10000, 1, 1, NACK_BAD_TIME},
+        {T(1000) + MAX_LEAD_TICKS + 1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
+        {T(200000), MIN_PERIOD_TICKS - 1, 1000, 1, 1, NACK_ENVELOPE_RATE},      /* short pulses, too often */
+        {T(200000), MIN_PERIOD_TICKS / 2 - 1, 1000, 1, 2, NACK_ENVELOPE_RATE},  /* every other frame */
+        {T(200000), MIN_PERIOD_TICKS - 1, 1000, 0x5, 3, NACK_ENVELOPE_RATE},    /* 101: slot 2 then slot 0 */
     };
     for (unsigned i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         frame_t r = schedule(&c, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
@@ -384,12 +398,12 @@ static void test_refusals(void)
               r.msg_type == MSG_NACK ? r.payload[1] : 0);
     }
     CHECK(c.refused == sizeof cases / sizeof cases[0] && c.state == STATE_IDLE, "counted, idle");
-    fake_run(2000000);
+    fake_run(T(2000000));
     CHECK(fake.n_edges == 0, "refused schedules never light the laser");
     /* exactly at the envelope is accepted: the shortest period with the longest pulse */
-    frame_t r = schedule(&c, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    frame_t r = schedule(&c, T(2200000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "MIN_PERIOD with MAX_PULSE accepted");
-    r = schedule(&c, 2200000, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    r = schedule(&c, T(2200000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "busy while running");
     const uint8_t t[LEN_TRIM] = {0};
     core_init(&c, 0);
@@ -401,7 +415,7 @@ static void test_trim(void)
 {
     core_t c;
     begin_run(&c);
-    uint64_t first = 100000;
+    uint64_t first = T(100000);
     uint32_t period = 200000, width = 10000;
     schedule(&c, first, period, width, 1, 1, 0);
     run_with_heartbeats(&c, first + 5000); /* pulse 0 in flight */
@@ -451,24 +465,24 @@ static void test_trim(void)
 }
 
 /* A trim moves the first slot starting at least MIN_LEAD after it arrives; pattern 0b01 of 2
- * (lit slots 0, 2, 4, ...), period 100000, phase +5000, period +1000. */
+ * (lit slots 0, 2, 4, ...), period 100000, phase +5000, period +1000.  Times are T() offsets. */
 static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, uint64_t want_rise4)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, 100000, 100000, 10000, 1, 2, 0);
-    run_with_heartbeats(&c, when);
+    schedule(&c, T(100000), 100000, 10000, 1, 2, 0);
+    run_with_heartbeats(&c, T(when));
     uint8_t t[LEN_TRIM];
     put_u32(t, 5000);
     put_u32(t + 4, 1000);
     frame_t r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == want_slot, "trim at %llu: slot %u",
           (unsigned long long)when, r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 999);
-    run_with_heartbeats(&c, 600000);
-    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == 100000 + PIN_LAG && fake.edge_t[2] == want_rise2 + PIN_LAG &&
-              fake.edge_t[4] == want_rise4 + PIN_LAG,
+    run_with_heartbeats(&c, T(600000));
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == T(100000) + PIN_LAG && fake.edge_t[2] == T(want_rise2) + PIN_LAG &&
+              fake.edge_t[4] == T(want_rise4) + PIN_LAG,
           "trim at %llu: rises %llu %llu, want %llu %llu", (unsigned long long)when,
-          (unsigned long long)fake.edge_t[2], (unsigned long long)fake.edge_t[4],
+          (unsigned long long)(fake.edge_t[2] - BOOTED), (unsigned long long)(fake.edge_t[4] - BOOTED),
           (unsigned long long)want_rise2, (unsigned long long)want_rise4);
 }
 
@@ -485,37 +499,37 @@ static void test_runtime_interlock(void)
      * run-time check on the actual edges still refuses to build a denser train. */
     core_t c;
     begin_run(&c);
-    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
-    run_with_heartbeats(&c, 105000);
+    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+    run_with_heartbeats(&c, T(105000));
     c.trim_pending = 1;
     c.trim_phase = -150000; /* next gap 30000 < 4 * 20000 */
-    fake_run(1000000);
+    fake_run(T(1000000));
     CHECK(fake.n_edges == 2 && fake.pin == 0, "only the first pulse, got %u edges", fake.n_edges);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_DUTY), "duty fault latched");
     /* rate rule at run time, widths changing between two pulses (acceptance bypassed): a 15 ms
      * pulse, then 1 ms pulses.  Rise to rise stays >= MIN_PERIOD but fall to fall would not. */
     for (int k = 0; k < 2; k++) {
         begin_run(&c);
-        schedule(&c, 100000, 200000, 30000, 1, 1, 0);
-        run_with_heartbeats(&c, 100001);   /* pulse 0 in flight, its fall armed at 130000 */
+        schedule(&c, T(100000), 200000, 30000, 1, 1, 0);
+        run_with_heartbeats(&c, T(100001));   /* pulse 0 in flight, its fall armed at 130000 */
         c.width = 2000;                     /* the next pulses are narrow */
         c.trim_pending = 1;
         /* k = 0: rise 1 at 285000: rises 185000 apart, falls 157000 (< MIN_PERIOD) -> fault;
          * k = 1: rise 1 at 310000: falls 182000 apart -> runs */
         c.trim_phase = k == 0 ? -15000 : 10000;
-        run_with_heartbeats(&c, 400000);
+        run_with_heartbeats(&c, T(400000));
         if (k == 0)
             CHECK(fake.n_edges == 2 && c.state == STATE_FAULT && c.faults == FAULT_RATE,
                   "fall-to-fall too close: rate fault, %u edges, faults %u", fake.n_edges, c.faults);
         else
-            CHECK(fake.n_edges == 4 && fake.edge_t[2] == 310000 + PIN_LAG && fake.edge_t[3] == 312000 + PIN_LAG &&
+            CHECK(fake.n_edges == 4 && fake.edge_t[2] == T(310000) + PIN_LAG && fake.edge_t[3] == T(312000) + PIN_LAG &&
                       c.state == STATE_RUNNING, "fall-to-fall at MIN_PERIOD: runs");
     }
     /* a pulse cut short by STOP counts with its actual width: SCHEDULE right after is checked on
      * the real edges (rise to rise and fall to fall) */
     begin_run(&c);
-    schedule(&c, 100000, 200000, 30000, 1, 1, 0);
-    run_with_heartbeats(&c, 102000);
+    schedule(&c, T(100000), 200000, 30000, 1, 1, 0);
+    run_with_heartbeats(&c, T(102000));
     command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~2000 ticks */
     uint64_t cut_rise = fake.edge_t[0] - PIN_LAG, cut_fall = fake.edge_t[1]; /* cut by software: no lag */
     frame_t r = schedule(&c, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
@@ -527,13 +541,13 @@ static void test_runtime_interlock(void)
     command(&c, MSG_STOP, NULL, 0);
     /* width guard: a pulse seen high too long is cut */
     begin_run(&c);
-    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
-    run_with_heartbeats(&c, 100001);
+    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+    run_with_heartbeats(&c, T(100001));
     /* a stuck compare unit: the fall's match leaves the latch high and raises no interrupt */
     fake.tccr1a = (uint8_t)(_BV(COM1A1) | _BV(COM1A0));
     fake.timsk1 &= (uint8_t)~_BV(OCIE1A);
     c.last_heartbeat = fake.now;
-    fake_run(100000 + 2 * 65536);
+    fake_run(T(100000) + 2 * 65536);
     CHECK(fake.pin == 0 && (c.faults & FAULT_WIDTH), "width guard");
     CHECK(fake.n_edges == 2 && fake.edge_t[1] - fake.edge_t[0] <= MAX_PULSE_TICKS + 65536,
           "cut at the next guard run");
@@ -547,17 +561,17 @@ static void test_heartbeat(void)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, 100000, 200000, 20000, 1, 1, 0);
+    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
     uint64_t last_hb = fake.now;
-    fake_run(100000 + 10000); /* mid pulse, heartbeats stop */
-    fake_run(2000000);
+    fake_run(T(100000) + 10000); /* mid pulse, heartbeats stop */
+    fake_run(T(2000000));
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "heartbeat fault");
     CHECK(fake.n_edges >= 2, "a pulse before the fault, got %u edges", fake.n_edges);
     uint64_t last_edge = fake.n_edges ? fake.edge_t[fake.n_edges - 1] : 0;
     CHECK(fake.pin == 0 && fake.n_edges && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
     CHECK(last_edge - last_hb < TICKS_PER_SECOND / 10, "off within 100 ms: %llu ticks",
           (unsigned long long)(last_edge - last_hb));
-    frame_t r = schedule(&c, 100000, 200000, 20000, 1, 1, 0);
+    frame_t r = schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "fault must be cleared by STOP");
     r = command(&c, MSG_STOP, NULL, 0);
     CHECK(r.msg_type == MSG_ACK && c.state == STATE_IDLE && c.faults == 0, "stop clears");
@@ -595,20 +609,20 @@ static void test_stop_and_edges(void)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, 100000, 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    run_with_heartbeats(&c, 310000); /* pulse 0 done, pulse 1 in flight */
+    schedule(&c, T(100000), 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    run_with_heartbeats(&c, T(310000)); /* pulse 0 done, pulse 1 in flight */
     core_poll(&c);
     frame_t r;
     int got = fake_reply(&r);
-    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 0 && get_u64(r.payload + 4) == 100000 &&
-              get_u64(r.payload + 12) == 120000 && r.payload[20] == 0, "edge report of pulse 0");
+    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 0 && get_u64(r.payload + 4) == T(100000) &&
+              get_u64(r.payload + 12) == T(120000) && r.payload[20] == 0, "edge report of pulse 0");
     r = command(&c, MSG_STOP, NULL, 0);
     CHECK(r.msg_type == MSG_ACK && fake.pin == 0, "stop mid pulse");
     core_poll(&c);
     got = fake_reply(&r);
     CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 1 && r.payload[20] == EDGE_CUT &&
-              get_u64(r.payload + 12) == 310000, "cut pulse reported");
-    fake_run(1000000);
+              get_u64(r.payload + 12) == T(310000), "cut pulse reported");
+    fake_run(T(1000000));
     CHECK(fake.n_edges == 4, "nothing after stop");
 }
 
@@ -622,14 +636,14 @@ static void test_cut_mid_pulse_then_schedule(void)
         for (uint32_t cut = 1; cut < 20000; cut += 1999) {
             begin_run(&c);
             if (how == 0) { /* STOP */
-                schedule(&c, 100000, 200000, 20000, 1, 1, 0);
-                run_with_heartbeats(&c, 100000 + cut);
+                schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+                run_with_heartbeats(&c, T(100000) + cut);
                 CHECK(fake.pin == 1, "cut %u: mid pulse", cut);
                 command(&c, MSG_STOP, NULL, 0);
             } else { /* no heartbeat after the SCHEDULE: the guard at the Timer1 overflow at tick
-                      * 131072 trips in the middle of the pulse */
-                schedule(&c, 131072 - 34800 + cut, 200000, 34800, 1, 1, 0);
-                fake_run(131072 + 10);
+                      * T(131072) trips in the middle of the pulse */
+                schedule(&c, T(131072) - 34800 + cut, 200000, 34800, 1, 1, 0);
+                fake_run(T(131072) + 10);
                 CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "cut %u: heartbeat fault", cut);
                 command(&c, MSG_STOP, NULL, 0);
             }
@@ -652,10 +666,10 @@ static void test_cut_mid_pulse_then_schedule(void)
     begin_run(&c);
     fake.tcnt_read_cost = 120;
     /* (a period 1 ms above the rate limit: a late fall brings the next fall closer than planned) */
-    schedule(&c, 100000, MIN_PERIOD_TICKS + 2000, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    run_with_heartbeats(&c, 100000 + 3 * (MIN_PERIOD_TICKS + 2000) + 1000);
+    schedule(&c, T(100000), MIN_PERIOD_TICKS + 2000, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    run_with_heartbeats(&c, T(100000) + 3 * (MIN_PERIOD_TICKS + 2000) + 1000);
     CHECK(c.late == 4 && c.state == STATE_RUNNING && fake.n_edges == 8 &&
-              fake.edge_t[6] == 100000 + 3 * (MIN_PERIOD_TICKS + 2000) + PIN_LAG,
+              fake.edge_t[6] == T(100000) + 3 * (MIN_PERIOD_TICKS + 2000) + PIN_LAG,
           "forced falls: %u late, %u edges, state %u faults 0x%02x", c.late, fake.n_edges, c.state, c.faults);
     command(&c, MSG_STOP, NULL, 0);
     fake.tcnt_read_cost = 0;
@@ -673,7 +687,7 @@ static void test_trim_racing_the_armed_rise(void)
     for (uint32_t lead = 2000; lead < 12000; lead += 17) {
         begin_run(&c);
         fake.tcnt_read_cost = 150;
-        uint64_t first = 100000;
+        uint64_t first = T(100000);
         schedule(&c, first, MIN_PERIOD_TICKS, 2000, 1, 1, 0);
         run_with_heartbeats(&c, first + MIN_PERIOD_TICKS - lead);
         put_u32(t, 2000); /* +1 ms */
@@ -707,7 +721,7 @@ static void test_fault_racing_the_armed_rise(void)
     for (uint32_t before = 1; before < 60; before += 3) {
         begin_run(&c);
         fake.tcnt_read_cost = 20;
-        uint64_t rise = 131072 + before; /* the overflow at 131072 finds the heartbeat expired */
+        uint64_t rise = T(131072) + before; /* the overflow at T(131072) finds the heartbeat expired */
         schedule(&c, rise, 200000, 20000, 1, 1, 0);
         fake_run(rise + 1000);
         CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT) && fake.pin == 0, "before %u: fault, pin low",
@@ -732,8 +746,8 @@ static void test_reset_mid_pulse(void)
     const uint8_t causes[] = {0x01 /* PORF */, 0x04 /* BORF */, 0x08 /* WDRF */};
     for (unsigned k = 0; k < sizeof causes; k++) {
         begin_run(&c);
-        schedule(&c, 100000, 200000, 20000, 1, 1, 0);
-        run_with_heartbeats(&c, 110000);
+        schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+        run_with_heartbeats(&c, T(110000));
         CHECK(fake.pin == 1, "mid pulse");
         intend_fall(fake.now); /* the reset ends it */
         fake_boot(&c, causes[k]);
@@ -752,12 +766,41 @@ static void test_reset_mid_pulse(void)
     }
 }
 
+/* A reset erases the interlock's history, not the eye's exposure: the pulse before a reset may
+ * end at the reset itself.  The booted firmware lights nothing for MIN_PERIOD (core_init), so
+ * rise to rise, fall to fall and the duty gap hold on the pin across the reset. */
+static void test_boot_memory(void)
+{
+    core_t c;
+    begin_run(&c);
+    schedule(&c, T(100000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    run_with_heartbeats(&c, T(100000) + MAX_PULSE_TICKS - 10); /* the end of a longest pulse */
+    CHECK(fake.pin == 1, "mid pulse");
+    uint64_t reset_at = fake.now, rise_before = fake.edge_t[fake.n_edges - 1];
+    intend_fall(fake.now); /* the reset ends it */
+    fake_boot(&c, 0x08);   /* a watchdog reset: Timer1 counts from 0 again */
+    frame_t r = schedule(&c, MIN_PERIOD_TICKS - 1, MIN_PERIOD_TICKS, MIN_PULSE_TICKS, 1, 1, 0);
+    CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE,
+          "a rise sooner than MIN_PERIOD after the boot is refused (got 0x%02x)", r.msg_type);
+    r = schedule(&c, MIN_PERIOD_TICKS, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    CHECK(r.msg_type == MSG_ACK, "a rise MIN_PERIOD after the boot is accepted");
+    run_with_heartbeats(&c, model_time(MIN_PERIOD_TICKS) + MAX_PULSE_TICKS + 1000);
+    uint32_t n = fake.n_edges;
+    CHECK(n == 4 && fake.edge_t[2] == reset_at + MIN_PERIOD_TICKS + PIN_LAG &&
+              fake.edge_t[2] - rise_before >= MIN_PERIOD_TICKS && fake.edge_t[3] - reset_at >= MIN_PERIOD_TICKS &&
+              (fake.edge_t[2] - reset_at) * MAX_DUTY_PPM >= (uint64_t)MAX_PULSE_TICKS * (1000000ULL - MAX_DUTY_PPM),
+          "across the reset: %u edges, first rise %llu ticks after it", n,
+          (unsigned long long)(n > 2 ? fake.edge_t[2] - reset_at : 0));
+    command(&c, MSG_STOP, NULL, 0);
+}
+
 static void test_random_commands_interlock(void)
 {
     /* Random, mostly hostile command streams, with instruction time (TCNT1 reads costing 0-160
-     * ticks) so that commands race the edges: check every pulse and gap on the pin (and each
-     * trial's pin against the core's pulses, at the next begin_run). */
-    int violations = 0, rate_violations = 0, pulses = 0;
+     * ticks) so that commands race the edges, and resets: check every pulse and gap on the pin,
+     * across the resets too (and each trial's pin against the core's pulses, at the next
+     * begin_run). */
+    int violations = 0, rate_violations = 0, pulses = 0, resets = 0;
     for (int trial = 0; trial < 2000; trial++) {
         core_t c;
         begin_run(&c);
@@ -766,7 +809,7 @@ static void test_random_commands_interlock(void)
             uint8_t t[LEN_TRIM];
             switch (rnd() % 6) {
             case 0:
-                schedule(&c, fake.now + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
+                schedule(&c, hw_now() + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
                                  rnd() % (MAX_PULSE_TICKS + 5000), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
                 break;
             case 1: case 2:
@@ -775,6 +818,14 @@ static void test_random_commands_interlock(void)
                 command(&c, MSG_TRIM, t, sizeof t);
                 break;
             case 3: command(&c, MSG_STOP, NULL, 0); break;
+            case 4:
+                if (rnd() % 4 == 0) { /* a watchdog or brown-out reset, mid pulse or not */
+                    intend_fall(fake.now);
+                    fake_boot(&c, rnd() & 1 ? 0x08 : 0x04);
+                    resets++;
+                    break;
+                }
+                /* fall through */
             default: heartbeat(&c); break;
             }
             fake_run(fake.now + rnd() % 80000);
@@ -790,12 +841,18 @@ static void test_random_commands_interlock(void)
                 uint64_t wmax = w > w2 ? w : w2;
                 uint64_t gap = fake.edge_t[k + 1] - fake.edge_t[k];
                 violations += gap * MAX_DUTY_PPM < wmax * (1000000ULL - MAX_DUTY_PPM);
+                /* a pulse cut short (STOP, fault, reset) is judged on its scheduled fall: a cut
+                 * only removes light from a pulse the interlock let rise */
+                uint64_t fall2 = k + 2 < fake.n_edges ? fake.edge_t[k + 2] : 0;
+                uint32_t next = (k + 1) / 2;
+                if (next < n_intended && scheduled_fall[next] > fall2)
+                    fall2 = scheduled_fall[next];
                 rate_violations += k + 2 < fake.n_edges && (fake.edge_t[k + 1] - fake.edge_t[k - 1] < MIN_PERIOD_TICKS ||
-                                                            fake.edge_t[k + 2] - fake.edge_t[k] < MIN_PERIOD_TICKS);
+                                                            fall2 - fake.edge_t[k] < MIN_PERIOD_TICKS);
             }
         }
     }
-    CHECK(pulses > 200, "random streams produced %d pulses", pulses);
+    CHECK(pulses > 200 && resets > 200, "random streams produced %d pulses, %d resets", pulses, resets);
     CHECK(violations == 0, "%d envelope violations in %d pulses", violations, pulses);
     CHECK(rate_violations == 0, "%d rise-to-rise or fall-to-fall intervals below MIN_PERIOD", rate_violations);
 }
@@ -819,6 +876,7 @@ int main(void)
     test_trim_racing_the_armed_rise();
     test_fault_racing_the_armed_rise();
     test_reset_mid_pulse();
+    test_boot_memory();
     test_random_commands_interlock();
     begin_run_named(&(core_t){0}, "end");
     printf("firmware unit tests: %d checks, %d failed\n", checks, failures);
