@@ -2,7 +2,7 @@
 timeouts, interleaved EDGE reports, boot INFO and damaged frames."""
 import pytest
 
-from device.laser.comcu import CoMcu, CoMcuError, CoMcuNack, CoMcuTimeout
+from device.laser.comcu import HEARTBEAT_SEQ, CoMcu, CoMcuError, CoMcuNack, CoMcuTimeout
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, decode_frame
 
@@ -61,10 +61,30 @@ def test_edges_boot_info_and_stale_or_damaged_frames_are_kept_apart():
                 + mcu.encode_message(mcu.Ack(0x45, 7), (f.seq + 5) & 0xFFFF)  # stale reply
                 + mcu.encode_message(mcu.Ack(0x45, 1 | (mcu.Fault.HEARTBEAT << 8)), f.seq))
 
-    comcu = CoMcu(ScriptedPort(respond))
-    assert comcu.heartbeat() == (mcu.McuState.RUNNING, mcu.Fault.HEARTBEAT)
+    port = ScriptedPort(respond)
+    comcu = CoMcu(port)
+    comcu.send_heartbeat()
+    assert port.requests == [mcu.Heartbeat()] and comcu.heartbeat_state is None, "written, not waited for"
     assert comcu.edges() == [edge] and comcu.edges() == []
     assert comcu.boot_infos == [boot] and comcu.bad_frames == 1
+    assert comcu.heartbeat_state == (mcu.McuState.RUNNING, mcu.Fault.HEARTBEAT) and comcu.heartbeat_acks == 1
+
+
+def test_heartbeat_acks_never_answer_a_request_and_a_stop_forgets_their_state():
+    seqs = []
+
+    def respond(f):
+        seqs.append(f.seq)
+        ack = mcu.encode_message(mcu.Ack(f.msg_type, 1 | (mcu.Fault.DUTY << 8)), HEARTBEAT_SEQ)
+        return ack + mcu.encode_message(mcu.Ack(f.msg_type, 0), f.seq)  # a heartbeat's ACK first
+
+    comcu = CoMcu(ScriptedPort(respond))
+    comcu._seq = HEARTBEAT_SEQ - 2
+    assert [comcu.trim(0, 0), comcu.trim(0, 0)] == [0, 0]
+    assert seqs == [HEARTBEAT_SEQ - 1, 1], "requests wrap around the heartbeat's sequence number"
+    assert comcu.heartbeat_state == (mcu.McuState.RUNNING, mcu.Fault.DUTY) and comcu.heartbeat_acks == 2
+    comcu.stop()  # the MCU answers in order: the ACK before the STOP's is of a heartbeat before it
+    assert comcu.heartbeat_state is None
 
 
 def test_silence_is_a_timeout_and_a_wrong_reply_type_an_error():

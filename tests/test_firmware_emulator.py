@@ -79,7 +79,7 @@ def run_with_heartbeats(port, comcu, seconds, every=0.02):
     end = port.seconds + seconds
     while port.seconds < end:
         port.advance(min(every, end - port.seconds))
-        comcu.heartbeat()
+        comcu.send_heartbeat()
 
 
 def pin_pulses(port):
@@ -92,9 +92,12 @@ def pin_pulses(port):
 
 def advance_into_pulse(port, comcu, seconds):
     """Runs (with heartbeats) until the pin rises, then ``seconds`` more: into that pulse."""
+    beat = port.seconds
     while not port.edges or port.edges[-1][1] == 0:
         port.advance(0.0005)
-        comcu.heartbeat()
+        if port.seconds - beat >= 0.01:  # heartbeats every 10 ms (they are not paced by replies)
+            comcu.send_heartbeat()
+            beat = port.seconds
     port.advance(seconds)
 
 
@@ -146,6 +149,8 @@ def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
     run_with_heartbeats(port, comcu, 0.4)
     moved = comcu.trim(phase_ticks=-1_234, period_ticks=57)  # the first slot it moves
     run_with_heartbeats(port, comcu, 0.5)
+    while port.edges[-1][1] == 1:  # STOP between pulses: every reported pulse is a whole one
+        port.advance(0.0005)
     comcu.stop()
     port.advance(0.01)
     reports = comcu.edges()
@@ -285,7 +290,8 @@ def test_heartbeat_loss_switches_the_laser_off_within_100_ms(relaxed_link):
     with pytest.raises(CoMcuNack, match="busy"):
         comcu.schedule(comcu.ping().mcu_ticks + 20 * MS, 25 * MS, 5 * MS)
     comcu.stop()
-    assert comcu.heartbeat() == (mcu.McuState.IDLE, mcu.Fault(0))
+    st = comcu.status()
+    assert (st.state, st.faults) == (mcu.McuState.IDLE, 0)
 
 
 def test_garbage_on_the_line_never_wedges_the_firmware(link):
@@ -322,8 +328,8 @@ def test_shortest_pulses_at_a_high_rate_stay_exact_and_commands_responsive(relax
     first, period, width = now + 20 * MS, 1_000, 200
     comcu.schedule(first, period, width, stream_edges=True)
     run_with_heartbeats(port, comcu, 0.2, every=0.01)
-    state, faults = comcu.heartbeat()
-    assert (state, faults) == (mcu.McuState.RUNNING, mcu.Fault(0))
+    st = comcu.status()
+    assert (st.state, st.faults) == (mcu.McuState.RUNNING, 0)
     pulses = pin_pulses(port)
     assert len(pulses) >= 350
     for i, (rc, fc) in enumerate(pulses):
@@ -358,7 +364,7 @@ def test_fuzzed_sync_trims_never_make_the_train_faster_than_min_period(link):
     accepted = refused = 0
     for i in range(160):
         port.advance(rng.uniform(0.002, 0.03))
-        comcu.heartbeat()
+        comcu.send_heartbeat()
         kind = rng.random()
         if kind < 0.4:  # drift-like: +-1000 ppm of the frame period
             phase, dperiod = 0, rng.randint(-100, 100)
@@ -373,7 +379,8 @@ def test_fuzzed_sync_trims_never_make_the_train_faster_than_min_period(link):
         except CoMcuNack as exc:
             assert exc.reason in ("envelope_rate", "bad_time"), (exc, comcu.status(), i, phase, dperiod, period)
             refused += exc.reason == "envelope_rate"
-    assert comcu.heartbeat() == (mcu.McuState.RUNNING, mcu.Fault(0)), "acceptance caught every violation"
+    st = comcu.status()
+    assert (st.state, st.faults) == (mcu.McuState.RUNNING, 0), "acceptance caught every violation"
     comcu.stop()
     pulses = pin_pulses(port)
     assert accepted >= 40 and refused >= 15 and len(pulses) >= 20, (accepted, refused, len(pulses))
@@ -391,7 +398,7 @@ def test_random_trims_follow_the_documented_slot_model_exactly(link):
     moves = {}  # slot -> [phase, period delta], trims on the same slot add up
     for i in range(60):
         port.advance(rng.uniform(0.001, 0.03))
-        comcu.heartbeat()
+        comcu.send_heartbeat()
         phase, dperiod = rng.randint(-2_000, 6_000), rng.randint(-50, 50)
         slot = comcu.trim(phase, dperiod)
         moves.setdefault(slot, [0, 0])
@@ -465,7 +472,7 @@ def test_trims_racing_the_armed_rise_never_invert_the_train(relaxed_link):
             next_rise += 2_000
         except CoMcuNack as exc:
             assert exc.reason == "bad_time", exc
-        comcu.heartbeat()
+        comcu.send_heartbeat()
         reports += comcu.edges()
         next_rise = max(next_rise, (reports[-1].rise_ticks + period) if reports else first)
     comcu.stop()

@@ -14,7 +14,7 @@ def _run(port, comcu, seconds):
     end = port.seconds + seconds
     while port.seconds < end:
         port.advance(min(0.02, end - port.seconds))
-        comcu.heartbeat()
+        comcu.send_heartbeat()
 
 
 def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
@@ -70,10 +70,10 @@ def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator):
         def pi_s(cycle):
             return offset + cycle / CPU_HZ / (1 + drift)
 
-        def advance_to(t_pi):  # with heartbeats, as the device process sends them
-            while pi_s(port.cycle) < t_pi:
+        def advance_to(t_pi):  # with heartbeats, as the device process sends them (each answered
+            while pi_s(port.cycle) < t_pi:  # before the next ping, as the device's mostly are)
+                comcu.send_heartbeat()
                 port.advance(min(0.02, (t_pi - pi_s(port.cycle)) * (1 + drift) + 1e-6))
-                comcu.heartbeat()
 
         def ping():
             r = comcu.ping()

@@ -3,6 +3,8 @@ runs in tests/test_serve_sim.py): HEALTH.comcu_resets depends on it."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from device.camera.frame import Frame
 from device.camera.modes import MODE5
 from device.laser.base import LaserError
 from device.laser.comcu import CoMcuTimeout, PingResult
-from device.laser.synced import SyncedLaser
+from device.laser.synced import UNANSWERED_HEARTBEATS, SyncedLaser
 from device.sync.control import SyncConfig
 from protocol import mcu
 
@@ -23,6 +25,8 @@ class FakeComcu:
         self.ticks_per_second = 2_000_000  # the 16 MHz firmware's
         self.boot_infos: list[mcu.Info] = []
         self.answering = True
+        self.heartbeat_state = None  # as CoMcu: from the heartbeats' ACKs
+        self.heartbeats_sent = self.heartbeat_acks = 0
 
     def _request(self) -> None:
         if not self.answering:
@@ -49,6 +53,11 @@ class FakeComcu:
 
     def edges(self) -> list:
         return []
+
+    def send_heartbeat(self) -> None:
+        self.heartbeats_sent += 1
+        if self.answering:
+            self.heartbeat_acks += 1
 
 
 @pytest.fixture
@@ -135,3 +144,44 @@ def test_an_outage_without_a_reboot_is_only_a_loss(laser_and_mcu):
     assert err.reason == "lost"
     fake.answering = True
     assert laser.start(FRAME) is False
+
+
+def test_a_fault_in_a_heartbeat_ack_is_raised_by_the_frame_loop(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    laser.heartbeat()
+    assert fake.heartbeats_sent == 1
+    fake.heartbeat_state = (mcu.McuState.FAULT, mcu.Fault.HEARTBEAT)
+    err = frame_lit_error(laser)
+    assert err.reason == "fault" and "HEARTBEAT" in str(err)
+
+
+def test_heartbeats_nobody_answers_are_a_lost_link(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    for _ in range(5):
+        fake.send_heartbeat()
+    laser.frame_lit(FRAME)  # answered so far
+    fake.answering = False
+    fake.ping = lambda: PingResult(fake.ticks, 0, 1000, fake.ticks - 10)  # only the heartbeats go unanswered
+    for _ in range(UNANSWERED_HEARTBEATS):
+        fake.send_heartbeat()
+    laser.frame_lit(FRAME)
+    fake.send_heartbeat()
+    err = frame_lit_error(laser)
+    assert err.reason == "lost" and f"none of the last {UNANSWERED_HEARTBEATS + 1} heartbeats" in str(err)
+
+
+def test_pings_are_rarer_while_the_clock_map_runs_on_the_gpio_edges(laser_and_mcu):
+    laser, fake = laser_and_mcu
+    laser.start(FRAME)
+    pings, ping = [], fake.ping
+    fake.ping = lambda: pings.append(1) or ping()
+    for _ in range(10):
+        laser.frame_lit(FRAME)  # (the fake clock moves 0.1 s per reading: more than ping_interval_s)
+    on_pings = len(pings)
+    laser.controller.clock = lambda: SimpleNamespace(source="gpio")
+    laser.ping_interval_gpio_s = 2.0  # (the fake clock reads ~0.4 s later per frame)
+    for _ in range(10):
+        laser.frame_lit(FRAME)
+    assert on_pings == 10 and len(pings) - on_pings < 5

@@ -4,9 +4,11 @@ The port needs ``write(bytes)``, ``read(size) -> bytes`` (returning fewer bytes,
 its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at 250000 baud 8N1 on the Pi, or
 device.sim.comcu_emulator.SteppedMcuPort for the firmware running in simavr.
 
-Every command waits for its reply (matched by sequence number).  EDGE reports and unsolicited
-INFO frames (the MCU announces every boot with one) that arrive meanwhile are kept, see
-``edges()`` and ``boot_infos``.  A refusal raises CoMcuNack naming the reason.
+Every command waits for its reply (matched by sequence number), except the heartbeat:
+``send_heartbeat`` only writes it, and its ACK, read with the next command or ``edges()``, sets
+``heartbeat_state``.  EDGE reports and unsolicited INFO frames (the MCU announces every boot with
+one) that arrive meanwhile are kept, see ``edges()`` and ``boot_infos``.  A refusal raises
+CoMcuNack naming the reason.
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 log = logging.getLogger(__name__)
 
 BAUDRATE = 250_000
+#: Sequence number of every HEARTBEAT (send_heartbeat); requests use 1..0xFFFE, so an ACK of a
+#: heartbeat never answers a request.
+HEARTBEAT_SEQ = 0xFFFF
 _REPLY_TYPES = {mcu.Ack.MSG_TYPE, mcu.Nack.MSG_TYPE, mcu.Pong.MSG_TYPE, mcu.Status.MSG_TYPE, mcu.Info.MSG_TYPE}
 _NAMES = {cls.MSG_TYPE: cls.__name__.upper() for cls in mcu.MESSAGES.values()}
 
@@ -72,6 +77,11 @@ class CoMcu:
         self._edges: list[mcu.Edge] = []
         self.boot_infos: list[mcu.Info] = []
         self.bad_frames = 0
+        self._heartbeat_wire = b"\x00" + mcu.encode_message(mcu.Heartbeat(), HEARTBEAT_SEQ)
+        self.heartbeats_sent = 0
+        self.heartbeat_acks = 0
+        #: (state, latched faults) from the newest heartbeat ACK since the last STOP; None before one
+        self.heartbeat_state: tuple[mcu.McuState, mcu.Fault] | None = None
 
     # ---- commands -----------------------------------------------------------------------
     def ping(self) -> PingResult:
@@ -93,7 +103,9 @@ class CoMcu:
 
     def stop(self) -> int:
         """Laser off now, schedule dropped, faults cleared; returns the pulse count."""
-        return self._request(mcu.Stop(), mcu.Ack).info
+        pulses = self._request(mcu.Stop(), mcu.Ack).info
+        self.heartbeat_state = None  # the MCU answers in order: every ACK before the STOP's was read
+        return pulses
 
     def status(self) -> mcu.Status:
         return self._request(mcu.StatusRequest(), mcu.Status)
@@ -101,11 +113,13 @@ class CoMcu:
     def info(self) -> mcu.Info:
         return self._request(mcu.InfoRequest(), mcu.Info)
 
-    def heartbeat(self) -> tuple[mcu.McuState, mcu.Fault]:
+    def send_heartbeat(self) -> None:
         """Keep a running schedule alive (the MCU switches the laser off without one for
-        Info.heartbeat_timeout_ms); returns the MCU's state and latched faults."""
-        info = self._request(mcu.Heartbeat(), mcu.Ack).info
-        return mcu.McuState(info & 0xFF), mcu.Fault((info >> 8) & 0xFF)
+        Info.heartbeat_timeout_ms).  Only written: one 12-byte write, no round trip.  Its ACK,
+        read with the next command or ``edges()``, updates ``heartbeat_state`` and
+        ``heartbeat_acks``."""
+        self.port.write(self._heartbeat_wire)
+        self.heartbeats_sent += 1
 
     def edges(self) -> list[mcu.Edge]:
         """EDGE reports received so far (streamed when the schedule asked for them), oldest
@@ -120,7 +134,7 @@ class CoMcu:
 
     # ---- plumbing -----------------------------------------------------------------------
     def _request(self, msg, reply_cls):
-        self._seq = (self._seq + 1) & 0xFFFF or 1  # seq 0 is the MCU's unsolicited traffic
+        self._seq = self._seq % (HEARTBEAT_SEQ - 1) + 1  # 1..0xFFFE: 0 is the MCU's unsolicited traffic
         # A leading delimiter ends any partial frame line noise left in the MCU's receiver.
         self.port.write(b"\x00" + mcu.encode_message(msg, self._seq))
         for _ in range(self._max_skipped):
@@ -145,6 +159,9 @@ class CoMcu:
             return
         if isinstance(msg, mcu.Edge):
             self._edges.append(msg)
+        elif isinstance(msg, mcu.Ack) and frame.seq == HEARTBEAT_SEQ:
+            self.heartbeat_acks += 1
+            self.heartbeat_state = mcu.McuState(msg.info & 0xFF), mcu.Fault((msg.info >> 8) & 0xFF)
         elif isinstance(msg, mcu.Info) and frame.seq == 0:
             log.info("co-MCU (re)started: reset cause 0x%02x", msg.reset_cause)
             self.boot_infos.append(msg)

@@ -38,8 +38,11 @@ log = logging.getLogger(__name__)
 
 #: Heartbeat interval: the firmware switches the laser off 50 ms after the last heartbeat
 #: (firmware_pwm/src/config.h HEARTBEAT_TIMEOUT_TICKS), so 15 ms leaves three chances in that
-#: window; each one is a request and its reply on the UART (~0.5 ms of Python here).
+#: window; each one is a 12-byte write (CoMcu.send_heartbeat), its ACK read by the frame loop.
 HEARTBEAT_S = 0.015
+#: Heartbeats written without an ACK read back before the link counts as lost: ~0.2 s of them,
+#: four times the firmware's timeout (a busy frame loop reads the ACKs late, not never).
+UNANSWERED_HEARTBEATS = 12
 
 
 class LockedComcu:
@@ -78,9 +81,13 @@ class SyncedLaser:
 
     def __init__(self, open_comcu: Callable[[], CoMcu], sync: SyncConfig, *,
                  gpio_edges: Callable[[], list[tuple[int, bool]]] | None = None,
-                 ping_interval_s: float = 0.05, heartbeat_s: float | None = HEARTBEAT_S, watchdog_s: float = 0.3,
+                 ping_interval_s: float = 0.05, ping_interval_gpio_s: float = 0.5,
+                 heartbeat_s: float | None = HEARTBEAT_S, watchdog_s: float = 0.3,
                  pings_at_start: int = 4, clock_ns: Callable[[], int] = time.monotonic_ns):
-        """heartbeat_s: interval of the heartbeat thread; None = no thread, whoever owns the
+        """ping_interval_s: pings while the clock map runs on pings; ping_interval_gpio_s: while it
+        runs on the trigger line's GPIO edges, when the pings only keep the fallback map and the
+        reboot check (its clock going back) alive: each is a round trip on the UART.
+        heartbeat_s: interval of the heartbeat thread; None = no thread, whoever owns the
         clock calls ``heartbeat()`` (the simulated hardware does, every HEARTBEAT_S of its time).
         clock_ns: CLOCK_MONOTONIC of the Pi (simulated time in simulation)."""
         self.clock_ns = clock_ns
@@ -88,6 +95,7 @@ class SyncedLaser:
         self.sync = sync
         self.gpio_edges = gpio_edges
         self.ping_interval_s = ping_interval_s
+        self.ping_interval_gpio_s = ping_interval_gpio_s
         self.heartbeat_s = heartbeat_s
         self.watchdog_s = watchdog_s
         self.pings_at_start = pings_at_start
@@ -102,6 +110,7 @@ class SyncedLaser:
         self._failure: LaserError | None = None  # seen by the heartbeat thread
         self._hb_stop = threading.Event()
         self._hb: threading.Thread | None = None
+        self._hb_acked = self._hb_sent_at_ack = 0  # heartbeat ACKs read, and heartbeats sent when the newest was
 
     @property
     def locked(self) -> bool:
@@ -138,6 +147,7 @@ class SyncedLaser:
             self.controller = controller
             self._failure = None
             self._serviced = self._now()
+            self._hb_acked, self._hb_sent_at_ack = self.comcu.heartbeat_acks, self.comcu.heartbeats_sent
         if self.gpio_edges is not None:
             self.gpio_edges()  # edges from before this schedule pair with nothing
         if self.heartbeat_s is not None:
@@ -166,12 +176,15 @@ class SyncedLaser:
             if controller is None or self.comcu is None:
                 raise LaserError("lost", "laser not started")
             try:
-                if self._now() - self._last_ping >= self.ping_interval_s:
+                est = controller.clock()
+                interval = self.ping_interval_gpio_s if est is not None and est.source == "gpio" else self.ping_interval_s
+                if self._now() - self._last_ping >= interval:
                     self._ping(controller)
                 edges = self.comcu.edges()
                 rebooted = self._reboot_seen(self.comcu)
                 if rebooted:
                     raise self._reset(self.comcu, rebooted)
+                self._check_heartbeats(self.comcu)
                 # a cut pulse or a forced (late) fall is not where the schedule put it: not evidence
                 controller.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in edges if not e.flags])
                 controller.on_gpio_edges(gpio)
@@ -201,6 +214,18 @@ class SyncedLaser:
         return LaserError("refused", str(exc))
 
     # internals
+    def _check_heartbeats(self, comcu) -> None:
+        """The heartbeats' ACKs read so far: a fault the MCU latched, or none answered for longer
+        than the firmware's timeout takes to end a pulse (then the link is lost)."""
+        hb = comcu.heartbeat_state
+        if hb is not None and hb[1]:
+            raise LaserError("fault", f"co-MCU latched {hb[1]!r} (state {hb[0].name})")
+        sent, acked = comcu.heartbeats_sent, comcu.heartbeat_acks
+        if acked > self._hb_acked:
+            self._hb_acked, self._hb_sent_at_ack = acked, sent
+        elif sent - self._hb_sent_at_ack > UNANSWERED_HEARTBEATS:
+            raise LaserError("lost", f"co-MCU answered none of the last {sent - self._hb_sent_at_ack} heartbeats")
+
     def _reboot_seen(self, comcu) -> str | None:
         """How we know that ``comcu`` rebooted since its reboots were last accounted for, or None."""
         if len(comcu.boot_infos) != self._boots:
@@ -249,21 +274,17 @@ class SyncedLaser:
     def heartbeat(self) -> None:
         """One heartbeat, if the laser runs and frames are being serviced (the watchdog: if the
         frame loop stops, heartbeats stop and the firmware switches the laser off by itself).
-        A failure is kept and raised by the next ``frame_lit``."""
+        Only written (CoMcu.send_heartbeat): ``frame_lit`` reads the ACKs, and a failure to write
+        is kept and raised by the next ``frame_lit``."""
         comcu, controller = self.comcu, self.controller
         if comcu is None or controller is None or self._failure is not None:
             return
         if self._now() - self._serviced > self.watchdog_s:
             return
         try:
-            state, fault = comcu.heartbeat()
-        except (CoMcuError, OSError) as exc:
+            comcu.send_heartbeat()
+        except OSError as exc:
             self._failure = self._classify(exc)
-            return
-        if fault:
-            self._failure = LaserError("fault", f"co-MCU latched {fault!r} (state {state.name})")
-        elif rebooted := self._reboot_seen(comcu):
-            self._failure = self._reset(comcu, rebooted)
 
     def _heartbeat_loop(self) -> None:
         while not self._hb_stop.wait(self.heartbeat_s) and self._failure is None:
