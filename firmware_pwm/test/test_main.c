@@ -44,6 +44,21 @@ static int checks, failures;
 #define BOOTED ((uint64_t)((MIN_PERIOD_TICKS + 1000UL) / 65536UL + 1UL) * 65536UL)
 #define T(ticks) (BOOTED + (uint64_t)(ticks))
 
+/* The tests run at both clocks (make test: 16 and 8 MHz), so they write each time as what it
+ * means: a time in microseconds as US(us), converted with the build's tick rate (config.h; exact
+ * at 8 and 16 MHz, 2 and 1 ticks per microsecond); the envelope and the firmware's allowances by
+ * their names (MAX_PULSE_TICKS, MIN_PERIOD_TICKS, MIN_LEAD_TICKS, ...); Timer1 overflows as
+ * multiples of 65536 ticks; and instruction time (fake.tcnt_read_cost, sweeps of a race against
+ * it) in ticks, which are CPU cycles / 8 at any clock.  A tick more or less than a time is
+ * written US(...) + 1.  At 16 MHz every time is the tick number it was before the tests ran at
+ * both clocks, so that build runs exactly the same tests (the same random streams too). */
+#define US(us) ((uint32_t)US_TO_TICKS_DOWN((uint64_t)(us)))
+_Static_assert(TICKS_PER_MS % 1000 == 0, "the tests need a whole number of ticks per microsecond");
+
+/* The Timer1 overflow at which the guards (core_guard, run at every overflow) first find a
+ * heartbeat of the run's start, T(1000), expired: T(131072) at 16 MHz, T(65536) at 8 MHz. */
+#define HEARTBEAT_EXPIRED_AT T(((1000UL + HEARTBEAT_TIMEOUT_TICKS) / 65536UL + 1UL) * 65536UL)
+
 /* ---- the core's intended pulses, recorded at the hardware layer's calls into it ---------- */
 #define MAX_INTENDED FAKE_MAX_EDGES
 static uint64_t intended_rise[MAX_INTENDED], intended_fall[MAX_INTENDED], planned_fall;
@@ -275,11 +290,12 @@ static void test_time_extend(void)
 
 static void test_interlock_math(void)
 {
-    CHECK(interlock_min_gap(34800) == 34800UL * 4, "20%% duty -> gap 4w, got %u", interlock_min_gap(34800));
+    CHECK(interlock_min_gap(MAX_PULSE_TICKS) == MAX_PULSE_TICKS * 4, "20%% duty -> gap 4w, got %u",
+          interlock_min_gap(MAX_PULSE_TICKS));
     CHECK(interlock_min_gap(10) == MIN_GAP_TICKS, "min gap floor");
     /* rate rule: MIN_PERIOD minus the narrower width, so rises and falls are both >= MIN_PERIOD apart */
-    CHECK(interlock_rate_gap(2000, 30000) == MIN_PERIOD_TICKS - 2000, "narrow then wide");
-    CHECK(interlock_rate_gap(30000, 2000) == MIN_PERIOD_TICKS - 2000, "wide then narrow");
+    CHECK(interlock_rate_gap(US(1000), US(15000)) == MIN_PERIOD_TICKS - US(1000), "narrow then wide");
+    CHECK(interlock_rate_gap(US(15000), US(1000)) == MIN_PERIOD_TICKS - US(1000), "wide then narrow");
     CHECK(interlock_rate_gap(MIN_PERIOD_TICKS + 5, 0xFFFFFFFFUL) == 0, "no underflow");
     for (int i = 0; i < 100000; i++) { /* the proof of core.c, by random widths */
         uint32_t w1 = MIN_PULSE_TICKS + rnd() % (MAX_PULSE_TICKS + 1), w2 = MIN_PULSE_TICKS + rnd() % (MAX_PULSE_TICKS + 1);
@@ -341,7 +357,7 @@ static void heartbeat(core_t *c) { command(c, MSG_HEARTBEAT, NULL, 0); }
 static void run_with_heartbeats(core_t *c, uint64_t until)
 {
     while (fake.now < until) {
-        uint64_t step = fake.now + 40000; /* 20 ms */
+        uint64_t step = fake.now + US(20000);
         fake_run(step < until ? step : until);
         heartbeat(c);
     }
@@ -351,8 +367,8 @@ static void test_schedule_pattern(void)
 {
     core_t c;
     begin_run(&c);
-    uint64_t first = T(200000);
-    uint32_t period = 100000, width = 20000; /* 20 fps, every other frame lit: 10 Hz */
+    uint64_t first = T(US(100000));
+    uint32_t period = US(50000), width = US(10000); /* 20 fps, every other frame lit: 10 Hz */
     frame_t r = schedule(&c, first, period, width, 0x1, 2, 0);
     CHECK(r.msg_type == MSG_ACK && r.payload[0] == MSG_SCHEDULE, "ack, got 0x%02x", r.msg_type);
     run_with_heartbeats(&c, first + 10 * period - 1);
@@ -366,11 +382,12 @@ static void test_schedule_pattern(void)
     CHECK(exact, "edges on the exact ticks");
     /* pattern 0b110 of 3: frames 1 and 2 lit; spacing 1 needs a gap >= 4w and >= MIN_PERIOD - w */
     begin_run(&c);
-    r = schedule(&c, first, 200000, 20000, 0x6, 3, 0);
+    r = schedule(&c, first, US(100000), US(10000), 0x6, 3, 0);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "first lit index 1");
-    run_with_heartbeats(&c, first + 6 * 200000);
-    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + 200000 + PIN_LAG && fake.edge_t[2] == first + 400000 + PIN_LAG &&
-              fake.edge_t[4] == first + 800000 + PIN_LAG, "frames 1,2,4,5 lit");
+    run_with_heartbeats(&c, first + 6 * US(100000));
+    CHECK(fake.n_edges == 8 && fake.edge_t[0] == first + US(100000) + PIN_LAG &&
+              fake.edge_t[2] == first + US(200000) + PIN_LAG && fake.edge_t[4] == first + US(400000) + PIN_LAG,
+          "frames 1,2,4,5 lit");
 }
 
 static void test_refusals(void)
@@ -378,19 +395,19 @@ static void test_refusals(void)
     core_t c;
     begin_run(&c);
     struct { uint64_t first; uint32_t period, width, mask; uint8_t n, reason; } cases[] = {
-        {T(200000), 500000, MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
-        {T(200000), 100000, 20001, 1, 1, NACK_ENVELOPE_DUTY},   /* 20.001 % */
-        {T(200000), 50000, 20001, 1, 2, NACK_ENVELOPE_DUTY},    /* every other: > 20 % of 100000 */
-        {T(200000), 90000, 20000, 0x3, 3, NACK_ENVELOPE_DUTY}, /* two adjacent frames lit */
-        {T(200000), 100000, 10000, 0, 2, NACK_BAD_PATTERN},
-        {T(200000), 100000, 10000, 0x4, 2, NACK_BAD_PATTERN},
-        {T(200000), 100000, 10000, 1, 33, NACK_BAD_PATTERN},
-        {T(200000), 100000, 10, 1, 1, NACK_BAD_VALUE},
-        {T(1000), 200000, 10000, 1, 1, NACK_BAD_TIME},
-        {T(1000) + MAX_LEAD_TICKS + 1000, 200000, 10000, 1, 1, NACK_BAD_TIME},
-        {T(200000), MIN_PERIOD_TICKS - 1, 1000, 1, 1, NACK_ENVELOPE_RATE},      /* short pulses, too often */
-        {T(200000), MIN_PERIOD_TICKS / 2 - 1, 1000, 1, 2, NACK_ENVELOPE_RATE},  /* every other frame */
-        {T(200000), MIN_PERIOD_TICKS - 1, 1000, 0x5, 3, NACK_ENVELOPE_RATE},    /* 101: slot 2 then slot 0 */
+        {T(US(100000)), US(250000), MAX_PULSE_TICKS + 1, 1, 1, NACK_ENVELOPE_WIDTH},
+        {T(US(100000)), US(50000), US(10000) + 1, 1, 1, NACK_ENVELOPE_DUTY},   /* a tick over 20 % */
+        {T(US(100000)), US(25000), US(10000) + 1, 1, 2, NACK_ENVELOPE_DUTY},   /* every other: > 20 % of 50 ms */
+        {T(US(100000)), US(45000), US(10000), 0x3, 3, NACK_ENVELOPE_DUTY},     /* two adjacent frames lit */
+        {T(US(100000)), US(50000), US(5000), 0, 2, NACK_BAD_PATTERN},
+        {T(US(100000)), US(50000), US(5000), 0x4, 2, NACK_BAD_PATTERN},
+        {T(US(100000)), US(50000), US(5000), 1, 33, NACK_BAD_PATTERN},
+        {T(US(100000)), US(50000), 10, 1, 1, NACK_BAD_VALUE},                  /* 10 ticks: far below MIN_PULSE */
+        {T(1000), US(100000), US(5000), 1, 1, NACK_BAD_TIME},                  /* now: no lead */
+        {T(1000) + MAX_LEAD_TICKS + US(500), US(100000), US(5000), 1, 1, NACK_BAD_TIME},
+        {T(US(100000)), MIN_PERIOD_TICKS - 1, US(500), 1, 1, NACK_ENVELOPE_RATE},     /* short pulses, too often */
+        {T(US(100000)), MIN_PERIOD_TICKS / 2 - 1, US(500), 1, 2, NACK_ENVELOPE_RATE}, /* every other frame */
+        {T(US(100000)), MIN_PERIOD_TICKS - 1, US(500), 0x5, 3, NACK_ENVELOPE_RATE},   /* 101: slot 2 then slot 0 */
     };
     for (unsigned i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         frame_t r = schedule(&c, cases[i].first, cases[i].period, cases[i].width, cases[i].mask, cases[i].n, 0);
@@ -398,12 +415,12 @@ static void test_refusals(void)
               r.msg_type == MSG_NACK ? r.payload[1] : 0);
     }
     CHECK(c.refused == sizeof cases / sizeof cases[0] && c.state == STATE_IDLE, "counted, idle");
-    fake_run(T(2000000));
+    fake_run(T(US(1000000)));
     CHECK(fake.n_edges == 0, "refused schedules never light the laser");
     /* exactly at the envelope is accepted: the shortest period with the longest pulse */
-    frame_t r = schedule(&c, T(2200000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    frame_t r = schedule(&c, T(US(1100000)), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "MIN_PERIOD with MAX_PULSE accepted");
-    r = schedule(&c, T(2200000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    r = schedule(&c, T(US(1100000)), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "busy while running");
     const uint8_t t[LEN_TRIM] = {0};
     core_init(&c, 0);
@@ -415,17 +432,17 @@ static void test_trim(void)
 {
     core_t c;
     begin_run(&c);
-    uint64_t first = T(100000);
-    uint32_t period = 200000, width = 10000;
+    uint64_t first = T(US(50000));
+    uint32_t period = US(100000), width = US(5000);
     schedule(&c, first, period, width, 1, 1, 0);
-    run_with_heartbeats(&c, first + 5000); /* pulse 0 in flight */
+    run_with_heartbeats(&c, first + US(2500)); /* pulse 0 in flight */
     uint8_t t[LEN_TRIM];
-    put_u32(t, (uint32_t)-3000); /* phase -1.5 ms */
-    put_u32(t + 4, 500);         /* period +0.25 ms */
+    put_u32(t, (uint32_t)-(int32_t)US(1500)); /* phase -1.5 ms */
+    put_u32(t + 4, US(250));                  /* period +0.25 ms */
     frame_t r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == 1, "moves slot 1 (pulse 0 in flight)");
     run_with_heartbeats(&c, first + 4 * period);
-    uint64_t want1 = first + period - 3000, want2 = want1 + period + 500; /* slot 1 moved, then P' */
+    uint64_t want1 = first + period - US(1500), want2 = want1 + period + US(250); /* slot 1 moved, then P' */
     CHECK(fake.n_edges >= 6 && fake.edge_t[0] == first + PIN_LAG && fake.edge_t[2] == want1 + PIN_LAG &&
               fake.edge_t[4] == want2 + PIN_LAG,
           "rises %llu %llu (want %llu %llu)", (unsigned long long)fake.edge_t[2],
@@ -434,26 +451,28 @@ static void test_trim(void)
     for (uint32_t k = 0; k + 1 < fake.n_edges; k += 2)
         widths_ok &= fake.edge_t[k + 1] - fake.edge_t[k] == width;
     CHECK(widths_ok, "trims never change the width");
-    /* a trim that would make the train too dense is refused */
+    /* a trim that would make the train too dense is refused: a period, or a gap after the pulse
+     * in flight, one tick short of the duty limit (20 %: w + 4 w) */
+    uint32_t dense = 5 * width - 1;
     put_u32(t, 0);
-    put_u32(t + 4, (uint32_t)-(int32_t)(period + 500 - 49999));
+    put_u32(t + 4, (uint32_t)-(int32_t)(period + US(250) - dense));
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "dense period refused");
-    put_u32(t, (uint32_t)-(int32_t)(period + 500 - 49999));
+    put_u32(t, (uint32_t)-(int32_t)(period + US(250) - dense));
     put_u32(t + 4, 0);
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_DUTY, "big negative phase refused");
     /* the rate limit: a period one tick short, or a phase step that brings a rise one tick too close */
     put_u32(t, 0);
-    put_u32(t + 4, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS + 1));
+    put_u32(t + 4, (uint32_t)-(int32_t)(period + US(250) - MIN_PERIOD_TICKS + 1));
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE && get_u32(r.payload + 2) == MIN_PERIOD_TICKS,
           "period below MIN_PERIOD refused");
-    put_u32(t, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS + 1));
+    put_u32(t, (uint32_t)-(int32_t)(period + US(250) - MIN_PERIOD_TICKS + 1));
     put_u32(t + 4, 0);
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "phase step below MIN_PERIOD refused");
-    put_u32(t, (uint32_t)-(int32_t)(period + 500 - MIN_PERIOD_TICKS));
+    put_u32(t, (uint32_t)-(int32_t)(period + US(250) - MIN_PERIOD_TICKS));
     r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_ACK, "phase step to exactly MIN_PERIOD accepted");
     uint32_t before = fake.n_edges;
@@ -465,21 +484,22 @@ static void test_trim(void)
 }
 
 /* A trim moves the first slot starting at least MIN_LEAD after it arrives; pattern 0b01 of 2
- * (lit slots 0, 2, 4, ...), period 100000, phase +5000, period +1000.  Times are T() offsets. */
+ * (lit slots 0, 2, 4, ...), period 50 ms, phase +2.5 ms, period +0.5 ms.  Times are T() offsets
+ * in ticks. */
 static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, uint64_t want_rise4)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, T(100000), 100000, 10000, 1, 2, 0);
+    schedule(&c, T(US(50000)), US(50000), US(5000), 1, 2, 0);
     run_with_heartbeats(&c, T(when));
     uint8_t t[LEN_TRIM];
-    put_u32(t, 5000);
-    put_u32(t + 4, 1000);
+    put_u32(t, US(2500));
+    put_u32(t + 4, US(500));
     frame_t r = command(&c, MSG_TRIM, t, sizeof t);
     CHECK(r.msg_type == MSG_ACK && get_u32(r.payload + 1) == want_slot, "trim at %llu: slot %u",
           (unsigned long long)when, r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 999);
-    run_with_heartbeats(&c, T(600000));
-    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == T(100000) + PIN_LAG && fake.edge_t[2] == T(want_rise2) + PIN_LAG &&
+    run_with_heartbeats(&c, T(US(300000)));
+    CHECK(fake.n_edges >= 6 && fake.edge_t[0] == T(US(50000)) + PIN_LAG && fake.edge_t[2] == T(want_rise2) + PIN_LAG &&
               fake.edge_t[4] == T(want_rise4) + PIN_LAG,
           "trim at %llu: rises %llu %llu, want %llu %llu", (unsigned long long)when,
           (unsigned long long)(fake.edge_t[2] - BOOTED), (unsigned long long)(fake.edge_t[4] - BOOTED),
@@ -488,9 +508,10 @@ static void trim_case(uint64_t when, uint32_t want_slot, uint64_t want_rise2, ui
 
 static void test_trim_slots(void)
 {
-    trim_case(150000, 1, 200000 + 5000 + 101000, 306000 + 202000);  /* next rise re-armed now */
-    trim_case(250000, 2, 300000 + 5000, 305000 + 202000);           /* slot 1 already started */
-    trim_case(299900, 3, 300000, 300000 + 100000 + 5000 + 101000);  /* too close: after pulse 2 */
+    trim_case(US(75000), 1, US(100000 + 2500 + 50500), US(153000 + 101000)); /* next rise re-armed now */
+    trim_case(US(125000), 2, US(150000 + 2500), US(152500 + 101000));        /* slot 1 already started */
+    /* too close (the rise at 150 ms half MIN_LEAD ahead, in ticks at either clock): after pulse 2 */
+    trim_case(US(150000) - MIN_LEAD_TICKS / 2, 3, US(150000), US(150000 + 50000 + 2500 + 50500));
 }
 
 static void test_runtime_interlock(void)
@@ -499,56 +520,58 @@ static void test_runtime_interlock(void)
      * run-time check on the actual edges still refuses to build a denser train. */
     core_t c;
     begin_run(&c);
-    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
-    run_with_heartbeats(&c, T(105000));
+    schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
+    run_with_heartbeats(&c, T(US(52500)));
     c.trim_pending = 1;
-    c.trim_phase = -150000; /* next gap 30000 < 4 * 20000 */
-    fake_run(T(1000000));
+    c.trim_phase = -(int32_t)US(75000); /* next gap 15 ms < 4 * 10 ms */
+    fake_run(T(US(500000)));
     CHECK(fake.n_edges == 2 && fake.pin == 0, "only the first pulse, got %u edges", fake.n_edges);
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_DUTY), "duty fault latched");
     /* rate rule at run time, widths changing between two pulses (acceptance bypassed): a 15 ms
      * pulse, then 1 ms pulses.  Rise to rise stays >= MIN_PERIOD but fall to fall would not. */
     for (int k = 0; k < 2; k++) {
         begin_run(&c);
-        schedule(&c, T(100000), 200000, 30000, 1, 1, 0);
-        run_with_heartbeats(&c, T(100001));   /* pulse 0 in flight, its fall armed at 130000 */
-        c.width = 2000;                     /* the next pulses are narrow */
+        schedule(&c, T(US(50000)), US(100000), US(15000), 1, 1, 0);
+        run_with_heartbeats(&c, T(US(50000)) + 1); /* pulse 0 in flight, its fall armed at 65 ms */
+        c.width = US(1000);                        /* the next pulses are narrow */
         c.trim_pending = 1;
-        /* k = 0: rise 1 at 285000: rises 185000 apart, falls 157000 (< MIN_PERIOD) -> fault;
-         * k = 1: rise 1 at 310000: falls 182000 apart -> runs */
-        c.trim_phase = k == 0 ? -15000 : 10000;
-        run_with_heartbeats(&c, T(400000));
+        /* k = 0: rise 1 at 142.5 ms: rises 92.5 ms apart, falls 78.5 ms (< MIN_PERIOD) -> fault;
+         * k = 1: rise 1 at 155 ms: falls 91 ms apart -> runs */
+        c.trim_phase = k == 0 ? -(int32_t)US(7500) : (int32_t)US(5000);
+        run_with_heartbeats(&c, T(US(200000)));
         if (k == 0)
             CHECK(fake.n_edges == 2 && c.state == STATE_FAULT && c.faults == FAULT_RATE,
                   "fall-to-fall too close: rate fault, %u edges, faults %u", fake.n_edges, c.faults);
         else
-            CHECK(fake.n_edges == 4 && fake.edge_t[2] == T(310000) + PIN_LAG && fake.edge_t[3] == T(312000) + PIN_LAG &&
+            CHECK(fake.n_edges == 4 && fake.edge_t[2] == T(US(155000)) + PIN_LAG &&
+                      fake.edge_t[3] == T(US(156000)) + PIN_LAG &&
                       c.state == STATE_RUNNING, "fall-to-fall at MIN_PERIOD: runs");
     }
     /* a pulse cut short by STOP counts with its actual width: SCHEDULE right after is checked on
      * the real edges (rise to rise and fall to fall) */
     begin_run(&c);
-    schedule(&c, T(100000), 200000, 30000, 1, 1, 0);
-    run_with_heartbeats(&c, T(102000));
-    command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~2000 ticks */
+    schedule(&c, T(US(50000)), US(100000), US(15000), 1, 1, 0);
+    run_with_heartbeats(&c, T(US(51000)));
+    command(&c, MSG_STOP, NULL, 0);         /* pulse 0 cut after ~1 ms */
     uint64_t cut_rise = fake.edge_t[0] - PIN_LAG, cut_fall = fake.edge_t[1]; /* cut by software: no lag */
-    frame_t r = schedule(&c, cut_fall + MIN_PERIOD_TICKS - 30000 - 1, 200000, 30000, 1, 1, 0);
+    frame_t r = schedule(&c, cut_fall + MIN_PERIOD_TICKS - US(15000) - 1, US(100000), US(15000), 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: fall to fall");
-    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS - 1, 200000, 1000, 1, 1, 0);
+    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS - 1, US(100000), US(500), 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_ENVELOPE_RATE, "after a cut pulse: rise to rise");
-    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS, 200000, (uint32_t)(cut_fall - cut_rise), 1, 1, 0);
+    r = schedule(&c, cut_rise + MIN_PERIOD_TICKS, US(100000), (uint32_t)(cut_fall - cut_rise), 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "after a cut pulse: rises and falls exactly MIN_PERIOD apart accepted");
     command(&c, MSG_STOP, NULL, 0);
     /* width guard: a pulse seen high too long is cut */
     begin_run(&c);
-    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
-    run_with_heartbeats(&c, T(100001));
+    schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
+    run_with_heartbeats(&c, T(US(50000)) + 1);
     /* a stuck compare unit: the fall's match leaves the latch high and raises no interrupt */
     fake.tccr1a = (uint8_t)(_BV(COM1A1) | _BV(COM1A0));
     fake.timsk1 &= (uint8_t)~_BV(OCIE1A);
-    c.last_heartbeat = fake.now;
-    fake_run(T(100000) + 2 * 65536);
-    CHECK(fake.pin == 0 && (c.faults & FAULT_WIDTH), "width guard");
+    /* heartbeats go on: at 8 MHz the guard that cuts comes 81 ms after the pulse's start, and
+     * without them the heartbeat would have expired there too; so only the width guard acts */
+    run_with_heartbeats(&c, T(US(50000)) + 2 * 65536);
+    CHECK(fake.pin == 0 && c.faults == FAULT_WIDTH, "width guard, faults 0x%02x", c.faults);
     CHECK(fake.n_edges == 2 && fake.edge_t[1] - fake.edge_t[0] <= MAX_PULSE_TICKS + 65536,
           "cut at the next guard run");
     /* the pin was judged above against the guard's bound: with the compare unit broken on
@@ -561,17 +584,17 @@ static void test_heartbeat(void)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+    schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
     uint64_t last_hb = fake.now;
-    fake_run(T(100000) + 10000); /* mid pulse, heartbeats stop */
-    fake_run(T(2000000));
+    fake_run(T(US(50000)) + US(5000)); /* mid pulse, heartbeats stop */
+    fake_run(T(US(1000000)));
     CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "heartbeat fault");
     CHECK(fake.n_edges >= 2, "a pulse before the fault, got %u edges", fake.n_edges);
     uint64_t last_edge = fake.n_edges ? fake.edge_t[fake.n_edges - 1] : 0;
     CHECK(fake.pin == 0 && fake.n_edges && fake.edge_level[fake.n_edges - 1] == 0, "laser off");
     CHECK(last_edge - last_hb < TICKS_PER_SECOND / 10, "off within 100 ms: %llu ticks",
           (unsigned long long)(last_edge - last_hb));
-    frame_t r = schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
+    frame_t r = schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
     CHECK(r.msg_type == MSG_NACK && r.payload[1] == NACK_BUSY, "fault must be cleared by STOP");
     r = command(&c, MSG_STOP, NULL, 0);
     CHECK(r.msg_type == MSG_ACK && c.state == STATE_IDLE && c.faults == 0, "stop clears");
@@ -609,20 +632,20 @@ static void test_stop_and_edges(void)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, T(100000), 200000, 20000, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    run_with_heartbeats(&c, T(310000)); /* pulse 0 done, pulse 1 in flight */
+    schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    run_with_heartbeats(&c, T(US(155000))); /* pulse 0 done, pulse 1 in flight */
     core_poll(&c);
     frame_t r;
     int got = fake_reply(&r);
-    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 0 && get_u64(r.payload + 4) == T(100000) &&
-              get_u64(r.payload + 12) == T(120000) && r.payload[20] == 0, "edge report of pulse 0");
+    CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 0 && get_u64(r.payload + 4) == T(US(50000)) &&
+              get_u64(r.payload + 12) == T(US(60000)) && r.payload[20] == 0, "edge report of pulse 0");
     r = command(&c, MSG_STOP, NULL, 0);
     CHECK(r.msg_type == MSG_ACK && fake.pin == 0, "stop mid pulse");
     core_poll(&c);
     got = fake_reply(&r);
     CHECK(got && r.msg_type == MSG_EDGE && get_u32(r.payload) == 1 && r.payload[20] == EDGE_CUT &&
-              get_u64(r.payload + 12) == T(310000), "cut pulse reported");
-    fake_run(T(1000000));
+              get_u64(r.payload + 12) == T(US(155000)), "cut pulse reported");
+    fake_run(T(US(500000)));
     CHECK(fake.n_edges == 4, "nothing after stop");
 }
 
@@ -633,43 +656,46 @@ static void test_cut_mid_pulse_then_schedule(void)
 {
     core_t c;
     for (int how = 0; how < 2; how++) {
-        for (uint32_t cut = 1; cut < 20000; cut += 1999) {
+        /* cut: ticks into a 10 ms pulse (STOP), or ticks before the end of a longest pulse (fault),
+         * in 11 steps at either clock */
+        for (uint32_t cut = 1; cut < US(10000); cut += US(10000) / 10 - 1) {
             begin_run(&c);
             if (how == 0) { /* STOP */
-                schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
-                run_with_heartbeats(&c, T(100000) + cut);
+                schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
+                run_with_heartbeats(&c, T(US(50000)) + cut);
                 CHECK(fake.pin == 1, "cut %u: mid pulse", cut);
                 command(&c, MSG_STOP, NULL, 0);
-            } else { /* no heartbeat after the SCHEDULE: the guard at the Timer1 overflow at tick
-                      * T(131072) trips in the middle of the pulse */
-                schedule(&c, T(131072) - 34800 + cut, 200000, 34800, 1, 1, 0);
-                fake_run(T(131072) + 10);
+            } else { /* no heartbeat after the SCHEDULE: the guard at the Timer1 overflow that first
+                      * finds it expired trips in the middle of the pulse */
+                schedule(&c, HEARTBEAT_EXPIRED_AT - MAX_PULSE_TICKS + cut, US(100000), MAX_PULSE_TICKS, 1, 1, 0);
+                fake_run(HEARTBEAT_EXPIRED_AT + 10);
                 CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT), "cut %u: heartbeat fault", cut);
                 command(&c, MSG_STOP, NULL, 0);
             }
             CHECK(fake.pin == 0, "cut %u/%d: the pin is low after the cut", cut, how);
-            uint64_t first = fake.now + MIN_PERIOD_TICKS + 100000;
-            frame_t r = schedule(&c, first, 200000, 20000, 1, 1, 0);
+            uint64_t first = fake.now + MIN_PERIOD_TICKS + US(50000);
+            frame_t r = schedule(&c, first, US(100000), US(10000), 1, 1, 0);
             CHECK(r.msg_type == MSG_ACK, "cut %u/%d: schedule after the cut", cut, how);
             uint32_t before = fake.n_edges;
-            run_with_heartbeats(&c, first + 3 * 200000 + 30000);
+            run_with_heartbeats(&c, first + 3 * US(100000) + US(15000));
             int exact = fake.n_edges == before + 8;
             for (uint32_t k = 0; exact && k < 4; k++)
-                exact &= fake.edge_t[before + 2 * k] == first + k * 200000 + PIN_LAG &&
-                         fake.edge_t[before + 2 * k + 1] == first + k * 200000 + 20000 + PIN_LAG &&
+                exact &= fake.edge_t[before + 2 * k] == first + k * US(100000) + PIN_LAG &&
+                         fake.edge_t[before + 2 * k + 1] == first + k * US(100000) + US(10000) + PIN_LAG &&
                          fake.edge_level[before + 2 * k] == 1;
             CHECK(exact, "cut %u/%d: the next schedule's pulses on the pin", cut, how);
         }
     }
     /* forced falls: each TCNT1 read costs 120 ticks, so the rise interrupt cannot place the
-     * fall of a 200-tick pulse in time and ends it in software; the pulses after it are exact */
+     * fall of a MIN_PULSE_TICKS (200-tick) pulse in time and ends it in software; the pulses
+     * after it are exact */
     begin_run(&c);
     fake.tcnt_read_cost = 120;
     /* (a period 1 ms above the rate limit: a late fall brings the next fall closer than planned) */
-    schedule(&c, T(100000), MIN_PERIOD_TICKS + 2000, MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
-    run_with_heartbeats(&c, T(100000) + 3 * (MIN_PERIOD_TICKS + 2000) + 1000);
+    schedule(&c, T(US(50000)), MIN_PERIOD_TICKS + US(1000), MIN_PULSE_TICKS, 1, 1, SCHEDULE_FLAG_STREAM_EDGES);
+    run_with_heartbeats(&c, T(US(50000)) + 3 * (MIN_PERIOD_TICKS + US(1000)) + US(500));
     CHECK(c.late == 4 && c.state == STATE_RUNNING && fake.n_edges == 8 &&
-              fake.edge_t[6] == T(100000) + 3 * (MIN_PERIOD_TICKS + 2000) + PIN_LAG,
+              fake.edge_t[6] == T(US(50000)) + 3 * (MIN_PERIOD_TICKS + US(1000)) + PIN_LAG,
           "forced falls: %u late, %u edges, state %u faults 0x%02x", c.late, fake.n_edges, c.state, c.faults);
     command(&c, MSG_STOP, NULL, 0);
     fake.tcnt_read_cost = 0;
@@ -684,21 +710,22 @@ static void test_trim_racing_the_armed_rise(void)
     core_t c;
     uint8_t t[LEN_TRIM];
     int deferred = 0, immediate = 0;
+    /* lead: ticks before the rise, against instruction time (ticks, the same at either clock) */
     for (uint32_t lead = 2000; lead < 12000; lead += 17) {
         begin_run(&c);
         fake.tcnt_read_cost = 150;
-        uint64_t first = T(100000);
-        schedule(&c, first, MIN_PERIOD_TICKS, 2000, 1, 1, 0);
+        uint64_t first = T(US(50000));
+        schedule(&c, first, MIN_PERIOD_TICKS, US(1000), 1, 1, 0);
         run_with_heartbeats(&c, first + MIN_PERIOD_TICKS - lead);
-        put_u32(t, 2000); /* +1 ms */
+        put_u32(t, US(1000)); /* +1 ms */
         put_u32(t + 4, 0);
         frame_t r = command(&c, MSG_TRIM, t, sizeof t);
         uint32_t slot = r.msg_type == MSG_ACK ? get_u32(r.payload + 1) : 0;
         deferred += slot == 2;
         immediate += slot == 1;
         run_with_heartbeats(&c, first + 4 * MIN_PERIOD_TICKS);
-        uint64_t rise1 = first + MIN_PERIOD_TICKS + (slot == 1 ? 2000 : 0);
-        uint64_t rise2 = first + 2 * MIN_PERIOD_TICKS + 2000;
+        uint64_t rise1 = first + MIN_PERIOD_TICKS + (slot == 1 ? US(1000) : 0);
+        uint64_t rise2 = first + 2 * MIN_PERIOD_TICKS + US(1000);
         CHECK(slot && c.state == STATE_RUNNING && fake.n_edges >= 6 && fake.edge_t[2] == rise1 + PIN_LAG &&
                   fake.edge_t[4] == rise2 + PIN_LAG,
               "lead %u: slot %u, state %u faults %u, rises %llu %llu", lead, slot, c.state, c.faults,
@@ -721,9 +748,9 @@ static void test_fault_racing_the_armed_rise(void)
     for (uint32_t before = 1; before < 60; before += 3) {
         begin_run(&c);
         fake.tcnt_read_cost = 20;
-        uint64_t rise = T(131072) + before; /* the overflow at T(131072) finds the heartbeat expired */
-        schedule(&c, rise, 200000, 20000, 1, 1, 0);
-        fake_run(rise + 1000);
+        uint64_t rise = HEARTBEAT_EXPIRED_AT + before; /* that overflow finds the heartbeat expired */
+        schedule(&c, rise, US(100000), US(10000), 1, 1, 0);
+        fake_run(rise + US(500));
         CHECK(c.state == STATE_FAULT && (c.faults & FAULT_HEARTBEAT) && fake.pin == 0, "before %u: fault, pin low",
               before);
         if (fake.n_edges) /* the rise made it to the pin: it is counted, with its real rise */
@@ -746,8 +773,8 @@ static void test_reset_mid_pulse(void)
     const uint8_t causes[] = {0x01 /* PORF */, 0x04 /* BORF */, 0x08 /* WDRF */};
     for (unsigned k = 0; k < sizeof causes; k++) {
         begin_run(&c);
-        schedule(&c, T(100000), 200000, 20000, 1, 1, 0);
-        run_with_heartbeats(&c, T(110000));
+        schedule(&c, T(US(50000)), US(100000), US(10000), 1, 1, 0);
+        run_with_heartbeats(&c, T(US(55000)));
         CHECK(fake.pin == 1, "mid pulse");
         intend_fall(fake.now); /* the reset ends it */
         fake_boot(&c, causes[k]);
@@ -757,10 +784,10 @@ static void test_reset_mid_pulse(void)
         fake_run(fake.now + TICKS_PER_SECOND);
         CHECK(fake.n_edges == before, "reset 0x%02x: nothing after it", causes[k]);
         uint64_t first = hw_now() + MIN_PERIOD_TICKS;
-        schedule(&c, first, 200000, 20000, 1, 1, 0);
-        run_with_heartbeats(&c, model_time(first) + 200000 + 30000);
+        schedule(&c, first, US(100000), US(10000), 1, 1, 0);
+        run_with_heartbeats(&c, model_time(first) + US(100000) + US(15000));
         CHECK(fake.n_edges == before + 4 && fake.edge_t[before] == model_time(first) + PIN_LAG &&
-                  fake.edge_t[before + 1] == model_time(first) + 20000 + PIN_LAG,
+                  fake.edge_t[before + 1] == model_time(first) + US(10000) + PIN_LAG,
               "reset 0x%02x: the next schedule is exact", causes[k]);
         command(&c, MSG_STOP, NULL, 0);
     }
@@ -773,8 +800,8 @@ static void test_boot_memory(void)
 {
     core_t c;
     begin_run(&c);
-    schedule(&c, T(100000), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
-    run_with_heartbeats(&c, T(100000) + MAX_PULSE_TICKS - 10); /* the end of a longest pulse */
+    schedule(&c, T(US(50000)), MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
+    run_with_heartbeats(&c, T(US(50000)) + MAX_PULSE_TICKS - 10); /* the end of a longest pulse */
     CHECK(fake.pin == 1, "mid pulse");
     uint64_t reset_at = fake.now, rise_before = fake.edge_t[fake.n_edges - 1];
     intend_fall(fake.now); /* the reset ends it */
@@ -784,7 +811,7 @@ static void test_boot_memory(void)
           "a rise sooner than MIN_PERIOD after the boot is refused (got 0x%02x)", r.msg_type);
     r = schedule(&c, MIN_PERIOD_TICKS, MIN_PERIOD_TICKS, MAX_PULSE_TICKS, 1, 1, 0);
     CHECK(r.msg_type == MSG_ACK, "a rise MIN_PERIOD after the boot is accepted");
-    run_with_heartbeats(&c, model_time(MIN_PERIOD_TICKS) + MAX_PULSE_TICKS + 1000);
+    run_with_heartbeats(&c, model_time(MIN_PERIOD_TICKS) + MAX_PULSE_TICKS + US(500));
     uint32_t n = fake.n_edges;
     CHECK(n == 4 && fake.edge_t[2] == reset_at + MIN_PERIOD_TICKS + PIN_LAG &&
               fake.edge_t[2] - rise_before >= MIN_PERIOD_TICKS && fake.edge_t[3] - reset_at >= MIN_PERIOD_TICKS &&
@@ -809,12 +836,12 @@ static void test_random_commands_interlock(void)
             uint8_t t[LEN_TRIM];
             switch (rnd() % 6) {
             case 0:
-                schedule(&c, hw_now() + 200 + rnd() % 400000, 1000 + rnd() % (2 * MIN_PERIOD_TICKS),
-                                 rnd() % (MAX_PULSE_TICKS + 5000), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
+                schedule(&c, hw_now() + MIN_LEAD_TICKS + rnd() % US(200000), US(500) + rnd() % (2 * MIN_PERIOD_TICKS),
+                         rnd() % (MAX_PULSE_TICKS + US(2500)), 1 + rnd() % 7, (uint8_t)(1 + rnd() % 3), rnd() & 1);
                 break;
             case 1: case 2:
-                put_u32(t, (uint32_t)((int32_t)(rnd() % 200000) - 100000));
-                put_u32(t + 4, (uint32_t)((int32_t)(rnd() % 100000) - 50000));
+                put_u32(t, (uint32_t)((int32_t)(rnd() % US(100000)) - (int32_t)US(50000)));
+                put_u32(t + 4, (uint32_t)((int32_t)(rnd() % US(50000)) - (int32_t)US(25000)));
                 command(&c, MSG_TRIM, t, sizeof t);
                 break;
             case 3: command(&c, MSG_STOP, NULL, 0); break;
@@ -828,7 +855,7 @@ static void test_random_commands_interlock(void)
                 /* fall through */
             default: heartbeat(&c); break;
             }
-            fake_run(fake.now + rnd() % 80000);
+            fake_run(fake.now + rnd() % US(40000));
         }
         for (uint32_t k = 0; k < fake.n_edges; k++) {
             if (fake.edge_level[k] != 0)
