@@ -10,7 +10,7 @@ from device.cli import main
 
 
 def snapshot(t, scans, process_s, camera_s, pipeline_s, laser_s):
-    return {"monotonic_s": t, "cpu_process_s": process_s, "cpu_sim_clock_s": 0.0,
+    return {"monotonic_s": t, "cpu_process_s": process_s, "cpu_sim_hardware_s": 0.0, "cpu_sim_gpio_s": 0.0,
             "source": {"scans_made": scans, "cpu_camera_s": camera_s, "cpu_pipeline_s": pipeline_s, "cpu_laser_s": laser_s}}
 
 

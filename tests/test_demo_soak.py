@@ -65,16 +65,17 @@ def test_soak_short_run_on_the_mock(tmp_path):
 def test_bench_process_subtracts_the_simulation_from_the_process_cpu():
     from device.bench.process import cost_per_scan
 
-    a = {"monotonic_s": 10.0, "cpu_process_s": 5.0, "cpu_sim_clock_s": 1.0,
+    a = {"monotonic_s": 10.0, "cpu_process_s": 5.0, "cpu_sim_hardware_s": 1.0, "cpu_sim_gpio_s": 0.02,
          "source": {"scans_made": 100, "cpu_camera_s": 2.0, "cpu_pipeline_s": 0.5, "cpu_laser_s": 0.1}}
-    b = {"monotonic_s": 20.0, "cpu_process_s": 9.0, "cpu_sim_clock_s": 1.5,
+    b = {"monotonic_s": 20.0, "cpu_process_s": 9.0, "cpu_sim_hardware_s": 1.5, "cpu_sim_gpio_s": 0.07,
          "source": {"scans_made": 200, "cpu_camera_s": 3.5, "cpu_pipeline_s": 1.2, "cpu_laser_s": 0.2}}
     r = cost_per_scan(a, b)
     assert r["scan_rate_hz"] == pytest.approx(10.0)
     assert r["process_ms_per_scan"] == pytest.approx(40.0)
-    assert r["simulation_ms_per_scan"] == pytest.approx(20.0)  # 1.5 s render + 0.5 s clock over 100 scans
+    assert r["simulation_ms_per_scan"] == pytest.approx(20.0)  # 1.5 s render + 0.5 s hardware over 100 scans
     assert r["device_ms_per_scan"] == pytest.approx(20.0)
-    assert r["pipeline_ms_per_scan"] == pytest.approx(7.0) and r["laser_sync_ms_per_scan"] == pytest.approx(1.0)
-    assert r["other_ms_per_scan"] == pytest.approx(12.0)
+    # the laser step's 0.1 s less the 0.05 s it spent in the simulated GPIO queue
+    assert r["pipeline_ms_per_scan"] == pytest.approx(7.0) and r["laser_sync_ms_per_scan"] == pytest.approx(0.5)
+    assert r["other_ms_per_scan"] == pytest.approx(12.5)
     with pytest.raises(ValueError, match="no scans"):
         cost_per_scan(a, a)

@@ -150,12 +150,17 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     limit = laser_limit_mw(cfg, pulse_s)
     closers = []
     if setup.simulate:
+        import cv2
+
         from device.sim.camera import SimulatedCamera
         from device.sim.hardware import SimulatedHardware
         from device.sim.scene import get_scene
         from device.sim.sensor import SensorParams
 
         spec = f"wall:distance={setup.distance_m:g}" if setup.scene == "wall" else setup.scene
+        # one OpenCV thread: each call's CPU is then its caller's (the renderer's or the pipeline's),
+        # which the per-thread CPU figures of `laserpi bench process` need
+        cv2.setNumThreads(1)
         hw = SimulatedHardware(seed=setup.seed, elf=setup.firmware)
         closers.append(hw.close)
         timing = CameraTimingConfig(frame_duration_s=frame_duration_s, exposure_s=op.exposure_us * 1e-6)

@@ -75,7 +75,10 @@ class SimulatedHardware:
         self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
         self._rise: int | None = None
         self.mcu = None
-        self.clock_cpu_s = 0.0
+        # this simulated hardware's own CPU (the bench subtracts it: a Pi does not pay it): the clock
+        # thread (stepping the emulator), the ticker thread's waiting for simulated time (not the
+        # tickers' work), and the simulated kernel's GPIO edge queue (gpio_edges; a libgpiod read on a Pi)
+        self.clock_cpu_s = self.ticker_wait_cpu_s = self.gpio_cpu_s = 0.0
         self.limit_ns: int | None = None  # the clock does not pass this (the camera's consumer lags)
         self._answer_until_ns = 0  # requests are in flight: the MCU's time may pass limit_ns until then
         self._requests_in_flight = 0  # frames (0x00 delimiters) the Pi sent that the MCU has not answered
@@ -148,14 +151,18 @@ class SimulatedHardware:
         # simulated time never runs ahead of the wall clock, so sleeping the simulated interval
         # is never too long (waiting on the clock's condition instead would wake at every step)
         next_tick = self.now_ns() + self.tick_ns
+        work_s = 0.0
         while not self._stop.is_set():
+            self.ticker_wait_cpu_s = time.thread_time() - work_s
             left_ns = next_tick - self.now_ns()
             if left_ns > 0:
                 self._stop.wait(left_ns * 1e-9)
                 continue
             next_tick += self.tick_ns
+            started = time.thread_time()
             for tick in list(self.tickers):
                 tick()
+            work_s += time.thread_time() - started
 
     def wait_until(self, t_ns: int, timeout_s: float) -> bool:
         """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
@@ -226,11 +233,18 @@ class SimulatedHardware:
             return self._rise is not None
 
     def gpio_edges(self) -> list[tuple[int, bool]]:
+        started = time.thread_time()
         with self._lock:
             self._collect()
             out = list(self._gpio)
             self._gpio.clear()
-            return out
+        self.gpio_cpu_s += time.thread_time() - started
+        return out
+
+    @property
+    def cpu_s(self) -> float:
+        """This simulated hardware's own CPU time so far (see __init__)."""
+        return self.clock_cpu_s + self.ticker_wait_cpu_s + self.gpio_cpu_s
 
     def close(self) -> None:
         self._stop.set()
