@@ -45,3 +45,13 @@ def test_resample_gaps_and_codes():
     assert out[0] == 2.0 and out[1] == 2.0
     assert np.isposinf(out[5])  # nothing measured near 0 rad: no return
     assert np.isneginf(out[7]) and np.isnan(out[8])  # REP 117 codes kept in their cells
+
+
+def test_codes_sharing_a_cell_the_first_that_says_more_than_no_return_wins():
+    grid = np.linspace(-1.0, 1.0, 3)  # cells at -1, 0, 1
+    a = np.array([0.01, -0.01, 0.02, 0.98, 1.01])
+    r = np.array([np.inf, np.nan, -np.inf, -np.inf, np.nan])
+    out = resample_scan(a, r, grid, max_gap=0.1)
+    assert np.isposinf(out[0]) and np.isnan(out[1]) and np.isneginf(out[2])
+    measured = resample_scan(np.array([0.0, 0.01]), np.array([2.0, np.nan]), grid, max_gap=0.1)
+    assert measured[1] == 2.0, "a measured range in the cell wins over a code"

@@ -97,8 +97,11 @@ def resample_scan(
     if bad.any() and grid.size > 1:
         step = (grid[-1] - grid[0]) / (grid.size - 1)
         idx = np.rint((angles[bad] - grid[0]) / step).astype(int)
-        inside = (idx >= 0) & (idx < grid.size)
-        for i, v in zip(idx[inside], ranges[bad][inside]):
-            if np.isposinf(out[i]):  # a measured range in the cell wins over a code
-                out[i] = v
+        code = ranges[bad]
+        # a measured range in the cell wins over a code; among codes, the first one that is not
+        # +inf (no return: what the cell holds already) in the measurements' order
+        take = (idx >= 0) & (idx < grid.size) & ~np.isposinf(code)
+        take[take] = np.isposinf(out[idx[take]])
+        cells, first = np.unique(idx[take], return_index=True)
+        out[cells] = code[take][first]
     return out

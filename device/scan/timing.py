@@ -48,7 +48,8 @@ def scan_timing(times_ns: np.ndarray, fallback_ns: float) -> ScanTiming:
     i = np.nonzero(np.isfinite(t))[0]
     if i.size < 2:
         return ScanTiming(int(round(fallback_ns)), 0, 0.0)
-    slope = round(float(np.polyfit(i.astype(np.float64), t[i] - t[i].mean(), 1)[0]))
+    x, y = i - i.mean(), t[i] - t[i].mean()
+    slope = round(float(np.dot(x, y) / np.dot(x, x)))  # least squares (x has >= 2 distinct values)
     first = float(np.mean(t[i] - slope * i))
     residual = float(np.max(np.abs(t[i] - (first + slope * i))))
     return ScanTiming(int(round(first)), int(slope), residual)
