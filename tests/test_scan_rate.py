@@ -5,11 +5,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 import pytest
 
+import host_sdk
 from device import cli
 from device.config import PRESET_DIR, ConfigError, load_config, load_preset, with_operating_point
 from device.design.report import rate_points
+from device.service.child import start_serve, stop_serve
+from device.sim.comcu_emulator import build_emulator
 from protocol import messages as m
 from protocol.mock_wall import default_settings
 from protocol.server import DeviceConfig, settings_refusal
@@ -102,3 +107,37 @@ def test_bench_process_at_20_hz_runs_the_20_hz_sensor_and_firmware(tmp_path):
     assert args[args.index("--baud") + 1] == str(LINK_BAUD)
     at10 = rate_arguments(10.0, tmp_path)  # the preset's rate: the production firmware, 921600 baud
     assert at10 == ["--config", str(tmp_path / "sensor.toml")]
+
+
+@pytest.mark.slow
+def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
+    cfg_path = config_at(tmp_path, 20.0, 0.02)
+    (point,) = rate_points(load_config(cfg_path), (20.0,))
+    assert point.envelope_power_w >= 0.02  # the laser is Class 1 with that envelope
+    env = point.envelope
+    _, elf = build_emulator("build/test-20hz", MAX_PULSE_US=env.max_pulse_us, MAX_DUTY_PPM=env.max_duty_ppm,
+                            MIN_PERIOD_US=env.min_period_us)
+    link, log = tmp_path / "laserpi", tmp_path / "serve.log"
+    points = 1500  # 1640 do not fit 921600 baud at 20 scans/s
+    proc = start_serve(link, ["--simulate", "--scene", "wall", "--distance-m", "2.0", "--config", str(cfg_path),
+                              "--scan-rate-hz", "20", "--firmware", str(elf), "--points", str(points)],
+                       log_path=log, timeout_s=90)
+    try:
+        with host_sdk.LaserPi(str(link), timeout_s=60.0) as sensor:
+            assert sensor.info().scan_rate_hz == 20.0
+            it = sensor.scans()
+            first = next(it)
+            assert first.ranges.size == points
+            scans = [next(it) for _ in range(60)]
+            health = sensor.health()
+        assert health.sync_locked, log.read_text()[-3000:]
+        # in the simulated clock (this machine may run the simulation slower than real time: the
+        # renderer draws 40 frames per simulated second): a scan every 50 ms, none lost
+        seqs = [s.seq for s in scans]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+        times = np.array([s.device_time for s in scans])
+        assert np.median(np.diff(times)) == pytest.approx(0.05, rel=0.01)
+        assert (len(scans) - 1) / (times[-1] - times[0]) == pytest.approx(20.0, rel=0.01)
+    finally:
+        stop_serve(proc)
+    assert "sync locked" in log.read_text()
