@@ -232,6 +232,8 @@ class ClockEstimate:
 class GpioClockMap:
     """Windowed lower-envelope map from (MCU tick, GPIO timestamp ns) pairs of the same laser edges."""
 
+    REFIT_EVERY, REFIT_FROM = 4, 64
+
     def __init__(self, tick_hz: float, gpio_latency_min_s: float = 3e-6, window: int = 512,
                  prior_jitter_s: float = 50e-6, min_pairs: int = 4) -> None:
         if window < 8 or min_pairs < 2:
@@ -243,6 +245,7 @@ class GpioClockMap:
         self._w = Window(window)
         self._est: ClockEstimate | None = None
         self._dirty = False
+        self._since_fit = 0
         self.rejected = 0
 
     def __len__(self) -> int:
@@ -257,12 +260,17 @@ class GpioClockMap:
         if last is not None and tick <= last[0]:
             return  # out of order or repeated: the pairing hands pairs in tick order
         self._w.append(tick, gpio_ns)
-        self._dirty = True
+        self._since_fit += 1
+        # With REFIT_FROM pairs the line moves little per pair: refit every few pairs then (the
+        # line's sigma grows with the extrapolation meanwhile, so nothing is claimed that was not fitted).
+        if self._est is None or len(self._w) < self.REFIT_FROM or self._since_fit >= self.REFIT_EVERY:
+            self._dirty = True
 
     def estimate(self) -> ClockEstimate | None:
         if not self._dirty:
             return self._est
         self._dirty = False
+        self._since_fit = 0
         if len(self._w) < self.min_pairs:
             self._est = None
             return None

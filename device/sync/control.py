@@ -152,7 +152,7 @@ class SyncConfig:
 class CameraTimeline:
     """SensorTimestamp (ns) as a line in the sequence number, with restart detection (one job)."""
 
-    REFIT_EVERY = 4
+    REFIT_EVERY, REFIT_FROM = 4, 64
 
     def __init__(self, window: int, prior_jitter_s: float, jump_s: float) -> None:
         self._w = Window(window)
@@ -191,9 +191,10 @@ class CameraTimeline:
                 self._w.append(*last)
         self._w.append(seq, ts_ns)
         self._since_fit += 1
-        # A full window moves little per frame: refit every few frames (the line's sigma grows
-        # with the extrapolation meanwhile, so nothing is claimed that was not fitted).
-        if self._fit is None or restarted or len(self._w) < self._w.size or self._since_fit >= self.REFIT_EVERY:
+        # With REFIT_FROM frames the line moves little per frame: refit every few frames then
+        # (the line's sigma grows with the extrapolation meanwhile, so nothing is claimed that was
+        # not fitted).
+        if self._fit is None or restarted or len(self._w) < self.REFIT_FROM or self._since_fit >= self.REFIT_EVERY:
             self._refit()
         return restarted
 
