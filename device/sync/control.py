@@ -51,6 +51,10 @@ log = logging.getLogger(__name__)
 
 THESIS_GAIN_PER_HZ = 7.0 / 30.0  # thesis 5.3.2: P = 7 at 30 Hz, i.e. 0.233 f
 TRIM_LEAD_S = 100e-6  # firmware_pwm: a TRIM never moves a slot starting sooner than this after it arrives
+#: A pulse may start up to this many ticks early or late of where its frame wants it without a
+#: TRIM (each one is a round trip on the UART: issue 18); the train is that much wider on each
+#: side, so the frame's window stays covered: start in [want - 2 D, want], see _start_train.
+TRIM_DEADBAND_TICKS = 1
 
 
 class LaserScheduler(Protocol):
@@ -389,8 +393,9 @@ class SyncController:
             if ws - guard * 1e9 > earliest and est.pi_to_mcu_tick(ws - guard * 1e9) >= cfg.first_rise_min_tick:
                 break
             seq += 1
-        t0 = math.floor(float(est.pi_to_mcu_tick(ws - guard * 1e9)))
-        t1 = math.ceil(float(est.pi_to_mcu_tick(we + guard * 1e9)))
+        d = TRIM_DEADBAND_TICKS  # aimed d early, trimmed only beyond +-d: starts in [t0 - d, t0 + d]
+        t0 = math.floor(float(est.pi_to_mcu_tick(ws - guard * 1e9))) - d
+        t1 = math.ceil(float(est.pi_to_mcu_tick(we + guard * 1e9))) + d
         period = int(round(period_s / est.fit.b * cfg.tick_hz))
         width = t1 - t0 + 1
         pattern = [cfg.lit(seq + i) for i in range(len(cfg.pattern))]
@@ -410,10 +415,10 @@ class SyncController:
         if slot - 1 >= 0 and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
             return  # the trim could move this slot or the one before: wait a frame
         ws, _ = self._window_ns(tr.frame0 + slot, frame)
-        want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9)))
+        want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9))) - TRIM_DEADBAND_TICKS
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
         phase = want - tr.start(slot)
-        if phase == 0 and period == tr.period:
+        if abs(phase) <= TRIM_DEADBAND_TICKS and period == tr.period:
             return
         if not self._command(self.mcu.trim, phase, period):  # trims waiting for one slot add up, as the copy assumes
             return
