@@ -24,7 +24,7 @@ import numpy as np
 from protocol.framing import OVERHEAD, PROTOCOL_VERSION
 
 #: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
-PROTOCOL_MINOR = 2  # 1: HEALTH fault counters; 2: request ids, boot id, ANGLES, HEARTBEAT (SPEC.md 2)
+PROTOCOL_MINOR = 3  # 1: HEALTH fault counters; 2: request ids, boot id, ANGLES, HEARTBEAT; 3: signed ray interval (SPEC.md 2)
 
 
 class MsgType(enum.IntEnum):
@@ -628,7 +628,10 @@ class ScanMessage:
     """Device -> host: one scan, 20-byte header then ``n`` u16 range codes then ``n`` u8 qualities.
 
     device_time_us: device clock (µs, monotonic) when the first ray was exposed.
-    ray_interval_ns: time from one ray (column) to the next.
+    ray_interval_ns: time from one ray (column) to the next; negative (minor 3) when the rays were
+    measured latest first. A device sends a negative one only to a host of minor >= 3
+    (:func:`scan_time_for_host`); it is read as signed from every device: one of minor < 3 never
+    sent 2**31 ns (2.1 s) or more per ray.
     age_us: time from the first ray to the moment the device started sending this frame; the host
     uses it with the frame's arrival time to stamp the scan (host_sdk/scan.py).
     ranges_m (float32, REP 117) and quality (uint8) are per point, for columns
@@ -652,6 +655,8 @@ class ScanMessage:
         codes = encode_ranges(self.ranges_m)
         if quality.shape != codes.shape or quality.dtype != np.uint8:
             raise ValueError(f"quality must be uint8 of shape {codes.shape}, got {quality.dtype} {quality.shape}")
+        if not -2**31 <= self.ray_interval_ns < 2**31:
+            raise ValueError(f"ray_interval_ns {self.ray_interval_ns} does not fit SCAN's i32 field")
         head = _SCAN_HEAD.pack(self.scan_seq & 0xFFFFFFFF, self.device_time_us, self.ray_interval_ns,
                                min(self.age_us, 0xFFFFFFFF), self.first_index, codes.size)
         boot = b"" if self.boot_id is None else _SCAN_BOOT.pack(self.boot_id)
@@ -669,9 +674,18 @@ class ScanMessage:
         return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy(), boot)
 
 
-_SCAN_HEAD = struct.Struct("<IQIIHH")  # scan_seq, device_time_us, ray_interval_ns, age_us, first_index, n
+_SCAN_HEAD = struct.Struct("<IQiIHH")  # scan_seq, device_time_us, ray_interval_ns (signed: minor 3), age_us, first_index, n
 _SCAN_BOOT = struct.Struct("<I")  # boot_id after the qualities (minor 2)
 SCAN_HEADER_SIZE = _SCAN_HEAD.size  # 24
+
+
+def scan_time_for_host(device_time_us: int, ray_interval_ns: int, n: int, host_minor: int) -> tuple[int, int]:
+    """(device_time_us, ray_interval_ns) of an n-ray scan as a host of ``host_minor`` can read
+    them: a host of minor < 3 reads the interval unsigned, so a negative one goes to it as the
+    scan's middle time and no step (SPEC.md, SCAN)."""
+    if ray_interval_ns >= 0 or host_minor >= 3:
+        return device_time_us, ray_interval_ns
+    return device_time_us + (n - 1) * ray_interval_ns // 2000, 0
 SCAN_TRAILER_SIZE = _SCAN_BOOT.size  # 4
 BYTES_PER_POINT = 3
 

@@ -81,7 +81,8 @@ class SourceScan:
     device_time_us: device_clock_us() when the first ray (column first_index) was exposed.
     ranges_m: float32 (n,), REP 117 (NaN invalid, +inf no return, -inf too close).
     quality: uint8 (n,), 0 = no signal .. 255 = strongest.
-    ray_interval_ns: time between consecutive rays (0 for a global exposure).
+    ray_interval_ns: time between consecutive rays (0 for a global exposure; negative when the
+    rays were measured latest first).
     """
 
     device_time_us: int
@@ -256,6 +257,7 @@ class LinkServer:
         self._angles_crc = m.angles_crc(self.geometry.angles)
         self._last_config: tuple[int, m.ScanSettings, m.Ack | m.Nack] | None = None  # id, settings, answer
         self._heard_at = time.monotonic()  # the host's last intact frame
+        self._host_minor = 0  # from its GET_INFO; until then, what every host reads
         self._requests = {m.GetInfo: self._info, m.GetHealth: self._reply_health, m.Start: self._start,
                           m.Stop: self._stop_request, m.SetConfig: self._configure, m.GetAngles: self._angles,
                           m.Heartbeat: lambda frame, msg: None}
@@ -343,6 +345,7 @@ class LinkServer:
         handler(frame, msg)
 
     def _info(self, frame, msg: m.GetInfo) -> None:
+        self._host_minor = msg.host_minor  # what it can read (SCAN's signed ray interval: minor 3)
         if msg.host_major != PROTOCOL_VERSION:
             log.warning("host speaks protocol %d.%d, device %d", msg.host_major, msg.host_minor, PROTOCOL_VERSION)
         g = self.geometry
@@ -452,8 +455,10 @@ class LinkServer:
                 continue
             if scan is None:
                 continue
-            msg = m.ScanMessage(seq, scan.device_time_us, scan.ray_interval_ns, 0, scan.first_index,
-                                scan.ranges_m, scan.quality, self.config.boot_id)
+            t_us, interval = m.scan_time_for_host(scan.device_time_us, scan.ray_interval_ns, len(scan.ranges_m),
+                                                  self._host_minor)
+            msg = m.ScanMessage(seq, t_us, interval, 0, scan.first_index, scan.ranges_m, scan.quality,
+                                self.config.boot_id)
             seq += 1
             with self._lock:
                 if not self._scanning:

@@ -193,3 +193,33 @@ def test_config_without_every_field_is_refused():
 def test_power_on_settings_above_the_limit_are_refused():
     with pytest.raises(ValueError, match="Class 1"):
         LinkServer(None, AnalyticWallSource(n_points=N), DeviceConfig(laser_limit_mw=1.0, settings=default_settings(N)))
+
+
+class LatestFirstSource(FastSource):
+    """Scans whose rays were measured latest first: a negative ray interval."""
+
+    def next_scan(self, timeout_s):
+        time.sleep(0.01)
+        return SourceScan(1_000_000, np.full(400, 1.5, np.float32), np.full(400, 9, np.uint8), ray_interval_ns=-2_000)
+
+
+@pytest.mark.parametrize("host_minor, want", [
+    (3, (1_000_000, -2_000)),                             # as measured
+    (2, (1_000_000 - 399 * 2_000 // 2 // 1000, 0)),       # its middle time, no step: read unsigned there
+])
+def test_a_negative_ray_interval_goes_only_to_a_host_that_reads_it_signed(host_minor, want):
+    host_end, dev_end = pipe_pair()
+    cfg = DeviceConfig(laser_limit_mw=5.0, settings=default_settings(400))
+    with LinkServer(dev_end, LatestFirstSource(), cfg):
+        host = Host(host_end)
+        host.send(m.GetInfo(1, host_minor))
+        host.receive(lambda o: isinstance(o[-1], m.Info))
+        host.send(m.Start())
+        scan = host.receive(lambda o: isinstance(o[-1], m.ScanMessage))[-1]
+        assert (scan.device_time_us, scan.ray_interval_ns) == want
+
+
+def test_scan_time_for_host_leaves_what_every_host_reads_alone():
+    assert m.scan_time_for_host(5_000, 1_500, 100, 0) == (5_000, 1_500)
+    assert m.scan_time_for_host(5_000, -1_500, 100, 3) == (5_000, -1_500)
+    assert m.scan_time_for_host(5_000, -2_000, 101, 2) == (5_000 - 100, 0)  # the middle ray (50) is 100 us earlier

@@ -84,6 +84,12 @@ def test_scan_quality_must_match_ranges():
         m.ScanMessage(0, 0, 0, 0, 0, np.ones(4), np.ones(3, np.uint8)).encode()
 
 
+@pytest.mark.parametrize("interval", [2**31, -2**31 - 1])
+def test_a_ray_interval_beyond_the_i32_field_is_refused(interval):
+    with pytest.raises(ValueError, match="ray_interval_ns .* i32"):
+        m.ScanMessage(0, 0, interval, 0, 0, np.ones(4), np.ones(4, np.uint8)).encode()
+
+
 @pytest.mark.parametrize("msg_type, payload, reason", [
     (m.MsgType.SCAN, bytes(10), "short"),
     (m.MsgType.SCAN, bytes(20) + (5).to_bytes(2, "little") + (100).to_bytes(2, "little") + bytes(30), "short"),
@@ -180,7 +186,7 @@ _range = st.one_of(st.floats(0, m.RANGE_MAX_ENCODABLE_M), st.sampled_from([math.
 
 
 @settings(max_examples=200, deadline=None)
-@given(seq=st.integers(0, 2**32 - 1), t=st.integers(0, 2**64 - 1), dt=st.integers(0, 2**32 - 1),
+@given(seq=st.integers(0, 2**32 - 1), t=st.integers(0, 2**64 - 1), dt=st.integers(-2**31, 2**31 - 1),  # i32: minor 3
        age=st.integers(0, 2**32 - 1), first=st.integers(0, 2**16 - 1),
        points=st.lists(st.tuples(_range, st.integers(0, 255)), min_size=0, max_size=300))
 def test_scan_roundtrip_property(seq, t, dt, age, first, points):

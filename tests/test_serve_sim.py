@@ -94,6 +94,12 @@ def test_scans_at_the_configured_rate_and_size_with_the_pipelines_accuracy(senso
     assert (len(scans) - 1) / (t[-1] - t[0]) >= 9.5
     assert missing == 0 and np.all(np.diff([sc.seq for sc in scans]) == 1)
     assert health.state.name == "SCANNING" and health.laser_on and health.sync_locked and health.errors == ()
+    # the rays' times under the rolling shutter reach the host (the line's row changes across the
+    # wall, and the rays run latest first here: a negative time_increment, protocol minor 3);
+    # the span stays within the region of interest's rows (~3 ms)
+    spans = np.array([sc.time_increment * (sc.ranges.size - 1) for sc in scans])
+    assert np.all(spans != 0) and np.all(np.abs(spans) < 3e-3)
+    assert np.ptp(spans) <= 0.05 * np.max(np.abs(spans)), spans
     wall = scene_truth("wall", 2.0)
     rel, true = [], []
     for sc in scans:

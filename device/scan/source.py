@@ -250,12 +250,9 @@ class SensorSource:
             ranges = median_filter(ranges, s.median_window)
         self.counters.scans_made += 1
         # the host's region of interest starts at ray roi_first: its time moves with it
-        interval = rays.ray_interval_ns
-        first_ns = rays.first_ray_ns + s.roi_first * interval
-        if interval < 0:  # the wire's ray interval is unsigned (SCAN, protocol/SPEC.md): the scan's middle time, no step
-            first_ns += (len(ranges) - 1) * interval // 2
-            interval = 0
-        return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first, ray_interval_ns=interval)
+        first_ns = rays.first_ray_ns + s.roi_first * rays.ray_interval_ns
+        return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first,
+                          ray_interval_ns=rays.ray_interval_ns)
 
     # failures
     def _camera_failed(self, why: str) -> None:

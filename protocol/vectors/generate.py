@@ -66,6 +66,9 @@ VECTORS: dict[str, tuple[int, object]] = {
                                    host_sessions=6, request_id=0x1237, boot_id=0xCAFEF00D, host_timeouts=1)),
     "scan_minor2": (20, m.ScanMessage(7, 2**40 + 5, 12500, 61000, 2, np.array([0.5, math.inf], dtype=np.float64),
                                       np.array([200, 0], dtype=np.uint8), boot_id=0xCAFEF00D)),
+    # protocol minor 3: the ray interval is signed (rays measured latest first)
+    "scan_minor3": (21, m.ScanMessage(8, 2**40 + 9, -12500, 61000, 2, np.array([0.5, -math.inf], dtype=np.float64),
+                                      np.array([200, 0], dtype=np.uint8), boot_id=0xCAFEF00D)),
 }
 
 
