@@ -19,7 +19,8 @@ off the truth) as a share of the columns with a true return; false returns (a va
 there is none); valid share of the columns with a true return; "blind" columns (+inf, "nothing
 there", where there is a surface); the range error's sigma (%, valid columns without the gross
 errors). Speed beside it: CPU time per lit frame of each variant on the still office scene
-(median of ``--repeats`` calls, one thread), and its ratio to ``fast one-unlit``. And the static
+(median of ``--repeats`` calls, one thread, the variants interleaved call by call), and its ratio
+to ``fast one-unlit``. And the static
 accuracy as ``laserpi bench pipeline`` measures it (fast-com, 90 % walls at 2 m and 3 m, the
 simulator's 40 ms exposure), with one unlit frame and with both neighbours, on the same frames.
 """
@@ -147,15 +148,17 @@ def measure(args) -> dict:
         points.append(row)
     if timing_pairs is None:
         timing_pairs = sequence(cfg, get_scene("office"), 1, args.seed)
-    ms = {}
-    for name, pipe in _pipelines(cfg).items():
-        times = []
-        for _ in range(max(args.repeats, 1)):
+    # the variants interleaved call by call (each round in another order), so that what the machine
+    # does meanwhile falls on all of them alike: their ratio is what is compared
+    pipes = _pipelines(cfg)
+    times: dict[str, list[float]] = {name: [] for name in pipes}
+    names = list(pipes)
+    for k in range(max(args.repeats, 1)):
+        for name in names[k % len(names):] + names[:k % len(names)]:
             t0 = time.thread_time()
-            _process(name, pipe, timing_pairs[0])
-            times.append(time.thread_time() - t0)
-        times.sort()
-        ms[name] = times[len(times) // 2] * 1e3
+            _process(name, pipes[name], timing_pairs[0])
+            times[name].append(time.thread_time() - t0)
+    ms = {name: sorted(t)[len(t) // 2] * 1e3 for name, t in times.items()}
     return {"points": points, "ms_per_lit_frame": ms, "static": static_accuracy(cfg, args.frames, args.seed), "ratio_vs_one_unlit": ms["fast"] / ms["fast one-unlit"],
             "operating_point": {"exposure_us": cfg.operating_point.exposure_us,
                                 "analog_gain": cfg.operating_point.analog_gain}}
