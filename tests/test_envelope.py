@@ -148,3 +148,30 @@ def test_generator_prints_the_makefile_line(tmp_path):
     assert "MAX_PULSE_US=8000 MAX_DUTY_PPM=130000 MIN_PERIOD_US=61667" in out.stdout
     out = _generator("--preset", "thesis-design", "--power-mw", "30")
     assert out.returncode == 1 and "not Class 1 at 30 mW" in out.stdout
+
+
+def test_the_envelope_a_firmware_announces_in_ticks_rounds_to_its_loose_side():
+    # the production envelope at 16 MHz (2 MHz ticks) and at 8 MHz (1 MHz ticks): the same in microseconds
+    assert FirmwareEnvelope.from_ticks(34_800, 200_000, 180_000, 2_000_000) == FirmwareEnvelope(17_400, 200_000, 90_000)
+    assert FirmwareEnvelope.from_ticks(17_400, 200_000, 90_000, 1_000_000) == FirmwareEnvelope(17_400, 200_000, 90_000)
+    # a tick's remainder: the pulse up, the period down (the firmware allows at least that much)
+    assert FirmwareEnvelope.from_ticks(34_801, 200_000, 179_999, 2_000_000) == FirmwareEnvelope(17_401, 200_000, 89_999)
+    with pytest.raises(EnvelopeError, match="ticks_per_second"):
+        FirmwareEnvelope.from_ticks(34_800, 200_000, 180_000, 0)
+
+
+def test_the_device_refuses_to_light_a_laser_its_co_mcus_envelope_does_not_keep_class_1():
+    import dataclasses
+
+    from device.config import load_preset
+    from device.service.assembly import envelope_refusal
+    from protocol import mcu
+
+    cfg = load_preset("thesis-calibrated")  # the thesis laser, 25 mW
+    production = mcu.Info(2, 0x01, 50, 34_800, 200_000, 2_000_000, 180_000)  # firmware_pwm/Makefile at 16 MHz
+    assert envelope_refusal(cfg)(production) is None  # Class 1 to 25.6 mW over every train it allows
+    stronger = dataclasses.replace(cfg, laser=dataclasses.replace(cfg.laser, power_w=0.030))
+    why = envelope_refusal(stronger)(production)
+    assert why is not None and "25.6 mW" in why and "30 mW" in why and "laserpi design" in why
+    # a firmware built for that laser at 5 scans/s (12.6 ms pulses at least 200 ms apart) keeps it
+    assert envelope_refusal(stronger)(mcu.Info(2, 0x01, 50, 25_200, 70_000, 2_000_000, 400_000)) is None

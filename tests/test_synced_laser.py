@@ -185,3 +185,18 @@ def test_pings_are_rarer_while_the_clock_map_runs_on_the_gpio_edges(laser_and_mc
     for _ in range(10):
         laser.frame_lit(FRAME)
     assert on_pings == 10 and len(pings) - on_pings < 5
+
+
+def test_a_co_mcu_whose_envelope_is_not_class_1_for_this_laser_lights_nothing():
+    fake = FakeComcu()
+    seen = []
+
+    def refusal(info):
+        seen.append(info)
+        return "the co-MCU's envelope keeps a laser Class 1 only up to 25.6 mW"
+
+    laser = SyncedLaser(lambda: fake, SyncConfig(0, 10, 0.05), heartbeat_s=None, envelope_refusal=refusal)
+    with pytest.raises(LaserError) as exc:
+        laser.start(FRAME)
+    assert exc.value.reason == "refused" and "25.6 mW" in str(exc.value)
+    assert seen == [fake.info()] and laser.controller is None and not laser.locked

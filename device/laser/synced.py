@@ -83,13 +83,16 @@ class SyncedLaser:
                  gpio_edges: Callable[[], list[tuple[int, bool]]] | None = None,
                  ping_interval_s: float = 0.05, ping_interval_gpio_s: float = 0.5,
                  heartbeat_s: float | None = HEARTBEAT_S, watchdog_s: float = 0.3,
-                 pings_at_start: int = 4, clock_ns: Callable[[], int] = time.monotonic_ns):
+                 pings_at_start: int = 4, clock_ns: Callable[[], int] = time.monotonic_ns,
+                 envelope_refusal: Callable[[mcu.Info], str | None] | None = None):
         """ping_interval_s: pings while the clock map runs on pings; ping_interval_gpio_s: while it
         runs on the trigger line's GPIO edges, when the pings only keep the fallback map and the
         reboot check (its clock going back) alive: each is a round trip on the UART.
         heartbeat_s: interval of the heartbeat thread; None = no thread, whoever owns the
         clock calls ``heartbeat()`` (the simulated hardware does, every HEARTBEAT_S of its time).
-        clock_ns: CLOCK_MONOTONIC of the Pi (simulated time in simulation)."""
+        clock_ns: CLOCK_MONOTONIC of the Pi (simulated time in simulation).
+        envelope_refusal: why the co-MCU's compiled-in envelope (its INFO) is not Class 1 for this
+        laser, or None (device.service.assembly.envelope_refusal); ``start`` then refuses."""
         self.clock_ns = clock_ns
         self.open_comcu = open_comcu
         self.sync = sync
@@ -99,6 +102,7 @@ class SyncedLaser:
         self.heartbeat_s = heartbeat_s
         self.watchdog_s = watchdog_s
         self.pings_at_start = pings_at_start
+        self.envelope_refusal = envelope_refusal
         self.comcu: LockedComcu | None = None
         self.controller: SyncController | None = None
         self._lock = threading.Lock()  # start/stop/frame_lit against each other
@@ -128,6 +132,9 @@ class SyncedLaser:
                     self.comcu = LockedComcu(self.open_comcu())
                 self.comcu.stop()  # whatever an earlier run left scheduled
                 info = self.comcu.info()  # the firmware's clock and envelope, whatever its build
+                why = self.envelope_refusal(info) if self.envelope_refusal is not None else None
+                if why is not None:
+                    raise LaserError("refused", why)
                 controller = SyncController(replace(self.sync, tick_hz=info.ticks_per_second,
                                                     first_rise_min_tick=info.first_rise_min_ticks),
                                             CoMcuTrain(self.comcu))

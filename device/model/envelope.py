@@ -106,6 +106,17 @@ class FirmwareEnvelope:
     def min_period_s(self) -> float:
         return self.min_period_us * 1e-6
 
+    @classmethod
+    def from_ticks(cls, max_pulse_ticks: int, max_duty_ppm: int, min_period_ticks: int,
+                   ticks_per_second: int) -> FirmwareEnvelope:
+        """The envelope a firmware announces in ticks of its clock (its INFO), in microseconds
+        rounded to the loose side (pulse up, period down), so that it covers every train that
+        firmware allows."""
+        if ticks_per_second <= 0:
+            raise EnvelopeError(f"ticks_per_second must be positive, got {ticks_per_second}")
+        return cls(math.ceil(max_pulse_ticks * 1_000_000 / ticks_per_second), max_duty_ppm,
+                   math.floor(min_period_ticks * 1_000_000 / ticks_per_second))
+
     def make_command(self) -> str:
         """The firmware build line with these limits (firmware_pwm/Makefile variables)."""
         return (f"make -C firmware_pwm MAX_PULSE_US={self.max_pulse_us} MAX_DUTY_PPM={self.max_duty_ppm} "

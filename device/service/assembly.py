@@ -58,6 +58,34 @@ def laser_pulse_s(cfg: SensorConfig, row_min: int, row_max: int) -> float:
                cfg.laser.pulse_s)
 
 
+def envelope_refusal(cfg: SensorConfig, closest_eye_m: float = 0.01):
+    """Callable(mcu.Info) -> why the co-MCU's compiled-in envelope does not keep ``cfg``'s laser,
+    at its measured peak power ([laser] power_w, firmware_pwm/README.md "Optical power"), Class 1
+    for every pulse train that firmware allows (None if it does). The firmware's envelope is
+    what the Class 1 claim rests on when the Pi's software errs, so SyncedLaser lights nothing
+    under a firmware built for a weaker laser (device/model/envelope.py; eq. 3.45)."""
+    import functools
+
+    from device.model.envelope import FirmwareEnvelope, LineLaserOptics, envelope_max_power_w
+
+    las = cfg.laser
+    optics = LineLaserOptics(las.wavelength_m * 1e9, las.fan_angle_rad, las.line_height_m, las.source_diameter_m)
+    max_power_w = functools.lru_cache(maxsize=4)(lambda env: envelope_max_power_w(optics, closest_eye_m, env))
+
+    def refusal(info) -> str | None:
+        env = FirmwareEnvelope.from_ticks(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks,
+                                          info.ticks_per_second)
+        limit_w = max_power_w(env)
+        if las.power_w <= limit_w:
+            return None
+        return (f"the co-MCU's envelope ({env.max_pulse_us} us pulses, {env.max_duty_ppm / 1e4:g} % duty, "
+                f"{env.min_period_us} us apart) keeps a laser Class 1 only up to {limit_w * 1e3:.1f} mW, and "
+                f"[laser] power_w is {las.power_w * 1e3:g} mW: lower the laser's power or flash a firmware "
+                f"built for it (`laserpi design` gives the make line)")
+
+    return refusal
+
+
 def laser_limit_mw(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.01, rate_hz: float | None = None) -> float:
     """Class 1 peak power limit (mW) of the configured laser, one ``pulse_s`` pulse per scan at
     ``rate_hz`` scans/s (default: the operating point's); device/model/safety.py, eq. 3.45 with the
@@ -166,7 +194,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         timing = CameraTimingConfig(frame_duration_s=frame_duration_s, exposure_s=op.exposure_us * 1e-6)
         camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,
                                  sensor=SensorParams(analog_gain=op.analog_gain), hardware=hw)
-        laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns)
+        laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns,
+                            envelope_refusal=envelope_refusal(cfg))
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
         faults = {"comcu-reset": hw.reset_mcu,
@@ -198,7 +227,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
                         "gpio_edge); the laser is synchronised by co-MCU pings alone, with wider guards (HEALTH error "
                         "SYNC_DEGRADED)")
             degraded = True
-        laser = SyncedLaser(open_comcu, sync, gpio_edges=None if edges is None else edges.read)
+        laser = SyncedLaser(open_comcu, sync, gpio_edges=None if edges is None else edges.read,
+                            envelope_refusal=envelope_refusal(cfg))
         clock = time.monotonic
         faults, hw = {}, None
     geometry = ScanGeometry(scan.angles.astype(np.float32), op.min_m, op.max_m)
