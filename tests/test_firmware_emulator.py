@@ -334,13 +334,14 @@ def test_heartbeat_loss_switches_the_laser_off_within_the_documented_bound(relax
     now = comcu.ping().mcu_ticks
     comcu.schedule(now + 20 * ms, 25 * ms, 5 * ms)  # a pulse every 25 ms
     run_with_heartbeats(port, comcu, 0.2)
-    last_heartbeat = port.rx_delims[-1]
     port.advance(0.3)  # heartbeats stop
+    last_heartbeat = port.rx_delims[-1]  # its bytes entered the UART at the start of this advance
     rises_after = [c for c, lvl in port.edges if lvl == 1 and c > last_heartbeat]
     assert rises_after, "pulses continue for a while after the last heartbeat"
     # firmware_pwm/README.md ("Heartbeat", "What changes at 8 MHz"): the heartbeat timeout, plus at
     # most one 16-bit Timer1 overflow period for the check in the overflow interrupt: 50 + 32.8 =
     # 82.8 ms at 16 MHz, 50 + 65.5 = 115.5 ms at 8 MHz after the last heartbeat
+    assert info.heartbeat_timeout_ms == 50  # firmware_pwm/Makefile HEARTBEAT_TIMEOUT_US
     bound_s = info.heartbeat_timeout_ms / 1000 + 0x10000 / info.ticks_per_second
     off_delay_s = (port.edges[-1][0] - last_heartbeat) / port.cpu_hz
     assert port.edges[-1][1] == 0 and off_delay_s <= bound_s, (
