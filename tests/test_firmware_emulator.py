@@ -15,7 +15,12 @@ Most tests run the production ELF (the Makefile's envelope: at most one pulse pe
 few that need a denser train to measure timing (the 2 kHz exactness test, the heartbeat
 switch-off time) run a separate test ELF built in firmware_pwm/build/test-envelope with only
 MIN_PERIOD_US relaxed to the placement minimum; the production build is never touched.
+The tests written in the build's tick rate (`*_link` fixtures parametrised by clock) also run the
+8 MHz ELF of the recommended 3.3 V board (firmware_pwm/build/8mhz, ticks of 1 us) with the
+harness and the port at 8 MHz, judged on the same pin, and in simulated seconds where a wrong
+clock would show (pulse lengths, the heartbeat switch-off time).
 """
+import contextlib
 import math
 import random
 from pathlib import Path
@@ -30,40 +35,82 @@ from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
 
 MS = 2000  # ticks per millisecond (the default 16 MHz build)
-#: the production envelope's rate limit, from its one source of truth
-MIN_PERIOD = parse_makefile_envelope(
-    (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()).min_period_us * MS // 1000
-#: the relaxed rate of the timing-test ELF: the firmware's own placement minimum (100 us + 200 us)
+#: the production envelope's rate limit (us), from its one source of truth
+MIN_PERIOD_US = parse_makefile_envelope(
+    (Path(__file__).resolve().parents[1] / "firmware_pwm" / "Makefile").read_text()).min_period_us
+MIN_PERIOD = MIN_PERIOD_US * MS // 1000
+#: the relaxed rate of the timing-test ELF: the firmware's own placement minimum (MIN_PULSE_TICKS
+#: + MIN_GAP_TICKS = 600 ticks, firmware_pwm/src/config.h): 300 us at 16 MHz, 600 us at 8 MHz
 TEST_MIN_PERIOD_US = 300
+EIGHT_MHZ = 8_000_000  # the recommended 3.3 V board's clock (firmware_pwm/README.md "Board variants")
+CLOCKS = pytest.mark.parametrize("clock", [CPU_HZ, EIGHT_MHZ], ids=["16MHz", "8MHz"])
+
+
+def _build(build_dir, **overrides):
+    try:
+        return build_emulator(build_dir, **overrides)
+    except Exception as exc:
+        pytest.fail(f"simavr harness unavailable: {exc}")
 
 
 @pytest.fixture(scope="module")
 def relaxed_emulator():
     """The test ELF with MIN_PERIOD_US relaxed (its own build dir): only for tests whose point
     is timing at pulse rates the production envelope refuses."""
-    try:
-        return build_emulator("build/test-envelope", MIN_PERIOD_US=TEST_MIN_PERIOD_US)
-    except Exception as exc:
-        pytest.fail(f"simavr harness unavailable: {exc}")
+    return _build("build/test-envelope", MIN_PERIOD_US=TEST_MIN_PERIOD_US)
+
+
+@pytest.fixture(scope="module")
+def emulator_8mhz():
+    """The production envelope built for the 8 MHz board, in the README's build/8mhz."""
+    return _build("build/8mhz", F_CPU=EIGHT_MHZ)
+
+
+@pytest.fixture(scope="module")
+def relaxed_emulator_8mhz():
+    return _build("build/test-envelope-8mhz", F_CPU=EIGHT_MHZ, MIN_PERIOD_US=2 * TEST_MIN_PERIOD_US)
+
+
+@contextlib.contextmanager
+def past_quiet_time(emulator, cpu_hz=CPU_HZ):
+    """The firmware run past its boot's quiet time (test_first_rise_after_a_boot)."""
+    with SteppedMcuPort(*emulator, cpu_hz=cpu_hz) as port:
+        comcu = CoMcu(port)
+        port.advance_to_tick(comcu.info().first_rise_min_ticks)
+        yield port, comcu
 
 
 @pytest.fixture
 def link(emulator):
-    """The production firmware, run past its boot's quiet time (test_first_rise_after_a_boot)."""
-    port = SteppedMcuPort(*emulator)
-    comcu = CoMcu(port)
-    port.advance_to_tick(comcu.info().first_rise_min_ticks)
-    yield port, comcu
-    port.close()
+    """The production firmware (16 MHz)."""
+    with past_quiet_time(emulator) as link:
+        yield link
 
 
 @pytest.fixture
 def relaxed_link(relaxed_emulator):
-    port = SteppedMcuPort(*relaxed_emulator)
-    comcu = CoMcu(port)
-    port.advance_to_tick(comcu.info().first_rise_min_ticks)
-    yield port, comcu
-    port.close()
+    with past_quiet_time(relaxed_emulator) as link:
+        yield link
+
+
+@pytest.fixture
+def clock_link(request, clock):
+    """The production firmware of the parametrised clock (CLOCKS)."""
+    emulator = request.getfixturevalue({CPU_HZ: "emulator", EIGHT_MHZ: "emulator_8mhz"}[clock])
+    with past_quiet_time(emulator, clock) as link:
+        yield link
+
+
+@pytest.fixture
+def relaxed_clock_link(request, clock):
+    emulator = request.getfixturevalue({CPU_HZ: "relaxed_emulator", EIGHT_MHZ: "relaxed_emulator_8mhz"}[clock])
+    with past_quiet_time(emulator, clock) as link:
+        yield link
+
+
+def ticks_per_ms(comcu):
+    """MCU ticks per millisecond, as the firmware reports them (INFO; 2000 at 16 MHz, 1000 at 8 MHz)."""
+    return comcu.info().ticks_per_second // 1000
 
 
 def check_rate(port, pulses, min_period):
@@ -76,9 +123,10 @@ def check_rate(port, pulses, min_period):
 
 
 def run_with_heartbeats(port, comcu, seconds, every=0.02):
-    end = port.seconds + seconds
-    while port.seconds < end:
-        port.advance(min(every, end - port.seconds))
+    # in whole cycles: a remainder below half a cycle would advance by nothing and loop for ever
+    end, step = port.cycle + round(seconds * port.cpu_hz), round(every * port.cpu_hz)
+    while port.cycle < end:
+        port.run_cycles(min(step, end - port.cycle))
         comcu.send_heartbeat()
 
 
@@ -120,31 +168,41 @@ def assert_pin_follows_reports(port, reports, first_pulse=0):
             assert abs(fall - 1 - e.fall_ticks) <= 1, f"pulse {i}: fell at tick {fall}, reported {e.fall_ticks}"
 
 
-def test_boot_info_and_ping_track_the_timer(link):
-    port, comcu = link
+@CLOCKS
+def test_boot_info_and_ping_track_the_timer(clock_link, clock):
+    port, comcu = clock_link
     info = comcu.info()
+    ms = ticks_per_ms(comcu)
     assert comcu.boot_infos == [info], "the MCU announces its boot with an INFO frame"
     assert not port.edges, "the pin stays low from reset"
-    assert (info.max_pulse_ticks, info.max_duty_ppm, info.ticks_per_second) == (34_800, 200_000, 2_000_000)
-    assert info.min_period_ticks == MIN_PERIOD and info.firmware_version == 2
+    # the same envelope in seconds, in ticks of the build's clock (firmware_pwm/README.md "Board variants")
+    assert (info.max_pulse_ticks, info.max_duty_ppm, info.ticks_per_second) == {
+        CPU_HZ: (34_800, 200_000, 2_000_000), EIGHT_MHZ: (17_400, 200_000, 1_000_000)}[clock]
+    assert info.min_period_ticks == MIN_PERIOD_US * ms // 1000 and info.firmware_version == 2
     # the envelope the running firmware reports is Class 1 for the thesis laser (25 mW, eyes >= 10 mm)
-    env = FirmwareEnvelope(info.max_pulse_ticks * 1000 // MS, info.max_duty_ppm, info.min_period_ticks * 1000 // MS)
+    env = FirmwareEnvelope(info.max_pulse_ticks * 1000 // ms, info.max_duty_ppm, info.min_period_ticks * 1000 // ms)
     thesis = LineLaserOptics(808, math.radians(120), 4e-3, 1e-3)
     assert verify_envelope(thesis, 0.025, 0.010, env, width_points=60).class1
     a = comcu.ping()
     port.advance(0.01)
+    sent = port.timer_count_at(port.cycle)
     b = comcu.ping()
     assert a.mcu_rx_ticks <= a.mcu_ticks < b.mcu_rx_ticks <= b.mcu_ticks
-    # the MCU's 64-bit time is the timer count of the emulated Timer1
-    assert abs(b.mcu_ticks - port.timer_count_at(port.cycle)) < 2 * MS
-    assert 0.01 * 2_000_000 <= b.mcu_ticks - a.mcu_ticks < 0.02 * 2_000_000
+    # the MCU's 64-bit time is the timer count of the emulated Timer1, at the reported rate: the
+    # ping stamped between the request's write and the reply's read, at most 2 ms before the read
+    # (3 ms at 8 MHz, where the firmware's work after the stamp takes twice as long: 1.7 and 2.1 ms)
+    read = port.timer_count_at(port.cycle)
+    assert sent <= b.mcu_rx_ticks and read - {CPU_HZ: 2, EIGHT_MHZ: 3}[clock] * ms < b.mcu_ticks <= read
+    assert 0.01 * info.ticks_per_second <= b.mcu_ticks - a.mcu_ticks < 0.02 * info.ticks_per_second
 
 
-def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
-    port, comcu = link
+@CLOCKS
+def test_edges_land_on_the_scheduled_timer_counts_with_trims(clock_link):
+    port, comcu = clock_link
+    ms = ticks_per_ms(comcu)
     now = comcu.ping().mcu_ticks
-    period, width = 100_000, 20_000  # 20 fps, 10 ms, every other frame lit (10 Hz, the sensor's train)
-    first = ((now + 100 * MS) | 0xFFFF) + 1 - 7_000  # pulse 0 straddles a 16-bit timer overflow
+    period, width = 50 * ms, 10 * ms  # 20 fps, 10 ms, every other frame lit (10 Hz, the sensor's train)
+    first = ((now + 100 * ms) | 0xFFFF) + 1 - 7 * ms // 2  # pulse 0 straddles a 16-bit timer overflow
     assert comcu.schedule(first, period, width, mask=0b01, n=2, stream_edges=True) == 0
     run_with_heartbeats(port, comcu, 0.4)
     moved = comcu.trim(phase_ticks=-1_234, period_ticks=57)  # the first slot it moves
@@ -173,6 +231,7 @@ def test_edges_land_on_the_scheduled_timer_counts_with_trims(link):
         assert port.timer_count_at(rc) == e.rise_ticks + 1
         assert port.timer_count_at(fc) == e.fall_ticks + 1
         assert fc - rc == width * CYCLES_PER_TICK
+        assert (fc - rc) / port.cpu_hz == 0.010, "10 ms of simulated time: the firmware runs at its clock"
     assert_pin_follows_reports(port, reports)
 
 
@@ -265,30 +324,38 @@ def test_interlock_holds_under_random_and_fuzzed_command_streams(link):
     assert port.edges[-1][1] == 0, "laser off at the end"
 
 
-def test_heartbeat_loss_switches_the_laser_off_within_100_ms(relaxed_link):
+@CLOCKS
+def test_heartbeat_loss_switches_the_laser_off_within_the_documented_bound(relaxed_clock_link):
     """Relaxed test ELF: a pulse every 25 ms resolves the switch-off time; at the production
-    rate (one pulse per >= 90 ms) the 100 ms budget would hold at most one pulse."""
-    port, comcu = relaxed_link
+    rate (one pulse per >= 90 ms) the ~100 ms budget would hold at most one pulse."""
+    port, comcu = relaxed_clock_link
+    ms = ticks_per_ms(comcu)
+    info = comcu.info()
     now = comcu.ping().mcu_ticks
-    comcu.schedule(now + 20 * MS, 25 * MS, 5 * MS)  # a pulse every 25 ms
+    comcu.schedule(now + 20 * ms, 25 * ms, 5 * ms)  # a pulse every 25 ms
     run_with_heartbeats(port, comcu, 0.2)
-    last_heartbeat = port.rx_delims[-1]
     port.advance(0.3)  # heartbeats stop
+    last_heartbeat = port.rx_delims[-1]  # its bytes entered the UART at the start of this advance
     rises_after = [c for c, lvl in port.edges if lvl == 1 and c > last_heartbeat]
     assert rises_after, "pulses continue for a while after the last heartbeat"
-    off_delay_s = (max(rises_after) - last_heartbeat) / CPU_HZ
-    assert off_delay_s < 0.1, f"laser still pulsing {off_delay_s * 1e3:.1f} ms after the last heartbeat"
-    assert port.edges[-1][1] == 0
+    # firmware_pwm/README.md ("Heartbeat", "What changes at 8 MHz"): the heartbeat timeout, plus at
+    # most one 16-bit Timer1 overflow period for the check in the overflow interrupt: 50 + 32.8 =
+    # 82.8 ms at 16 MHz, 50 + 65.5 = 115.5 ms at 8 MHz after the last heartbeat
+    assert info.heartbeat_timeout_ms == 50  # firmware_pwm/Makefile HEARTBEAT_TIMEOUT_US
+    bound_s = info.heartbeat_timeout_ms / 1000 + 0x10000 / info.ticks_per_second
+    off_delay_s = (port.edges[-1][0] - last_heartbeat) / port.cpu_hz
+    assert port.edges[-1][1] == 0 and off_delay_s <= bound_s, (
+        f"laser off {off_delay_s * 1e3:.1f} ms after the last heartbeat, documented bound {bound_s * 1e3:.1f} ms")
     status = comcu.status()
     assert status.state == mcu.McuState.FAULT and status.faults & mcu.Fault.HEARTBEAT
     # on the pin: every pulse is a whole one of the schedule (25 ms apart, 5 ms long) or the last
     # one cut short by the fault; never high outside them
     pulses = pin_pulses(port)
     rises = [port.timer_count_at(rc) - 1 for rc, _ in pulses]
-    assert all(r - (now + 20 * MS) == k * 25 * MS for k, r in enumerate(rises))
-    assert all(port.timer_count_at(fc) - port.timer_count_at(rc) <= 5 * MS for rc, fc in pulses)
+    assert all(r - (now + 20 * ms) == k * 25 * ms for k, r in enumerate(rises))
+    assert all(port.timer_count_at(fc) - port.timer_count_at(rc) <= 5 * ms for rc, fc in pulses)
     with pytest.raises(CoMcuNack, match="busy"):
-        comcu.schedule(comcu.ping().mcu_ticks + 20 * MS, 25 * MS, 5 * MS)
+        comcu.schedule(comcu.ping().mcu_ticks + 20 * ms, 25 * ms, 5 * ms)
     comcu.stop()
     st = comcu.status()
     assert (st.state, st.faults) == (mcu.McuState.IDLE, 0)
@@ -426,21 +493,24 @@ def test_random_trims_follow_the_documented_slot_model_exactly(link):
     assert port.edges[-1][1] == 0
 
 
-def test_stop_mid_pulse_then_a_new_schedule_is_not_inverted(link):
+@CLOCKS
+def test_stop_mid_pulse_then_a_new_schedule_is_not_inverted(clock_link, clock):
     """STOP in the middle of a pulse (as CoMcuTrain.schedule does before each SCHEDULE), then a
     new schedule: on the pin, the cut pulse ends at the STOP and the new pulses are exactly where
     the schedule says (the OC1A latch was not left high; the pulses are not inverted)."""
-    port, comcu = link
-    period, width = MIN_PERIOD, 20_000
-    for into in (0.0001, 0.003, 0.0071, 0.009):
-        first = comcu.ping().mcu_ticks + MIN_PERIOD
+    port, comcu = clock_link
+    period, width = comcu.info().min_period_ticks, 10 * ticks_per_ms(comcu)
+    # the last STOP acts just before the pulse's own fall at 10 ms: a STOP acts 0.75 ms after it is
+    # written at 16 MHz, 0.9 ms at 8 MHz (simavr's UART, and the firmware's work at half the speed)
+    for into in (0.0001, 0.003, 0.0071, {CPU_HZ: 0.009, EIGHT_MHZ: 0.0088}[clock]):
+        first = comcu.ping().mcu_ticks + period
         comcu.schedule(first, period, width, stream_edges=True)
         advance_into_pulse(port, comcu, into)
         assert port.edges[-1][1] == 1, "STOP lands in the middle of a pulse"
         comcu.stop()
         port.advance(0.002)
         assert port.edges[-1][1] == 0, "the pin is low right after the STOP"
-        first = comcu.ping().mcu_ticks + MIN_PERIOD
+        first = comcu.ping().mcu_ticks + period
         comcu.schedule(first, period, width, stream_edges=True)
         run_with_heartbeats(port, comcu, 0.3)
         comcu.stop()
@@ -512,31 +582,32 @@ def test_a_reset_in_the_middle_of_a_pulse_leaves_the_laser_off(link, cause, flag
     assert_pin_follows_reports(port, reports, first_pulse=before)
 
 
+@CLOCKS
 @pytest.mark.parametrize("cause", ["power", "wdt"])
-def test_first_rise_after_a_boot_keeps_the_envelope_across_the_reset(link, cause):
+def test_first_rise_after_a_boot_keeps_the_envelope_across_the_reset(clock_link, cause):
     """A reset erases the interlock's history, not the light the eye had: the pulse before it
     may have ended at the reset.  Booted, the firmware lights nothing before
     Info.first_rise_min_ticks (as if the longest pulse had just ended at tick 0), so on the pin
     rise to rise, fall to fall and the duty gap hold across the reset too."""
-    port, comcu = link
+    port, comcu = clock_link
     info = comcu.info()
-    width = info.max_pulse_ticks
-    comcu.schedule(comcu.ping().mcu_ticks + 20 * MS, MIN_PERIOD, width)
-    advance_into_pulse(port, comcu, width / 2e6 - 0.001)  # near the end of the longest pulse
+    width, min_period = info.max_pulse_ticks, info.min_period_ticks
+    comcu.schedule(comcu.ping().mcu_ticks + 20 * ticks_per_ms(comcu), min_period, width)
+    advance_into_pulse(port, comcu, width / info.ticks_per_second - 0.001)  # near the end of the longest pulse
     assert port.edges[-1][1] == 1
     reset_cycle, rise_before = port.cycle, port.edges[-1][0]
     port.reset(cause)
     port.advance(0.005)  # booted, a few ms into its quiet time
     port.reset_input_buffer()
     quiet = comcu.info().first_rise_min_ticks
-    assert quiet == max(MIN_PERIOD, -(-width * (1_000_000 - info.max_duty_ppm) // info.max_duty_ppm))
+    assert quiet == max(min_period, -(-width * (1_000_000 - info.max_duty_ppm) // info.max_duty_ppm))
     with pytest.raises(CoMcuNack, match="envelope"):
-        comcu.schedule(quiet - 1, MIN_PERIOD, width)
-    comcu.schedule(quiet, MIN_PERIOD, width)
-    run_with_heartbeats(port, comcu, quiet / 2e6)
+        comcu.schedule(quiet - 1, min_period, width)
+    comcu.schedule(quiet, min_period, width)
+    run_with_heartbeats(port, comcu, quiet / info.ticks_per_second)
     comcu.stop()
     (rise, fall), = [p for p in pin_pulses(port) if p[0] > reset_cycle][:1]
     assert port.timer_count_at(rise) - 1 == quiet, "the first rise is the scheduled one"
-    assert rise - rise_before >= MIN_PERIOD * CYCLES_PER_TICK, "rise to rise across the reset"
-    assert fall - reset_cycle >= MIN_PERIOD * CYCLES_PER_TICK, "fall to fall across the reset"
+    assert rise - rise_before >= min_period * CYCLES_PER_TICK, "rise to rise across the reset"
+    assert fall - reset_cycle >= min_period * CYCLES_PER_TICK, "fall to fall across the reset"
     assert (rise - reset_cycle) * info.max_duty_ppm >= width * CYCLES_PER_TICK * (1_000_000 - info.max_duty_ppm)

@@ -22,25 +22,27 @@ from pathlib import Path
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware_pwm"
 HARNESS = FIRMWARE_DIR / "build" / "laserpi_harness"
 ELF = FIRMWARE_DIR / "build" / "laserpi_pwm.elf"
-CPU_HZ = 16_000_000
-CYCLES_PER_TICK = 8  # Timer1 prescaler
+CPU_HZ = 16_000_000  # the default build's clock; the 8 MHz board's ELF: build_emulator(..., F_CPU=8_000_000)
+CYCLES_PER_TICK = 8  # Timer1 prescaler, at every clock: a tick is 0.5 us at 16 MHz, 1 us at 8 MHz
 
 
 class EmulatorError(RuntimeError):
     """The harness could not be built or stopped answering."""
 
 
-def build_emulator(build_dir: str = "build", **envelope: int) -> tuple[Path, Path]:
+def build_emulator(build_dir: str = "build", **overrides: int) -> tuple[Path, Path]:
     """Builds the firmware ELF and the simavr harness (make -C firmware_pwm all harness).
 
-    Without arguments: the production ELF (the Makefile's envelope) in firmware_pwm/build.  Tests
-    that need another envelope name a separate ``build_dir`` (relative to firmware_pwm) and the
-    Makefile variables to override, e.g. ``build_emulator("build/test-envelope",
-    MIN_PERIOD_US=300)``, so that the production ELF is never built with them.
+    Without arguments: the production ELF (the Makefile's envelope, 16 MHz) in firmware_pwm/build.
+    Another envelope or clock names a separate ``build_dir`` (relative to firmware_pwm) and the
+    Makefile variables to override, given on make's command line (the only way the Makefile takes
+    F_CPU), e.g. ``build_emulator("build/test-envelope", MIN_PERIOD_US=300)`` or the 8 MHz board's
+    ``build_emulator("build/8mhz", F_CPU=8_000_000)`` (run it with ``cpu_hz=8_000_000``), so that
+    the production ELF is never built with them.
     """
-    if envelope and build_dir == "build":
-        raise ValueError(f"an envelope override {envelope} needs its own build_dir, not the production build")
-    args = [f"BUILD={build_dir}"] + [f"{name}={int(value)}" for name, value in envelope.items()]
+    if overrides and build_dir == "build":
+        raise ValueError(f"the override {overrides} needs its own build_dir, not the production build")
+    args = [f"BUILD={build_dir}"] + [f"{name}={int(value)}" for name, value in overrides.items()]
     proc = subprocess.run(["make", "--no-print-directory", "-C", str(FIRMWARE_DIR), *args, "all", "harness"],
                           capture_output=True, text=True, timeout=300)
     if proc.returncode != 0:
@@ -51,22 +53,26 @@ def build_emulator(build_dir: str = "build", **envelope: int) -> tuple[Path, Pat
 
 
 class SteppedMcuPort:
-    """pyserial-like port onto the firmware in the harness, in lock-step with simulated time."""
+    """pyserial-like port onto the firmware in the harness, in lock-step with simulated time.
+    ``cpu_hz`` is the clock the ELF was built for (its F_CPU): the harness runs the CPU at it, and
+    every conversion between simulated seconds and cycles here uses it."""
 
-    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, *, timeout: float = 0.05, step_s: float = 0.0005,
-                 boot_s: float = 0.005):
+    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, *, cpu_hz: int = CPU_HZ, timeout: float = 0.05,
+                 step_s: float = 0.0005, boot_s: float = 0.005):
         if not Path(harness).exists() or not Path(elf).exists():
             raise EmulatorError(f"{harness} or {elf} missing: call build_emulator() first")
+        self.cpu_hz = cpu_hz
         self.timeout = timeout
-        self.step_cycles = int(step_s * CPU_HZ)
+        self.step_cycles = int(step_s * cpu_hz)
         self.cycle = 0
         self.edges: list[tuple[int, int]] = []   # (cpu cycle, new level) of the laser pin
         self.rx_delims: list[int] = []           # cpu cycle at which each 0x00 entered the MCU UART
         self.timer_starts: list[int] = []        # cpu cycle of each TCCR1B write (Timer1 start)
         self.resets: list[int] = []              # cpu cycle of each reset()
         self._rx = bytearray()
-        self._proc = subprocess.Popen([str(harness), str(elf), "--stepped"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self._proc = subprocess.Popen([str(harness), str(elf), "--cpu-hz", str(cpu_hz), "--stepped"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                      bufsize=1)
         self.advance(boot_s)  # the UART drops bytes until the firmware has enabled it
 
     # pyserial-like ---------------------------------------------------------------------------
@@ -79,7 +85,7 @@ class SteppedMcuPort:
         return len(self._rx)
 
     def read(self, size: int = 1) -> bytes:
-        deadline = self.cycle + int(self.timeout * CPU_HZ)
+        deadline = self.cycle + int(self.timeout * self.cpu_hz)
         while len(self._rx) < size and self.cycle < deadline:
             self.run_cycles(min(self.step_cycles, deadline - self.cycle))
         out = bytes(self._rx[:size])
@@ -92,10 +98,11 @@ class SteppedMcuPort:
     # simulation ------------------------------------------------------------------------------
     @property
     def seconds(self) -> float:
-        return self.cycle / CPU_HZ
+        return self.cycle / self.cpu_hz
 
     def timer_count_at(self, cycle: int) -> int:
-        """Timer1 count (extended, MCU ticks) at a CPU cycle, from the last timer start before it."""
+        """Timer1 count (extended, MCU ticks: CYCLES_PER_TICK cycles at every clock) at a CPU cycle,
+        from the last timer start before it."""
         start = max(c for c in self.timer_starts if c <= cycle)
         return (cycle - start) // CYCLES_PER_TICK
 
@@ -108,7 +115,7 @@ class SteppedMcuPort:
         self.resets.append(self.cycle)
 
     def advance(self, seconds: float) -> None:
-        self.run_cycles(int(round(seconds * CPU_HZ)))
+        self.run_cycles(int(round(seconds * self.cpu_hz)))
 
     def advance_to_tick(self, tick: int) -> None:
         """Runs until this boot's Timer1 count reaches ``tick`` (at once if it has), e.g. past
@@ -168,10 +175,11 @@ class SteppedMcuPort:
 class FreeRunningEmulator:
     """The harness with its UART on a pty and simulated time paced to `realtime` x wall clock:
     open ``pty`` with serial.Serial(pty, 250000) like the real link.  A reader thread collects
-    the harness's events (``edges``: (cpu cycle, level) of the laser pin)."""
+    the harness's events (``edges``: (cpu cycle, level) of the laser pin); ``cpu_hz`` as for
+    SteppedMcuPort."""
 
-    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0):
-        self._proc = subprocess.Popen([str(harness), str(elf), "--realtime", str(realtime)],
+    def __init__(self, harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0, *, cpu_hz: int = CPU_HZ):
+        self._proc = subprocess.Popen([str(harness), str(elf), "--cpu-hz", str(cpu_hz), "--realtime", str(realtime)],
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
         self.edges: list[tuple[int, int]] = []
         self.pty = None

@@ -1,7 +1,15 @@
-/* laserpi_harness: runs the real firmware ELF on libsimavr (ATmega328P, 16 MHz).
+/* laserpi_harness: runs the real firmware ELF on libsimavr (ATmega328P, 16 or 8 MHz).
  *
- *   laserpi_harness FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]
+ *   laserpi_harness FIRMWARE.elf [--cpu-hz HZ] [--stepped] [--realtime FACTOR] [--trace-interrupts]
  *
+ * --cpu-hz: the CPU clock the ELF was built for (the Makefile's F_CPU; default 16000000, the
+ * 8 MHz board's ELF needs 8000000).  The ELF does not record it; given the wrong one, the firmware
+ * runs at the wrong speed in simulated seconds.  It sets simavr's avr->frequency, from which
+ * simavr times the UART (avr_uart.c: the baud rate from UBRR and the clock, the byte time from the
+ * baud rate) and the watchdog (avr_watchdog.c: its 128 kHz oscillator's periods in CPU cycles), and
+ * here the free-running mode's boot, step and wall-clock pacing.  The events below are in CPU
+ * cycles and the laser pin is computed in cycles (a Timer1 tick is 8 cycles at every clock:
+ * prescaler 8), so they need no conversion.
  * Free-running mode (default): the UART is bridged to a pseudo-terminal whose path is printed
  * first as "pty /dev/pts/N"; open it with pyserial like a real serial port.  Simulated time is
  * paced to FACTOR x wall-clock time (default 1.0; 0 = as fast as possible).  The path is
@@ -14,7 +22,7 @@
  * and the UART's output comes back on stdout as "tx <hex bytes>" lines.
  *     reset <power|wdt>  reset the MCU now, as a power-on or a watchdog reset does (simavr's
  *                        avr_reset, then PORF or WDRF in MCUSR, as avr_watchdog.c does)
- * Both modes report on stdout, one event a line, with the CPU cycle count (62.5 ns):
+ * Both modes report on stdout, one event a line, with the CPU cycle count (62.5 ns at 16 MHz, 125 ns at 8 MHz):
  *     edge <cycle> <level>   the laser pin PB1/OC1A changed level: the true pin, computed here
  *                            from the registers (see "The laser pin" below), not simavr's
  *     rxdelim <cycle>        a frame delimiter (0x00) entered the MCU's UART receiver
@@ -60,10 +68,10 @@
 #include "sim_interrupts.h"
 #include "sim_irq.h"
 
-#define CPU_HZ 16000000UL
 #define QUEUE 65536
 
 static avr_t *avr;
+static uint32_t cpu_hz = 16000000; /* --cpu-hz */
 static int stepped;
 static int pty_fd = -1;
 static uint8_t in_q[QUEUE];
@@ -354,7 +362,7 @@ static int free_loop(double realtime)
         return 1;
     }
     /* boot first: the MCU's UART drops bytes until the firmware has enabled its receiver */
-    if (run_cycles(CPU_HZ / 200))
+    if (run_cycles(cpu_hz / 200))
         return 1;
     printf("pty %s\n", ptsname(pty_fd));
     fflush(stdout);
@@ -365,12 +373,12 @@ static int free_loop(double realtime)
         ssize_t n = read(pty_fd, buf, sizeof buf);
         if (n > 0)
             queue_bytes(buf, (size_t)n);
-        if (run_cycles(CPU_HZ / 10000)) /* 100 us of simulated time */
+        if (run_cycles(cpu_hz / 10000)) /* 100 us of simulated time */
             return 1;
         pin_advance(avr->cycle);
         fflush(stdout);
         if (realtime > 0) {
-            double ahead = (double)(avr->cycle - c0) / CPU_HZ / realtime - (wall_seconds() - t0);
+            double ahead = (double)(avr->cycle - c0) / cpu_hz / realtime - (wall_seconds() - t0);
             if (ahead > 0.001)
                 usleep((useconds_t)(ahead * 1e6));
         }
@@ -389,15 +397,24 @@ int main(int argc, char **argv)
             trace_interrupts = 1;
         else if (strcmp(argv[i], "--realtime") == 0 && i + 1 < argc)
             realtime = atof(argv[++i]);
+        else if (strcmp(argv[i], "--cpu-hz") == 0 && i + 1 < argc) {
+            char *end;
+            unsigned long long hz = strtoull(argv[++i], &end, 10);
+            if (*end || hz < 1000000 || hz > 20000000) { /* the ATmega328P runs at most 20 MHz */
+                fprintf(stderr, "harness: --cpu-hz %s: give the ELF's F_CPU in Hz, 1000000..20000000\n", argv[i]);
+                return 2;
+            }
+            cpu_hz = (uint32_t)hz;
+        }
         else if (argv[i][0] != '-' && !elf)
             elf = argv[i];
         else {
-            fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
+            fprintf(stderr, "usage: %s FIRMWARE.elf [--cpu-hz HZ] [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
             return 2;
         }
     }
     if (!elf) {
-        fprintf(stderr, "usage: %s FIRMWARE.elf [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
+        fprintf(stderr, "usage: %s FIRMWARE.elf [--cpu-hz HZ] [--stepped] [--realtime FACTOR] [--trace-interrupts]\n", argv[0]);
         return 2;
     }
     avr_global_logger_set(logger);
@@ -413,10 +430,10 @@ int main(int argc, char **argv)
         return 1;
     }
     avr_init(avr);
-    avr->frequency = CPU_HZ;
+    avr->frequency = cpu_hz;
     avr->sleep = no_sleep;
     avr_load_firmware(avr, &fw);
-    avr->frequency = CPU_HZ;
+    avr->frequency = cpu_hz;
 
     uint32_t flags = 0; /* no stdio echo of the UART, no host sleeps while the firmware polls */
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
