@@ -611,3 +611,29 @@ def test_first_rise_after_a_boot_keeps_the_envelope_across_the_reset(clock_link,
     assert rise - rise_before >= min_period * CYCLES_PER_TICK, "rise to rise across the reset"
     assert fall - reset_cycle >= min_period * CYCLES_PER_TICK, "fall to fall across the reset"
     assert (rise - reset_cycle) * info.max_duty_ppm >= width * CYCLES_PER_TICK * (1_000_000 - info.max_duty_ppm)
+
+
+def test_a_harness_that_writes_much_to_its_stderr_never_blocks(emulator):
+    """The harness reports each write that overflows its UART input queue on stderr; 3000 of them
+    are more than a pipe holds (64 KiB), so a stderr pipe nobody read would block the harness,
+    and with it this test's next step, for ever."""
+    import threading
+
+    port = SteppedMcuPort(*emulator)
+    comcu = CoMcu(port)
+    done = threading.Event()
+
+    def flood():
+        for _ in range(3000):  # without simulated time passing, the queue stays full
+            port.write(b"\x55" * 64)
+        port.advance(0.05)
+        done.set()
+
+    worker = threading.Thread(target=flood, daemon=True)
+    worker.start()
+    worker.join(60)
+    assert done.is_set(), "the harness blocked writing to its stderr"
+    port.advance(3.0)  # the MCU drains the 64 KiB of garbage queued (at 250 000 baud: 2.6 s)
+    port.reset_input_buffer()
+    assert comcu.ping().mcu_ticks > 0
+    port.close()

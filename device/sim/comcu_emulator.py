@@ -16,6 +16,7 @@ latency is not measured here; pin edges and timer counts are cycle-exact.
 from __future__ import annotations
 
 import subprocess
+import tempfile
 import threading
 from pathlib import Path
 
@@ -52,6 +53,21 @@ def build_emulator(build_dir: str = "build", **overrides: int) -> tuple[Path, Pa
     return out / "laserpi_harness", out / "laserpi_pwm.elf"
 
 
+def _start_harness(args: list[str], **popen) -> tuple[subprocess.Popen, object]:
+    """The harness with its stderr in a temporary file: a pipe nobody reads would block it once
+    64 KiB were written there (it reports every byte its UART's input queue drops)."""
+    err = tempfile.TemporaryFile()
+    return subprocess.Popen(args, stderr=err, text=True, bufsize=1, **popen), err
+
+
+def _stderr_tail(err, limit: int = 4000) -> str:
+    """The last ``limit`` bytes the harness wrote to its stderr file."""
+    err.flush()
+    size = err.seek(0, 2)
+    err.seek(max(size - limit, 0))
+    return err.read().decode(errors="replace")
+
+
 class SteppedMcuPort:
     """pyserial-like port onto the firmware in the harness, in lock-step with simulated time.
     ``cpu_hz`` is the clock the ELF was built for (its F_CPU): the harness runs the CPU at it, and
@@ -70,9 +86,8 @@ class SteppedMcuPort:
         self.timer_starts: list[int] = []        # cpu cycle of each TCCR1B write (Timer1 start)
         self.resets: list[int] = []              # cpu cycle of each reset()
         self._rx = bytearray()
-        self._proc = subprocess.Popen([str(harness), str(elf), "--cpu-hz", str(cpu_hz), "--stepped"],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                      bufsize=1)
+        self._proc, self._stderr = _start_harness([str(harness), str(elf), "--cpu-hz", str(cpu_hz), "--stepped"],
+                                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self.advance(boot_s)  # the UART drops bytes until the firmware has enabled it
 
     # pyserial-like ---------------------------------------------------------------------------
@@ -141,14 +156,14 @@ class SteppedMcuPort:
                 self.timer_starts.append(int(rest.split()[0]))
             elif kind == "crash":
                 raise EmulatorError(f"simulated MCU crashed: {line.strip()}")
-        raise EmulatorError(f"harness exited ({self._proc.wait()}): {self._proc.stderr.read()}")
+        raise EmulatorError(f"harness exited ({self._proc.wait()}): {_stderr_tail(self._stderr)}")
 
     def _command(self, line: str) -> None:
         try:
             self._proc.stdin.write(line + "\n")
             self._proc.stdin.flush()
         except BrokenPipeError:
-            raise EmulatorError(f"harness exited ({self._proc.wait()}): {self._proc.stderr.read()}") from None
+            raise EmulatorError(f"harness exited ({self._proc.wait()}): {_stderr_tail(self._stderr)}") from None
 
     def close(self) -> None:
         if self._proc.poll() is None:
@@ -162,8 +177,8 @@ class SteppedMcuPort:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
-        for f in (self._proc.stdout, self._proc.stderr):
-            f.close()
+        self._proc.stdout.close()
+        self._stderr.close()
 
     def __enter__(self):
         return self
@@ -179,8 +194,8 @@ class FreeRunningEmulator:
     SteppedMcuPort."""
 
     def __init__(self, harness: Path = HARNESS, elf: Path = ELF, realtime: float = 1.0, *, cpu_hz: int = CPU_HZ):
-        self._proc = subprocess.Popen([str(harness), str(elf), "--cpu-hz", str(cpu_hz), "--realtime", str(realtime)],
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self._proc, self._stderr = _start_harness([str(harness), str(elf), "--cpu-hz", str(cpu_hz),
+                                                   "--realtime", str(realtime)], stdout=subprocess.PIPE)
         self.edges: list[tuple[int, int]] = []
         self.pty = None
         for line in self._proc.stdout:
@@ -190,7 +205,8 @@ class FreeRunningEmulator:
                 break
         if self.pty is None:
             self._proc.kill()
-            raise EmulatorError(f"harness did not report its pty: {self._proc.stderr.read()}")
+            self._proc.wait()
+            raise EmulatorError(f"harness did not report its pty: {_stderr_tail(self._stderr)}")
         self._reader = threading.Thread(target=self._read_events, daemon=True)
         self._reader.start()
 
@@ -206,7 +222,7 @@ class FreeRunningEmulator:
         self._proc.wait(timeout=5)
         self._reader.join(timeout=5)
         self._proc.stdout.close()
-        self._proc.stderr.close()
+        self._stderr.close()
 
     def __enter__(self):
         return self
