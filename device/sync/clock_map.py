@@ -46,6 +46,16 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 LN2 = math.log(2.0)
+#: The windowed line fits (GpioClockMap, control.CameraTimeline) refit at every new point while
+#: they hold fewer than REFIT_FROM, then at every REFIT_EVERY-th: the line moves little per point
+#: then, and its sigma grows with the extrapolation meanwhile, so nothing is claimed that was not
+#: fitted.
+REFIT_EVERY, REFIT_FROM = 4, 64
+
+
+def refit_due(points: int, since_fit: int) -> bool:
+    """Whether a window of ``points`` that got ``since_fit`` points since its last fit refits now."""
+    return points < REFIT_FROM or since_fit >= REFIT_EVERY
 
 
 @dataclass(frozen=True)
@@ -232,8 +242,6 @@ class ClockEstimate:
 class GpioClockMap:
     """Windowed lower-envelope map from (MCU tick, GPIO timestamp ns) pairs of the same laser edges."""
 
-    REFIT_EVERY, REFIT_FROM = 4, 64
-
     def __init__(self, tick_hz: float, gpio_latency_min_s: float = 3e-6, window: int = 512,
                  prior_jitter_s: float = 50e-6, min_pairs: int = 4) -> None:
         if window < 8 or min_pairs < 2:
@@ -261,9 +269,7 @@ class GpioClockMap:
             return  # out of order or repeated: the pairing hands pairs in tick order
         self._w.append(tick, gpio_ns)
         self._since_fit += 1
-        # With REFIT_FROM pairs the line moves little per pair: refit every few pairs then (the
-        # line's sigma grows with the extrapolation meanwhile, so nothing is claimed that was not fitted).
-        if self._est is None or len(self._w) < self.REFIT_FROM or self._since_fit >= self.REFIT_EVERY:
+        if self._est is None or refit_due(len(self._w), self._since_fit):
             self._dirty = True
 
     def estimate(self) -> ClockEstimate | None:

@@ -44,7 +44,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
 
-from device.sync.clock_map import ClockEstimate, EdgePairing, GpioClockMap, LineFit, PingClockMap, Window, lower_envelope_fit
+from device.sync.clock_map import (ClockEstimate, EdgePairing, GpioClockMap, LineFit, PingClockMap, Window,
+                                   lower_envelope_fit, refit_due)
 from device.sync.placement import check_separation, roi_exposure_window
 
 log = logging.getLogger(__name__)
@@ -156,8 +157,6 @@ class SyncConfig:
 class CameraTimeline:
     """SensorTimestamp (ns) as a line in the sequence number, with restart detection (one job)."""
 
-    REFIT_EVERY, REFIT_FROM = 4, 64
-
     def __init__(self, window: int, prior_jitter_s: float, jump_s: float) -> None:
         self._w = Window(window)
         self.prior = prior_jitter_s
@@ -195,10 +194,7 @@ class CameraTimeline:
                 self._w.append(*last)
         self._w.append(seq, ts_ns)
         self._since_fit += 1
-        # With REFIT_FROM frames the line moves little per frame: refit every few frames then
-        # (the line's sigma grows with the extrapolation meanwhile, so nothing is claimed that was
-        # not fitted).
-        if self._fit is None or restarted or len(self._w) < self.REFIT_FROM or self._since_fit >= self.REFIT_EVERY:
+        if self._fit is None or restarted or refit_due(len(self._w), self._since_fit):
             self._refit()
         return restarted
 
