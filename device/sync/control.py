@@ -386,11 +386,12 @@ class SyncController:
         seq = frame.sequence + 1
         while True:
             ws, we = self._window_ns(seq, frame)
-            if ws - guard * 1e9 > earliest and est.pi_to_mcu_tick(ws - guard * 1e9) >= cfg.first_rise_min_tick:
+            start = float(est.pi_to_mcu_tick(ws - guard * 1e9))  # MCU tick where the pulse must begin
+            if ws - guard * 1e9 > earliest and start >= cfg.first_rise_min_tick:
                 break
             seq += 1
         d = TRIM_DEADBAND_TICKS  # aimed d early, trimmed only beyond +-d: starts in [t0 - d, t0 + d]
-        t0 = math.floor(float(est.pi_to_mcu_tick(ws - guard * 1e9))) - d
+        t0 = math.floor(start) - d
         t1 = math.ceil(float(est.pi_to_mcu_tick(we + guard * 1e9))) + d
         period = int(round(period_s / est.fit.b * cfg.tick_hz))
         width = t1 - t0 + 1
