@@ -92,12 +92,6 @@ class Envelope:
         """Shortest off time after or before a pulse of `width` ticks under the duty rule."""
         return -(-width * (1_000_000 - self.max_duty_ppm) // self.max_duty_ppm)
 
-    @property
-    def first_rise_min_ticks(self) -> int:
-        """Earliest rise of a boot: the firmware boots as if the longest pulse had ended at tick 0
-        (core_init).  Only aimed at by the generator; the pin check measures the pulses themselves."""
-        return max(self.min_period_ticks, self.min_gap(self.max_pulse_ticks))
-
 
 # ---- the envelope on the pin (pure: a pin log in, violations out) --------------------------------
 
@@ -339,6 +333,7 @@ class FuzzDriver:
         self._last_heartbeat = 0
         self._resets_unseen = 0                               # resets whose boot INFO has not come
         self.envelope: Envelope | None = None
+        self.first_rise_min_ticks = 0  # the boot's quiet time, from its INFO (only aimed at, never judged by)
         self.run(50 * CYCLES_PER_MS, until=lambda: self.envelope is not None, step=CYCLES_PER_MS)
         if self.envelope is None:
             raise RuntimeError("the firmware sent no boot INFO")
@@ -464,6 +459,7 @@ class FuzzDriver:
             self.faults_seen = 0
             self.model = None
             self.envelope = Envelope(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks)
+            self.first_rise_min_ticks = info.first_rise_min_ticks
 
     def _on_edge(self, edge: mcu.Edge, seq: int) -> None:
         self.events.append(("edge_report.cut" if edge.flags & mcu.EdgeFlag.CUT else "edge_report", self.sequence))
@@ -525,14 +521,14 @@ class FuzzDriver:
             boundaries += [rise + env.min_period_ticks,                        # rise to rise
                            fall + env.min_period_ticks - msg.width_ticks,      # fall to fall
                            fall + env.min_gap(max(msg.width_ticks, fall - rise))]  # duty
-        if now < env.first_rise_min_ticks:  # a boot's quiet time (the last pulse may be before the reset)
-            boundaries.append(env.first_rise_min_ticks)
+        if now < self.first_rise_min_ticks:  # a boot's quiet time (the last pulse may be before the reset)
+            boundaries.append(self.first_rise_min_ticks)
         if boundaries:
             aim = self.rng.choice(boundaries)
             first = aim + self.rng.choice((-2, -1, 0, 1, 2, self.rng.randint(-5 * MS, 5 * MS)))
             if first > now + 3 * MS:
                 msg = dataclasses.replace(msg, first_rise_ticks=first)
-                if aim == env.first_rise_min_ticks:
+                if aim == self.first_rise_min_ticks:
                     self.events.append(("schedule.at_the_end_of_a_boot_quiet_time", self.sequence))
         stop = self.send(mcu.Stop())
         if self.rng.random() < 0.7:  # else back to back: the SCHEDULE is on its way before the ACK
