@@ -188,6 +188,12 @@ class Rig:
             self.server.close()
             self._pty.close()
 
+    def __enter__(self) -> Rig:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
 
 def wall_truth(scan) -> "np.ndarray":
     import numpy as np

@@ -18,13 +18,8 @@ KINDS = ["sim", "pty"]
 
 @pytest.fixture(params=KINDS)
 def rig(request, tmp_path):
-    r = Rig(request.param, tmp_path)
-    yield r
-    r.close()
-
-
-def make_rig(kind, tmp_path, **kw):
-    return Rig(kind, tmp_path, **kw)
+    with Rig(request.param, tmp_path) as r:
+        yield r
 
 
 # --- requests ---------------------------------------------------------------------------------
@@ -95,21 +90,18 @@ def test_opening_at_ber_3e5_succeeds_at_least_9_of_10(kind, tmp_path):
     opened = 0
     for seed in range(10):
         (tmp_path / str(seed)).mkdir()
-        rig = make_rig(kind, tmp_path / str(seed), points=1640, rate=10.0, ber=3e-5, seed=seed)
-        try:
-            with rig.open(timeout_s=2.0) as s:  # 2 s: room for a loaded test machine
-                opened += s.info().angles.size == 1640
-        except host_sdk.DeviceTimeout:
-            pass
-        finally:
-            rig.close()
+        with Rig(kind, tmp_path / str(seed), points=1640, rate=10.0, ber=3e-5, seed=seed) as rig:
+            try:
+                with rig.open(timeout_s=2.0) as s:  # 2 s: room for a loaded test machine
+                    opened += s.info().angles.size == 1640
+            except host_sdk.DeviceTimeout:
+                pass
     assert opened >= 9
 
 
 def test_an_old_protocol_device_still_works(tmp_path):
     """A device of protocol minor 1 (no request ids, INFO with all angles, no boot id) over a pty."""
-    rig = make_rig("pty", tmp_path, old=True)
-    try:
+    with Rig("pty", tmp_path, old=True) as rig:
         with rig.open(timeout_s=1.0) as s:
             info = s.info()
             assert info.protocol_minor == 1 and info.boot_id is None and info.angles.size == rig.points
@@ -120,8 +112,6 @@ def test_an_old_protocol_device_still_works(tmp_path):
             scans = [next(it) for _ in range(3)]
             assert all(sc.ranges.size == 50 for sc in scans)
             np.testing.assert_allclose(scans[-1].ranges, wall_truth(scans[-1]), atol=m.RANGE_UNIT_M)
-    finally:
-        rig.close()
 
 
 # --- only confirmed facts ---------------------------------------------------------------------
@@ -200,14 +190,11 @@ def test_a_flood_of_replies_nobody_asked_for_is_dropped(rig):
 # --- start-up and timeouts --------------------------------------------------------------------
 @pytest.mark.parametrize("kind", KINDS)
 def test_a_slow_start_does_not_raise(kind, tmp_path):
-    rig = make_rig(kind, tmp_path, start_delay_s=2.0)
-    try:
+    with Rig(kind, tmp_path, start_delay_s=2.0) as rig:
         with rig.open(timeout_s=0.5) as s:
             t0 = time.monotonic()
             first = next(iter(s.scans()))
             assert time.monotonic() - t0 > 1.5 and first.ranges.size == rig.points
-    finally:
-        rig.close()
 
 
 def silence(rig, sensor):
@@ -278,16 +265,13 @@ def test_newest_only_yields_the_newest_and_counts_the_rest(rig):
 # --- host liveness ----------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", KINDS)
 def test_the_reader_keeps_the_link_alive_while_open(kind, tmp_path):
-    rig = make_rig(kind, tmp_path, host_timeout_s=1.5)
-    try:
+    with Rig(kind, tmp_path, host_timeout_s=1.5) as rig:
         with rig.open(timeout_s=3.0) as s:
             it = s.scans()
             next(it)
             time.sleep(4.0)  # the consumer sends nothing; the reader's heartbeats do
             next(it)
             assert rig.server.counters.host_timeouts == 0 and rig.server._scanning
-    finally:
-        rig.close()
 
 
 @pytest.mark.parametrize("limit, stops", [(0.4, True), (0.0, False)])
