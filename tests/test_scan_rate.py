@@ -118,7 +118,10 @@ def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
     _, elf = build_emulator("build/test-20hz", MAX_PULSE_US=env.max_pulse_us, MAX_DUTY_PPM=env.max_duty_ppm,
                             MIN_PERIOD_US=env.min_period_us)
     link, log = tmp_path / "laserpi", tmp_path / "serve.log"
-    points = 1500  # 1640 do not fit 921600 baud at 20 scans/s
+    # 1640 points do not fit 921600 baud at 20 scans/s; 1200 fill 79 % of it (1500, 99 %, once
+    # dropped 7 of 60 scans in CI: the simulated clock then raced to make up for a stall of this
+    # machine, a burst of scans faster than the link carries; it no longer does)
+    points = 1200
     proc = start_serve(link, ["--simulate", "--scene", "wall", "--distance-m", "2.0", "--config", str(cfg_path),
                               "--scan-rate-hz", "20", "--firmware", str(elf), "--points", str(points)],
                        log_path=log, timeout_s=90)
@@ -134,8 +137,8 @@ def test_serve_at_20_scans_per_second_locks_with_the_20_hz_firmware(tmp_path):
         # in the simulated clock (this machine may run the simulation slower than real time: the
         # renderer draws 40 frames per simulated second): every scan on the 50 ms grid of a train
         # locked at 20/s. A scan can be lost, and is then counted: a camera frame dropped while this
-        # machine stalled the device (HEALTH frames_dropped), or a scan dropped whole by the link,
-        # which 1500 points fill to 98 % at 921600 baud (scans_dropped, and a jump in the scan seq)
+        # machine stalled the device (HEALTH frames_dropped), or a scan dropped whole by the link
+        # when a stall let the queue overflow (scans_dropped, and a jump in the scan seq)
         seqs = np.array([s.seq for s in scans])
         steps = np.diff([s.device_time for s in scans]) / 0.05
         periods = np.rint(steps)

@@ -232,3 +232,29 @@ def test_the_simulated_co_mcu_is_reached_through_a_pty_with_pyserial_as_on_a_pi(
         comcu.port.close()
     finally:
         hw.close()
+
+
+def test_the_simulated_clock_falls_behind_a_slow_consumer_for_good():
+    """Held at ``limit_ns`` (the camera's consumer lags), the simulated clock stops; released, it
+    runs at the wall clock's rate from there, not faster to make up the time it was held (a race
+    that delivered frames, and scans, faster than real time: the host link, paced in wall time,
+    then dropped them)."""
+    import time
+
+    from device.sim.hardware import SimulatedHardware
+
+    hw = SimulatedHardware(seed=4)
+    try:
+        hw.limit_ns = hw.now_ns() + 10_000_000
+        assert hw.wait_until(hw.limit_ns, 2.0)
+        time.sleep(0.3)  # held: 300 ms of wall time pass, the simulated clock stays at the limit
+        held = hw.now_ns() - hw.limit_ns
+        assert 0 <= held < 60_000_000  # at most the answer window past it
+        t0_sim, t0_wall = hw.now_ns(), time.monotonic_ns()
+        hw.limit_ns = None
+        time.sleep(0.1)
+        ran_sim, ran_wall = hw.now_ns() - t0_sim, time.monotonic_ns() - t0_wall
+        assert ran_sim <= ran_wall + hw.step_ns, (ran_sim, ran_wall)  # no catch-up of the 300 ms
+        assert ran_sim > 0.3 * ran_wall  # and it does run again
+    finally:
+        hw.close()

@@ -35,7 +35,8 @@ class SimulatedHardware:
     the simavr harness (device/sim/comcu_emulator.SteppedMcuPort), cycle-exact, behind a pty.
 
     Time: simulated CLOCK_MONOTONIC = ``t_base + emulator cycles / CPU_HZ``; a clock thread keeps
-    it at the wall clock (it advances the emulator, never ahead of the wall clock) but not past
+    it at the wall clock's rate (it advances the emulator, never ahead of the wall clock, and
+    never faster than the wall clock to make up time it fell behind) but not past
     ``limit_ns``, which the simulated camera sets one frame beyond the frame it waits for: when
     this machine is too busy for the device process to keep up in real time, the simulated world
     waits for it instead of running away (it runs slower than real time, and consistently: no
@@ -88,6 +89,7 @@ class SimulatedHardware:
         os.set_blocking(self._master, False)
         self._pending_to_pi = bytearray()
         self._t_base_ns = time.monotonic_ns()
+        self._lag_ns = 0  # how far simulated time has fallen behind the wall clock for good
         self.reset_mcu()
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._run_clock, name="sim-clock", daemon=True),
@@ -104,7 +106,14 @@ class SimulatedHardware:
             self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
             self._pi_to_mcu()
             now = self.now_ns()
-            target = time.monotonic_ns()
+            target = time.monotonic_ns() - self._lag_ns
+            if target - now > self.step_ns:
+                # behind the wall clock (held at limit_ns, or this thread was descheduled): the
+                # simulated world falls behind for good instead of racing to catch up, which
+                # would hand the device a burst of frames faster than real time, and the host
+                # link (paced in wall time) a burst of scans it cannot carry
+                self._lag_ns += target - now - self.step_ns
+                target = now + self.step_ns
             limit = self.limit_ns
             if limit is not None:
                 target = min(target, max(limit, self._answer_until_ns))
