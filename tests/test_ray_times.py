@@ -15,7 +15,9 @@ import host_sdk
 from device.camera.frame import Frame
 from device.scan.timing import column_times_ns
 from host_sdk.errors import CommandRefused
+from host_sdk.replay_link import ReplayServer
 from protocol import messages as m
+from protocol.framing import decode_frame, encode_frame
 from protocol.ports import PacedPort, PtyLink
 from protocol.server import DeviceConfig, LinkServer, ScanGeometry
 from tests.link_rig import Rig
@@ -202,3 +204,18 @@ def test_ray_times_are_recorded_and_replayed(tmp_path):
     assert all(s.ray_times is not None for s in replayed.values())
     for scan in live:
         assert np.array_equal(replayed[scan.seq].ray_times, scan.ray_times)
+    # served again (laserpi replay --link): a host of minor < 4 gets an INFO it can read
+    server = ReplayServer(WrittenPort(), path)
+    assert server.info.settings.ray_times is not None  # the recorded INFO, asked by a host of minor 4
+    for minor, want in ((4, server.info.settings.ray_times), (3, None)):
+        server._answer(decode_frame(encode_frame(m.MsgType.GET_INFO, 1, m.GetInfo(1, minor, 9).encode())[:-1]))
+        info = m.Info.decode(decode_frame(server.port.written.pop().strip(b"\x00")).payload)
+        assert info.settings.ray_times is want and info.request_id == 9
+
+
+class WrittenPort:
+    def __init__(self):
+        self.written = []
+
+    def write(self, data):
+        self.written.append(data)
