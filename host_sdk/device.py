@@ -233,12 +233,17 @@ class LaserPi:
         Returns the settings the device confirms. Raises CommandRefused with the device's reason
         (e.g. laser power above the Class 1 limit) if it refused them, DeviceTimeout if it did not
         answer and its settings show they were not applied (or it cannot be asked); never once the
-        device has applied them.
+        device has applied them. ``ray_times=True`` (each Scan's ray_times) needs a device of
+        protocol minor >= 4; an older one is refused here (NOT_SUPPORTED), before anything is sent.
         """
         unknown = set(settings) - set(m.ScanSettings.FIELDS)
         if unknown:
             raise ValueError(f"unknown settings {sorted(unknown)}; known: {', '.join(m.ScanSettings.FIELDS)}")
         update = m.ScanSettings(**settings)
+        minor = self.info().protocol_minor
+        if update.ray_times is not None and minor < 4:
+            raise CommandRefused("SetConfig", m.NackCode.NOT_SUPPORTED, f"ray_times needs a device of protocol "
+                                 f"minor >= 4; {self.port_name} speaks {PROTOCOL_VERSION}.{minor}")
         try:
             self._request(m.SetConfig(update), m.Ack)
         except DeviceTimeout as exc:

@@ -127,13 +127,16 @@ class ReplayServer:
     def _answer(self, frame) -> None:
         t = frame.msg_type
         try:
-            rid = getattr(m.decode_message(t, frame.payload), "request_id", 0)
+            msg = m.decode_message(t, frame.payload)
         except m.MessageError:
-            rid = 0
+            msg = None
+        rid = getattr(msg, "request_id", 0)
         if t == m.MsgType.HEARTBEAT:
             return
         if t == m.MsgType.GET_INFO:
             reply = self.info if self.info.boot_id is None else dataclasses.replace(self.info, request_id=rid)
+            if msg is None or msg.host_minor < 4:  # it knows no ray_times: it would refuse the settings
+                reply = dataclasses.replace(reply, settings=dataclasses.replace(reply.settings, ray_times=None))
         elif t == m.MsgType.GET_HEALTH:
             playing = self._playing.is_set()
             state = m.DeviceState.SCANNING if playing else m.DeviceState.IDLE

@@ -68,7 +68,12 @@ class Scan:
     angles: bearing of each ray, rad, counter-clockwise from +x (REP 103).
     ranges: m; REP 117: NaN invalid, +inf no return within range_max, -inf closer than range_min.
     intensities: the device's per-point quality, 0..255 (no physical unit).
-    time_increment: s between consecutive rays; scan_time: s between scans.
+    time_increment: s between consecutive rays; scan_time: s between scans. Ray i was measured at
+    device_time + i time_increment, within the line's residual (README "Scans on a moving robot").
+    ray_times: float64 (n,), device clock (s) at which each ray was measured, exact (to the µs) from
+    the image row its range was found in; a ray without a measured time has the line's. None
+    unless asked for (``configure(ray_times=True)``, a device of protocol minor >= 4). Host time of
+    ray i: ``stamp + (ray_times[i] - device_time)``.
     """
 
     seq: int
@@ -81,6 +86,7 @@ class Scan:
     scan_time: float
     range_min: float
     range_max: float
+    ray_times: np.ndarray | None = None
 
     def points(self) -> np.ndarray:
         """(n, 2) x, y in metres in the sensor frame; rows of non-finite ranges are NaN."""
@@ -181,7 +187,8 @@ class Crop:
         shift = first * scan.time_increment
         return replace(scan, stamp=scan.stamp + shift, device_time=scan.device_time + shift,
                        angles=scan.angles[keep], ranges=r.astype(np.float32), intensities=scan.intensities[keep],
-                       range_min=float(rmin), range_max=float(rmax))
+                       range_min=float(rmin), range_max=float(rmax),
+                       ray_times=None if scan.ray_times is None else scan.ray_times[keep])
 
     def _rays(self, angles: np.ndarray) -> np.ndarray:
         """Mask of the rays kept: between the rays nearest to the limits, at least two."""
@@ -238,6 +245,10 @@ def scan_from_message(msg: ScanMessage, info: Info, stamp: float) -> Scan:
         raise ValueError(f"scan columns [{msg.first_index}, {msg.first_index + n}) not inside the "
                          f"{info.angles.size} angles of INFO")
     angles = info.angles[msg.first_index: msg.first_index + n]
+    ray_times = None
+    if msg.ray_times_us is not None:  # a ray without its own time is on the line
+        line_us = msg.device_time_us + np.arange(n) * (msg.ray_interval_ns * 1e-3)
+        ray_times = np.where(np.isnan(msg.ray_times_us), line_us, msg.ray_times_us) * 1e-6
     return Scan(msg.scan_seq, stamp, msg.device_time_us * 1e-6, angles, msg.ranges_m,
                 msg.quality.astype(np.float32), msg.ray_interval_ns * 1e-9, 1.0 / info.scan_rate_hz,
-                info.range_min_m, info.range_max_m)
+                info.range_min_m, info.range_max_m, ray_times)

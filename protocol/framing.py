@@ -28,8 +28,10 @@ HEADER_SIZE = HEADER.size  # 7
 CRC_SIZE = 4
 OVERHEAD = HEADER_SIZE + CRC_SIZE
 DELIMITER = b"\x00"
-#: Largest payload either end of the host link accepts (a 1664-point scan fits with room).
-MAX_PAYLOAD_HOST = 8192
+#: Largest payload either end of the host link accepts: a 1664-point scan with its ray times
+#: (protocol minor 4, 5 bytes a point) fits with room. 8192 before minor 4: only a SCAN with ray
+#: times is longer, and a device sends those only to a host of minor >= 4 (SPEC.md section 1).
+MAX_PAYLOAD_HOST = 16384
 #: Largest payload on the co-MCU link (the ATmega328P has 2 KiB of RAM).
 MAX_PAYLOAD_MCU = 48
 

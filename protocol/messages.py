@@ -24,7 +24,7 @@ import numpy as np
 from protocol.framing import OVERHEAD, PROTOCOL_VERSION
 
 #: Message revision inside PROTOCOL_VERSION; raised for additive changes only (SPEC.md).
-PROTOCOL_MINOR = 3  # 1: HEALTH fault counters; 2: request ids, boot id, ANGLES, HEARTBEAT; 3: signed ray interval (SPEC.md 2)
+PROTOCOL_MINOR = 4  # 1: HEALTH fault counters; 2: request ids, boot id, ANGLES, HEARTBEAT; 3: signed ray interval; 4: ray times (SPEC.md 2)
 
 
 class MsgType(enum.IntEnum):
@@ -207,7 +207,11 @@ class ScanSettings:
 
     roi_first / roi_count select the columns (indices into Info.angles) a scan carries;
     median_window is the odd length of the range median filter (1 = off); min_quality drops
-    points below this quality (they become NaN); laser_power_mw is the peak optical power.
+    points below this quality (they become NaN); laser_power_mw is the peak optical power;
+    ray_times (protocol minor 4) makes every SCAN carry each ray's own time (SPEC.md "SCAN").
+
+    Bit i of the block's mask is FIELDS[i]. The values of MINOR4_FIELDS are not in the block:
+    they follow the message's other fields (encode_minor4), so that the block keeps its size.
     """
 
     scan_rate_hz: float | None = None
@@ -217,21 +221,34 @@ class ScanSettings:
     median_window: int | None = None
     min_quality: int | None = None
     laser_power_mw: float | None = None
+    ray_times: bool | None = None  # minor 4
 
     _S: ClassVar = struct.Struct("<HfIHHBBf")
-    FIELDS: ClassVar = ("scan_rate_hz", "exposure_us", "roi_first", "roi_count", "median_window", "min_quality", "laser_power_mw")
+    _S4: ClassVar = struct.Struct("<B")  # ray_times: 0 off, 1 on
+    FIELDS: ClassVar = ("scan_rate_hz", "exposure_us", "roi_first", "roi_count", "median_window", "min_quality",
+                        "laser_power_mw", "ray_times")
+    MINOR4_FIELDS: ClassVar = ("ray_times",)
 
     def encode(self) -> bytes:
+        """The SETTINGS block (the values of MINOR4_FIELDS: encode_minor4)."""
         mask = 0
         values = []
         for bit, name in enumerate(self.FIELDS):
             v = getattr(self, name)
             mask |= (v is not None) << bit
-            values.append(0 if v is None else v)
+            if name not in self.MINOR4_FIELDS:
+                values.append(0 if v is None else v)
         return self._S.pack(mask, *values)
 
+    def encode_minor4(self) -> bytes:
+        """The values of the minor-4 fields that are set, to follow the message's other fields."""
+        return b"" if self.ray_times is None else self._S4.pack(self.ray_times)
+
     @classmethod
-    def decode(cls, payload: bytes, offset: int = 0) -> ScanSettings:
+    def decode(cls, payload: bytes, offset: int = 0, minor4_offset: int | None = None) -> ScanSettings:
+        """The block at ``offset``, and the minor-4 values its mask announces at ``minor4_offset``
+        (default: right after the block)."""
+        minor4_offset = offset + cls._S.size if minor4_offset is None else minor4_offset
         _need(payload, offset + cls._S.size, "settings")
         mask, *values = cls._S.unpack_from(payload, offset)
         if mask >> len(cls.FIELDS):
@@ -240,6 +257,12 @@ class ScanSettings:
         for name in ("scan_rate_hz", "laser_power_mw"):
             if name in kw:
                 _finite(kw[name], name)
+        if mask >> cls.FIELDS.index("ray_times") & 1:
+            _need(payload, minor4_offset + cls._S4.size, "settings ray_times (protocol minor 4)")
+            (v,) = cls._S4.unpack_from(payload, minor4_offset)
+            if v > 1:
+                raise MessageError("value", f"settings ray_times {v} is neither 0 (off) nor 1 (on)")
+            kw["ray_times"] = bool(v)
         return cls(**kw)
 
     def merged(self, update: ScanSettings) -> ScanSettings:
@@ -267,6 +290,9 @@ class Info:
     GET_ANGLES in frames smaller than a scan; startup_s is the longest the device takes from START
     to its first scan; host_timeout_s is how long the device keeps scanning without hearing from
     the host (0: forever).
+
+    ``settings.ray_times`` (minor 4) follows the fields of minor 2; a device sets it only in an
+    INFO for a host of minor >= 4 (an older host would refuse the settings' mask bit).
     """
 
     TYPE = MsgType.INFO
@@ -299,7 +325,10 @@ class Info:
         body = (head + _pack_str(self.software_version, "software_version")
                 + _pack_str(self.serial_number, "serial_number") + angles.tobytes()
                 + self.settings.encode() + struct.pack("<f", self.laser_limit_mw))
-        return body + _pack_group(self, self.MINOR2_FIELDS, self._S2, "INFO", 2)
+        minor2, minor4 = _pack_group(self, self.MINOR2_FIELDS, self._S2, "INFO", 2), self.settings.encode_minor4()
+        if minor4 and not minor2:
+            raise ValueError("INFO settings of protocol minor 4 need the fields of minor 2 before them")
+        return body + minor2 + minor4
 
     @property
     def complete(self) -> bool:
@@ -315,7 +344,7 @@ class Info:
         _need(payload, off + 4 * n + SETTINGS_SIZE + 4, "INFO angles and settings")
         angles = np.frombuffer(payload, dtype="<f4", count=n, offset=off).astype(np.float32)
         off += 4 * n
-        settings = ScanSettings.decode(payload, off)
+        settings = ScanSettings.decode(payload, off, off + SETTINGS_SIZE + 4 + cls._S2.size)
         (limit,) = struct.unpack_from("<f", payload, off + SETTINGS_SIZE)
         minor2 = _unpack_group(payload, off + SETTINGS_SIZE + 4, cls._S2, "INFO fields of protocol minor 2",
                                len(cls.MINOR2_FIELDS))
@@ -469,18 +498,20 @@ class Stop:
 @dataclass(frozen=True, slots=True)
 class SetConfig:
     """Host -> device. A device of minor >= 2 applies a SET_CONFIG repeated with the same
-    request_id and settings once and answers the repeat as it answered the first."""
+    request_id and settings once and answers the repeat as it answered the first. The settings'
+    minor-4 values follow the request id."""
 
     TYPE = MsgType.SET_CONFIG
     settings: ScanSettings
     request_id: int = 0  # minor 2
 
     def encode(self) -> bytes:
-        return self.settings.encode() + _pack_id(self.request_id)
+        minor4 = self.settings.encode_minor4()  # after the request id, which is then always sent
+        return self.settings.encode() + (_ID.pack(self.request_id) if minor4 else _pack_id(self.request_id)) + minor4
 
     @classmethod
     def decode(cls, payload: bytes) -> SetConfig:
-        return cls(ScanSettings.decode(payload), _unpack_id(payload, SETTINGS_SIZE))
+        return cls(ScanSettings.decode(payload, 0, SETTINGS_SIZE + _ID.size), _unpack_id(payload, SETTINGS_SIZE))
 
 
 @dataclass(frozen=True, slots=True)
@@ -638,6 +669,10 @@ class ScanMessage:
     ``first_index .. first_index + n - 1`` of Info.angles.
     boot_id (minor 2, after the qualities; None from an older device): the device process's
     boot id, as in INFO and HEALTH.
+    ray_times_us (minor 4, after the boot id; None when the host did not ask for them, settings
+    ``ray_times``): float64 (n,), the device clock (µs) at which each ray was measured, NaN for a
+    ray without a measured time (its time is the line's, ``device_time_us + i ray_interval_ns``).
+    On the wire: a base time and u16 µs after it per ray (SPEC.md "SCAN"), whole µs.
     """
 
     TYPE = MsgType.SCAN
@@ -649,6 +684,7 @@ class ScanMessage:
     ranges_m: np.ndarray
     quality: np.ndarray
     boot_id: int | None = None
+    ray_times_us: np.ndarray | None = None
 
     def encode(self) -> bytes:
         quality = np.asarray(self.quality)
@@ -660,7 +696,12 @@ class ScanMessage:
         head = _SCAN_HEAD.pack(self.scan_seq & 0xFFFFFFFF, self.device_time_us, self.ray_interval_ns,
                                min(self.age_us, 0xFFFFFFFF), self.first_index, codes.size)
         boot = b"" if self.boot_id is None else _SCAN_BOOT.pack(self.boot_id)
-        return head + codes.tobytes() + quality.tobytes() + boot
+        times = b""
+        if self.ray_times_us is not None:
+            if self.boot_id is None:
+                raise ValueError("SCAN ray times (protocol minor 4) need the boot id (minor 2) before them")
+            times = _ray_time_block(self.device_time_us, self.ray_times_us, codes.size)
+        return head + codes.tobytes() + quality.tobytes() + boot + times
 
     @classmethod
     def decode(cls, payload: bytes) -> ScanMessage:
@@ -671,12 +712,64 @@ class ScanMessage:
         codes = np.frombuffer(payload, dtype="<u2", count=n, offset=_SCAN_HEAD.size)
         quality = np.frombuffer(payload, dtype=np.uint8, count=n, offset=_SCAN_HEAD.size + 2 * n)
         (boot,) = _unpack_group(payload, end, _SCAN_BOOT, "SCAN boot_id (protocol minor 2)", 1)
-        return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy(), boot)
+        times = _unpack_ray_times(payload, end + _SCAN_BOOT.size, t, n) if boot is not None else None
+        return cls(seq, t, dt, age, first, decode_ranges(codes), quality.copy(), boot, times)
 
 
 _SCAN_HEAD = struct.Struct("<IQiIHH")  # scan_seq, device_time_us, ray_interval_ns (signed: minor 3), age_us, first_index, n
 _SCAN_BOOT = struct.Struct("<I")  # boot_id after the qualities (minor 2)
 SCAN_HEADER_SIZE = _SCAN_HEAD.size  # 24
+_SCAN_TIMES = struct.Struct("<Hi")  # minor 4, after boot_id: count (n, or 0: none), base - device_time_us (µs)
+SCAN_TIMES_HEADER_SIZE = _SCAN_TIMES.size  # 6
+BYTES_PER_RAY_TIME = 2
+#: A ray's offset that means "no measured time": the ray's time is the line's.
+RAY_TIME_NONE = 0xFFFF
+#: Offsets are at most this many µs after the block's base. A scan's rays are measured in one
+#: camera frame, within its readout: rows x line time, at most 2464 x 18.9 µs = 46.6 ms for the
+#: IMX219's largest mode (device/camera/modes.py, from the kernel's imx219.c); a larger offset
+#: lies outside any frame.
+RAY_TIME_SPAN_MAX_US = 65_000
+
+
+def _ray_time_block(device_time_us: int, times_us: np.ndarray, n: int) -> bytes:
+    """The minor-4 block of ``times_us`` (device µs per ray, NaN: none): base = the earliest
+    time (whole µs), each ray rounded to the µs after it. ValueError for times that do not fit."""
+    t = np.asarray(times_us, dtype=np.float64)
+    if t.shape != (n,) or np.isinf(t).any():
+        raise ValueError(f"ray_times_us must be {n} finite times or NaN, got shape {t.shape}")
+    ok = ~np.isnan(t)
+    base = int(np.floor(t[ok].min())) if ok.any() else device_time_us
+    offsets = np.full(n, RAY_TIME_NONE, dtype="<u2")
+    rel = np.rint(t[ok] - base)
+    if rel.size and rel.max() > RAY_TIME_SPAN_MAX_US:
+        raise ValueError(f"ray times span {rel.max():.0f} µs, more than one frame's readout a SCAN carries "
+                         f"({RAY_TIME_SPAN_MAX_US} µs)")
+    offsets[ok] = rel
+    if not -2**31 <= base - device_time_us < 2**31:
+        raise ValueError(f"ray times start {base - device_time_us} µs from device_time_us: beyond SCAN's i32 field")
+    return _SCAN_TIMES.pack(n, base - device_time_us) + offsets.tobytes()
+
+
+def _unpack_ray_times(payload: bytes, offset: int, device_time_us: int, n: int) -> np.ndarray | None:
+    """The minor-4 block at ``offset`` as device µs per ray (NaN: none), or None if the payload
+    ends before it or it is empty (count 0); MessageError for a block that lies."""
+    if len(payload) <= offset:
+        return None
+    _need(payload, offset + _SCAN_TIMES.size, "SCAN ray time block (protocol minor 4)")
+    count, base = _SCAN_TIMES.unpack_from(payload, offset)
+    if count == 0:
+        return None
+    if count != n:
+        raise MessageError("value", f"SCAN ray time block has {count} times for {n} rays")
+    _need(payload, offset + _SCAN_TIMES.size + BYTES_PER_RAY_TIME * n, f"SCAN ray time block of {n} rays")
+    offsets = np.frombuffer(payload, dtype="<u2", count=n, offset=offset + _SCAN_TIMES.size)
+    none = offsets == RAY_TIME_NONE
+    outside = np.flatnonzero(~none & (offsets > RAY_TIME_SPAN_MAX_US))
+    if outside.size:
+        i = int(outside[0])
+        raise MessageError("value", f"SCAN ray {i}'s time {int(offsets[i])} µs after the block's base lies outside "
+                                    f"one frame's readout ({RAY_TIME_SPAN_MAX_US} µs); {outside.size} rays so")
+    return np.where(none, np.nan, float(device_time_us + base) + offsets)
 
 
 def scan_time_for_host(device_time_us: int, ray_interval_ns: int, n: int, host_minor: int) -> tuple[int, int]:
@@ -710,27 +803,34 @@ def decode_message(msg_type: int, payload: bytes):
 UART_BITS_PER_BYTE = 10
 
 
-def scan_wire_bytes(n_points: int) -> int:
+def scan_wire_bytes(n_points: int, ray_times: bool = False) -> int:
     """Bytes on the wire for one scan frame of n_points from a device of minor >= 2: payload (with
-    its boot id), frame header and CRC, COBS
+    its boot id, and with ``ray_times`` the time block of minor 4), frame header and CRC, COBS
     overhead (at most one byte per 254) and the delimiter."""
     body = SCAN_HEADER_SIZE + BYTES_PER_POINT * n_points + SCAN_TRAILER_SIZE + OVERHEAD
+    if ray_times:
+        body += SCAN_TIMES_HEADER_SIZE + BYTES_PER_RAY_TIME * n_points
     return body + body // 254 + 1 + 1
 
 
-def link_budget_refusal(n_points: int, scan_rate_hz: float, link_rate_bps: float | None) -> str | None:
-    """Why scans of ``n_points`` at ``scan_rate_hz`` do not fit a host link of ``link_rate_bps``
-    bits/s, counted as a UART at 8N1 (UART_BITS_PER_BYTE), or None if they fit (or the link is not
-    limited: None). SPEC.md section 5 has the table."""
+def link_budget_refusal(n_points: int, scan_rate_hz: float, link_rate_bps: float | None,
+                        ray_times: bool = False) -> str | None:
+    """Why scans of ``n_points`` (with their ray times if ``ray_times``) at ``scan_rate_hz`` do
+    not fit a host link of ``link_rate_bps`` bits/s, counted as a UART at 8N1
+    (UART_BITS_PER_BYTE), or None if they fit (or the link is not limited: None). SPEC.md
+    section 5 has the table."""
     if link_rate_bps is None:
         return None
-    need_bps = scan_wire_bytes(n_points) * scan_rate_hz * UART_BITS_PER_BYTE
+    per_scan = scan_wire_bytes(n_points, ray_times)
+    need_bps = per_scan * scan_rate_hz * UART_BITS_PER_BYTE
     if need_bps <= link_rate_bps:
         return None
     per_scan_bytes = link_rate_bps / (scan_rate_hz * UART_BITS_PER_BYTE)
-    points = max((k for k in range(n_points) if scan_wire_bytes(k) <= per_scan_bytes), default=0)
-    return (f"{n_points} points at {scan_rate_hz:g} scans/s need {need_bps / 1e3:.1f} kbit/s on the host link "
-            f"({scan_wire_bytes(n_points)} bytes per scan, 8N1), more than its {link_rate_bps / 1e3:.1f} kbit/s: "
+    points = max((k for k in range(n_points) if scan_wire_bytes(k, ray_times) <= per_scan_bytes), default=0)
+    what = " with ray times (ray_times)" if ray_times else ""
+    off = ", ray_times off" if ray_times and link_budget_refusal(n_points, scan_rate_hz, link_rate_bps) is None else ""
+    return (f"{n_points} points{what} at {scan_rate_hz:g} scans/s need {need_bps / 1e3:.1f} kbit/s on the host link "
+            f"({per_scan} bytes per scan, 8N1), more than its {link_rate_bps / 1e3:.1f} kbit/s: "
             f"use at most {points} points (a narrower field of view), at most "
-            f"{math.floor(100 * link_rate_bps / (scan_wire_bytes(n_points) * UART_BITS_PER_BYTE)) / 100:.2f} scans/s, "
+            f"{math.floor(100 * link_rate_bps / (per_scan * UART_BITS_PER_BYTE)) / 100:.2f} scans/s{off}, "
             "or USB")  # (rounded down: the advice must fit)

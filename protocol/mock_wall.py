@@ -134,10 +134,12 @@ class AnalyticWallSource:
         r = median_filter(r, s.median_window)
         q = quality_of(r)
         r = np.where(q < s.min_quality, np.nan, r) if s.min_quality else r
-        return SourceScan(device_time_us, r.astype(np.float32), q, first_index=s.roi_first)
+        # a wall seen squarely lies in one row of the image: every ray measured at device_time_us
+        times = np.where(np.isfinite(r), device_time_us * 1000.0, np.nan)
+        return SourceScan(device_time_us, r.astype(np.float32), q, first_index=s.roi_first, ray_times_ns=times)
 
 
 def default_settings(n_points: int, laser_power_mw: float = 4.0) -> ScanSettings:
-    """Power-on settings of the simulated device: 10 Hz, all columns, no filters, 4 mW."""
+    """Power-on settings of the simulated device: 10 Hz, all columns, no filters, 4 mW, no ray times."""
     return ScanSettings(scan_rate_hz=10.0, exposure_us=2000, roi_first=0, roi_count=n_points,
-                        median_window=1, min_quality=0, laser_power_mw=laser_power_mw)
+                        median_window=1, min_quality=0, laser_power_mw=laser_power_mw, ray_times=False)

@@ -23,6 +23,8 @@ and discards its partial first frame does not lose the reply.
 Replies echo the request's id (protocol minor 2); a SET_CONFIG repeated with the id and settings
 of the last one is not applied again but answered as before, so a host may retry it. Scans,
 INFO and HEALTH carry the device's boot id (DeviceConfig.boot_id, one per device process).
+Each ray's own time (settings ``ray_times``, protocol minor 4) is sent only to a host that said
+minor >= 4 in its GET_INFO; from any other host a SET_CONFIG turning it on is refused.
 Host liveness: while scanning, if no intact frame came from the host for
 ``DeviceConfig.host_timeout_s``, the server stops the source (laser off) and the stream, counts
 it (HEALTH.host_timeouts) and says so in a LOG message (SPEC.md "Host liveness").
@@ -83,6 +85,9 @@ class SourceScan:
     quality: uint8 (n,), 0 = no signal .. 255 = strongest.
     ray_interval_ns: time between consecutive rays (0 for a global exposure; negative when the
     rays were measured latest first).
+    ray_times_ns: float64 (n,), device_clock_us() x 1000 at which each ray was measured, NaN for
+    a ray without a measured time; None: the source does not time its rays one by one (each is
+    on the line ``device_time_us + i ray_interval_ns``). Sent to a host that asked (ray_times).
     """
 
     device_time_us: int
@@ -90,6 +95,7 @@ class SourceScan:
     quality: np.ndarray
     first_index: int = 0
     ray_interval_ns: int = 0
+    ray_times_ns: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -173,7 +179,8 @@ class DeviceConfig:
             v = getattr(self, name)
             if not (v >= 0 and v < float("inf")):
                 raise ValueError(f"{name} must be a finite time >= 0 s, got {v}")
-        refusal = m.link_budget_refusal(self.settings.roi_count, self.settings.scan_rate_hz, self.link_rate_bps)
+        refusal = m.link_budget_refusal(self.settings.roi_count, self.settings.scan_rate_hz, self.link_rate_bps,
+                                        self.settings.ray_times)
         if refusal is not None:
             raise ValueError(f"the power-on settings do not fit the host link: {refusal}")
 
@@ -202,7 +209,7 @@ def settings_refusal(s: m.ScanSettings, config: DeviceConfig, n_columns: int) ->
     if s.laser_power_mw > config.laser_limit_mw:
         return m.NackCode.EYE_SAFETY, (
             f"laser_power_mw {s.laser_power_mw:g} exceeds the Class 1 limit of {config.laser_limit_mw:g} mW")
-    refusal = m.link_budget_refusal(s.roi_count, s.scan_rate_hz, config.link_rate_bps)
+    refusal = m.link_budget_refusal(s.roi_count, s.scan_rate_hz, config.link_rate_bps, s.ray_times)
     return None if refusal is None else (m.NackCode.OUT_OF_RANGE, refusal)
 
 
@@ -345,16 +352,18 @@ class LinkServer:
         handler(frame, msg)
 
     def _info(self, frame, msg: m.GetInfo) -> None:
-        self._host_minor = msg.host_minor  # what it can read (SCAN's signed ray interval: minor 3)
+        self._host_minor = msg.host_minor  # what it can read (SCAN's signed ray interval: minor 3; ray times: 4)
         if msg.host_major != PROTOCOL_VERSION:
             log.warning("host speaks protocol %d.%d, device %d", msg.host_major, msg.host_minor, PROTOCOL_VERSION)
         g = self.geometry
         # a host of minor >= 2 that numbers its requests fetches the angles in chunks (GET_ANGLES):
         # its INFO stays small; any other host gets them here, as before
         angles = g.angles[:0] if msg.host_minor >= 2 and msg.request_id else g.angles
+        # a host of minor < 4 knows no ray_times (it would refuse the settings' mask bit)
+        settings = self.settings if msg.host_minor >= 4 else dataclasses.replace(self.settings, ray_times=None)
         self._reply(m.Info(PROTOCOL_VERSION, m.PROTOCOL_MINOR, self.config.software_version,
                            self.config.serial_number, self.settings.scan_rate_hz, g.range_min_m, g.range_max_m,
-                           angles, self.settings, self.config.laser_limit_mw, request_id=msg.request_id,
+                           angles, settings, self.config.laser_limit_mw, request_id=msg.request_id,
                            boot_id=self.config.boot_id, n_columns=g.angles.size, angles_crc=self._angles_crc,
                            startup_s=self.config.startup_s, host_timeout_s=self.config.host_timeout_s))
 
@@ -414,7 +423,11 @@ class LinkServer:
             self._reply(dataclasses.replace(last[2], request_seq=frame.seq))
             return
         new = self.settings.merged(msg.settings)
-        refusal = settings_refusal(new, self.config, self.geometry.angles.size)
+        if msg.settings.ray_times and self._host_minor < 4:
+            refusal = (m.NackCode.NOT_SUPPORTED, f"ray_times needs a host of protocol minor >= 4, and this host's "
+                       f"GET_INFO said minor {self._host_minor}: it could not read the ray times")
+        else:
+            refusal = settings_refusal(new, self.config, self.geometry.angles.size)
         if refusal is None:
             try:
                 self.source.apply(new)
@@ -458,7 +471,7 @@ class LinkServer:
             t_us, interval = m.scan_time_for_host(scan.device_time_us, scan.ray_interval_ns, len(scan.ranges_m),
                                                   self._host_minor)
             msg = m.ScanMessage(seq, t_us, interval, 0, scan.first_index, scan.ranges_m, scan.quality,
-                                self.config.boot_id)
+                                self.config.boot_id, self._ray_times_us(scan))
             seq += 1
             with self._lock:
                 if not self._scanning:
@@ -467,6 +480,14 @@ class LinkServer:
                     self.counters.scans_dropped += 1
                 self._scans.append(msg)  # deque(maxlen) drops the oldest whole scan
                 self._lock.notify_all()
+
+    def _ray_times_us(self, scan: SourceScan) -> np.ndarray | None:
+        """The scan's ray times for its SCAN if the host asked for them and can read them (minor 4)."""
+        if not (self.settings.ray_times and self._host_minor >= 4):
+            return None
+        if scan.ray_times_ns is None:
+            return np.full(len(scan.ranges_m), np.nan)
+        return np.asarray(scan.ray_times_ns, dtype=np.float64) / 1000
 
     def _source_failed(self, exc: Exception) -> None:
         log.error("scan source failed: %s", exc)

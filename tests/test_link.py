@@ -223,3 +223,103 @@ def test_scan_time_for_host_leaves_what_every_host_reads_alone():
     assert m.scan_time_for_host(5_000, 1_500, 100, 0) == (5_000, 1_500)
     assert m.scan_time_for_host(5_000, -1_500, 100, 3) == (5_000, -1_500)
     assert m.scan_time_for_host(5_000, -2_000, 101, 2) == (5_000 - 100, 0)  # the middle ray (50) is 100 us earlier
+
+
+# --- ray times (protocol minor 4) --------------------------------------------------------------
+RAYS = np.arange(400)
+#: a scan's rays measured out of order in time (the rows of a depth jump), some without a time
+RAY_TIMES_NS = np.where(RAYS % 9 == 4, np.nan, 1e9 + 1000.0 * ((RAYS * 37) % 2000) + 0.3 * RAYS)
+
+
+class TimedSource(FastSource):
+    """Scans whose rays have their own times, off the line through them."""
+
+    def next_scan(self, timeout_s):
+        time.sleep(0.01)
+        return SourceScan(1_000_000, np.full(400, 1.5, np.float32), np.full(400, 9, np.uint8),
+                          ray_interval_ns=2_000, ray_times_ns=RAY_TIMES_NS)
+
+
+def _timed_link(**kw):
+    host_end, dev_end = pipe_pair()
+    return Host(host_end), LinkServer(dev_end, TimedSource(), DeviceConfig(laser_limit_mw=5.0,
+                                                                            settings=default_settings(400), **kw))
+
+
+def _scan_payloads(host, count=2):
+    """The next ``count`` SCAN payloads as they arrived (raw, to see what an older host reads)."""
+    out, deadline = [], time.monotonic() + 2.0
+    while len(out) < count and time.monotonic() < deadline:
+        out += [r.frame.payload for r in host.dec.feed(host.end.read(65536)) if r.frame.msg_type == m.MsgType.SCAN]
+    assert len(out) >= count
+    return out
+
+
+def test_ray_times_go_to_a_host_of_minor_4_that_asked_and_to_no_other():
+    host, server = _timed_link()
+    with server:
+        host.send(m.GetInfo(1, 4, request_id=1))
+        assert host.receive(lambda o: isinstance(o[-1], m.Info))[-1].settings.ray_times is False
+        host.send(m.SetConfig(m.ScanSettings(ray_times=True), request_id=2))
+        assert isinstance(host.receive(lambda o: isinstance(o[-1], (m.Ack, m.Nack)))[-1], m.Ack)
+        host.send(m.GetInfo(1, 4, request_id=3))
+        assert host.receive(lambda o: isinstance(o[-1], m.Info))[-1].settings.ray_times is True
+        host.send(m.Start(request_id=4))
+        scan = m.ScanMessage.decode(_scan_payloads(host)[-1])
+        assert np.array_equal(np.isnan(scan.ray_times_us), np.isnan(RAY_TIMES_NS))
+        ok = ~np.isnan(RAY_TIMES_NS)
+        assert np.abs(scan.ray_times_us[ok] - RAY_TIMES_NS[ok] / 1000).max() <= 0.5  # to the µs
+        # the same link now asked by a host of minor 3: neither INFO nor SCAN carries a byte of it
+        host.send(m.GetInfo(1, 3, request_id=5))
+        info = [x for x in host.receive(lambda o: isinstance(o[-1], m.Info)) if isinstance(x, m.Info)][-1]
+        assert info.settings.ray_times is None and server.settings.ray_times is True
+        time.sleep(0.1)
+        host.end.read(1 << 20)  # scans queued before the GET_INFO
+        host.dec = StreamDecoder()
+        payload = _scan_payloads(host, 3)[-1]
+        assert len(payload) == m.SCAN_HEADER_SIZE + 3 * 400 + m.SCAN_TRAILER_SIZE
+        assert m.ScanMessage.decode(payload).ray_times_us is None
+
+
+@pytest.mark.parametrize("host_minor", [None, 3])  # None: the host never sent GET_INFO
+def test_a_host_that_did_not_say_minor_4_cannot_turn_ray_times_on(host_minor):
+    host, server = _timed_link()
+    with server:
+        if host_minor is not None:
+            host.send(m.GetInfo(1, host_minor, request_id=1))
+            host.receive(lambda o: isinstance(o[-1], m.Info))
+        host.send(m.SetConfig(m.ScanSettings(ray_times=True), request_id=2))
+        nack = host.receive(lambda o: isinstance(o[-1], (m.Ack, m.Nack)))[-1]
+        assert isinstance(nack, m.Nack) and nack.code == m.NackCode.NOT_SUPPORTED
+        assert "ray_times needs a host of protocol minor >= 4" in nack.reason
+        assert f"said minor {host_minor or 0}" in nack.reason
+        assert server.settings.ray_times is False
+        host.send(m.SetConfig(m.ScanSettings(ray_times=False), request_id=3))  # off is always possible
+        assert isinstance(host.receive(lambda o: isinstance(o[-1], (m.Ack, m.Nack)))[-1], m.Ack)
+        host.send(m.Start(request_id=4))
+        assert m.ScanMessage.decode(_scan_payloads(host)[-1]).ray_times_us is None
+
+
+def test_a_source_without_ray_times_sends_every_ray_on_the_line():
+    host_end, dev_end = pipe_pair()
+    with LinkServer(dev_end, LatestFirstSource(), DeviceConfig(laser_limit_mw=5.0, settings=default_settings(400))):
+        host = Host(host_end)
+        host.send(m.GetInfo(1, 4, request_id=1))
+        host.receive(lambda o: isinstance(o[-1], m.Info))
+        host.send(m.SetConfig(m.ScanSettings(ray_times=True), request_id=2))
+        host.receive(lambda o: isinstance(o[-1], m.Ack))
+        host.send(m.Start(request_id=3))
+        assert np.isnan(m.ScanMessage.decode(_scan_payloads(host)[-1]).ray_times_us).all()
+
+
+def test_the_device_refuses_ray_times_that_do_not_fit_its_link_by_name():
+    uart = DeviceConfig(laser_limit_mw=5.0, settings=default_settings(1640), link_rate_bps=921600)
+    with_times = default_settings(1640).merged(m.ScanSettings(ray_times=True))
+    assert settings_refusal(with_times, uart, 1640) is None  # 10 scans/s fit
+    for rate in (15.0, 20.0):
+        code, reason = settings_refusal(with_times.merged(m.ScanSettings(scan_rate_hz=rate)), uart, 1640)
+        assert code == m.NackCode.OUT_OF_RANGE and "1640 points with ray times (ray_times)" in reason
+    assert settings_refusal(default_settings(1640).merged(m.ScanSettings(scan_rate_hz=15.0)), uart, 1640) is None
+    with pytest.raises(ValueError, match="power-on settings .* with ray times"):
+        DeviceConfig(laser_limit_mw=5.0, settings=with_times.merged(m.ScanSettings(scan_rate_hz=15.0)),
+                     link_rate_bps=921600)

@@ -50,6 +50,9 @@ def test_decoder_reads_golden_vector(name):
         assert np.array_equal(got.quality, expected.quality)
         for f in ("scan_seq", "device_time_us", "ray_interval_ns", "age_us", "first_index", "boot_id"):
             assert getattr(got, f) == getattr(expected, f)
+        assert (got.ray_times_us is None) == (expected.ray_times_us is None)
+        if got.ray_times_us is not None:
+            assert np.array_equal(got.ray_times_us, expected.ray_times_us, equal_nan=True)
     else:
         assert _fields(got) == _fields(expected)
 
@@ -219,3 +222,119 @@ def test_long_reasons_are_clipped_at_a_character_boundary():
     assert back.reason == "é" * 127
     with pytest.raises(ValueError, match="at most 255"):
         m.Info(1, 0, "v" * 300, "s", 10.0, 0.1, 3.0, np.zeros(2, np.float32), VECTORS["info"][1].settings, 1.0).encode()
+
+
+# --- protocol minor 4: ray times -------------------------------------------------------------
+def test_scan_minor4_time_block_byte_layout_by_hand():
+    """SPEC.md's SCAN table: after the boot id, u16 count, i32 base (µs from device_time_us), u16 µs per ray."""
+    payload = _payload("scan_minor4")
+    block = 24 + 3 * 3 + 4
+    assert len(payload) == block + 6 + 2 * 3
+    assert payload[block:block + 2] == (3).to_bytes(2, "little")
+    assert payload[block + 2:block + 6] == (-300).to_bytes(4, "little", signed=True)  # the earliest ray
+    offsets = [int.from_bytes(payload[block + 6 + 2 * i:block + 8 + 2 * i], "little") for i in range(3)]
+    assert offsets == [1800, m.RAY_TIME_NONE, 0]
+    # a receiver of minor 2 or 3 reads the same scan and ignores the block
+    assert payload[:block] == m.ScanMessage(9, 2**40 + 9, -12500, 61000, 2, np.array([0.5, math.nan, 1.0]),
+                                            np.array([200, 0, 90], np.uint8), boot_id=0xCAFEF00D).encode()
+
+
+def test_settings_ray_times_is_mask_bit_7_with_its_value_after_the_request_id():
+    payload = _payload("set_config_minor4")
+    assert int.from_bytes(payload[:2], "little") == 1 << 7  # a device of minor < 4 refuses the unknown bit
+    assert len(payload) == m.SETTINGS_SIZE + 2 + 1 and payload[-1] == 1
+    assert payload[m.SETTINGS_SIZE:m.SETTINGS_SIZE + 2] == (0x1239).to_bytes(2, "little")
+    # without a request id the id's place is still taken (0), so the value stays where it is read
+    off = m.SetConfig(m.ScanSettings(ray_times=False)).encode()
+    assert off[m.SETTINGS_SIZE:] == bytes([0, 0, 0])
+    assert m.SetConfig.decode(off) == m.SetConfig(m.ScanSettings(ray_times=False))
+    # INFO: the value after the fields of minor 2; needs them
+    info = VECTORS["info_minor4"][1]
+    assert _payload("info_minor4")[-1] == 1
+    with pytest.raises(ValueError, match="minor 2"):
+        dataclasses.replace(info, **{n: None for n in m.Info.MINOR2_FIELDS}).encode()
+
+
+@pytest.mark.parametrize("payload, what", [
+    (_payload("set_config_minor4")[:-1], "ray_times"),  # the mask says it is there, the value is not
+    (_payload("set_config_minor4")[:-1] + b"\x02", "neither 0"),
+    (_payload("info_minor4")[:-1], "ray_times"),
+])
+def test_settings_ray_times_missing_or_not_a_bool_is_refused(payload, what):
+    with pytest.raises(m.MessageError, match=what):
+        (m.Info if len(payload) > 40 else m.SetConfig).decode(payload)
+
+
+def _scan_minor4(**change) -> bytes:
+    """scan_minor4's payload with the time block's count, base or offsets changed."""
+    payload = bytearray(_payload("scan_minor4"))
+    block = 24 + 3 * 3 + 4
+    if "count" in change:
+        payload[block:block + 2] = change["count"].to_bytes(2, "little")
+    for i, v in change.get("offsets", {}).items():
+        payload[block + 6 + 2 * i:block + 8 + 2 * i] = v.to_bytes(2, "little")
+    return bytes(payload[:len(payload) - change.get("cut", 0)])
+
+
+@pytest.mark.parametrize("payload, reason, what", [
+    (_scan_minor4(count=2), "value", "2 times for 3 rays"),  # the wrong length
+    (_scan_minor4(count=4), "value", "4 times for 3 rays"),
+    (_scan_minor4(cut=1), "short", "ray time block of 3 rays"),
+    (_scan_minor4(cut=8), "short", "ray time block"),  # inside the block's head
+    (_scan_minor4(offsets={1: m.RAY_TIME_SPAN_MAX_US + 1}), "value", "ray 1's time 65001 µs .* outside one frame"),
+    (_scan_minor4(offsets={0: 0xFFFE}), "value", "ray 0's time 65534 µs"),
+])
+def test_a_scan_whose_time_block_lies_is_refused_naming_what_is_wrong(payload, reason, what):
+    with pytest.raises(m.MessageError, match=what) as exc:
+        m.decode_message(m.MsgType.SCAN, payload)
+    assert exc.value.reason == reason
+
+
+def test_an_empty_time_block_is_no_times_and_later_minors_append_after_the_block():
+    got = m.ScanMessage.decode(_scan_minor4(count=0, cut=6))
+    assert got.ray_times_us is None
+    newer = m.ScanMessage.decode(_payload("scan_minor4") + b"future")
+    assert np.array_equal(newer.ray_times_us, VECTORS["scan_minor4"][1].ray_times_us, equal_nan=True)
+
+
+def test_ray_times_roundtrip_to_the_microsecond_and_unencodable_ones_are_refused():
+    t0 = 10**12 + 123
+    times = t0 + np.array([1500.4, np.nan, -299.6, 40_000.0])
+    msg = m.ScanMessage(1, t0, 1000, 0, 0, np.ones(4), np.ones(4, np.uint8), 7, times)
+    back = m.ScanMessage.decode(msg.encode()).ray_times_us
+    assert np.isnan(back[1]) and np.abs(back[[0, 2, 3]] - times[[0, 2, 3]]).max() <= 0.5
+    all_none = m.ScanMessage.decode(dataclasses.replace(msg, ray_times_us=np.full(4, np.nan)).encode())
+    assert np.isnan(all_none.ray_times_us).all()
+    with pytest.raises(ValueError, match="span 65001 µs"):
+        dataclasses.replace(msg, ray_times_us=t0 + np.array([0.0, 65_001.0, 1.0, 2.0])).encode()
+    with pytest.raises(ValueError, match="boot id"):
+        dataclasses.replace(msg, boot_id=None).encode()
+    with pytest.raises(ValueError, match="4 finite times"):
+        dataclasses.replace(msg, ray_times_us=times[:3]).encode()
+    with pytest.raises(ValueError, match="i32"):
+        dataclasses.replace(msg, ray_times_us=times + 2.0**32).encode()
+
+
+def test_the_link_budget_counts_the_ray_times_and_says_so():
+    """1640 points with ray times on a 921600-baud UART: 10 scans/s fit, 15 and 20 do not (SPEC.md 5)."""
+    assert m.scan_wire_bytes(1640, ray_times=True) == m.scan_wire_bytes(1640) + 6 + 2 * 1640 + 13  # + COBS
+    assert m.link_budget_refusal(1640, 10.0, 921600, ray_times=True) is None
+    assert m.link_budget_refusal(1640, 15.0, 921600) is None
+    at15 = m.link_budget_refusal(1640, 15.0, 921600, ray_times=True)
+    assert "with ray times (ray_times)" in at15 and "ray_times off" in at15
+    at20 = m.link_budget_refusal(1640, 20.0, 921600, ray_times=True)
+    assert "with ray times" in at20 and "ray_times off" not in at20  # off does not fit at 20/s either
+    points = int(at15.split("use at most ")[1].split()[0])
+    assert m.scan_wire_bytes(points, True) * 15 * 10 <= 921600 < m.scan_wire_bytes(points + 1, True) * 15 * 10
+    msg = m.ScanMessage(0, 0, 0, 0, 0, np.full(1640, 2.0), np.zeros(1640, np.uint8), 1, np.zeros(1640))
+    assert len(msg.encode()) == 24 + 5 * 1640 + 4 + 6 == 8234  # above 8192: host frames may be longer from minor 4
+    assert len(encode_frame(msg.TYPE, 0, msg.encode())) <= m.scan_wire_bytes(1640, ray_times=True)
+
+
+@settings(max_examples=100, deadline=None)
+@given(fields=st.fixed_dictionaries({}, optional={"scan_rate_hz": st.floats(0.5, 60, width=32),
+                                                  "ray_times": st.booleans()}),
+       request_id=st.integers(0, 65535))
+def test_set_config_with_ray_times_roundtrip_property(fields, request_id):
+    msg = m.SetConfig(m.ScanSettings(**fields), request_id)
+    assert m.SetConfig.decode(msg.encode()) == msg

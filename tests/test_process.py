@@ -36,7 +36,7 @@ def streaming(rig: FakeRig, warmup_s: float) -> tuple[SensorSource, FakeCamera, 
 
 def settings(**kw) -> m.ScanSettings:
     base = dict(scan_rate_hz=20.0, exposure_us=1000, roi_first=0, roi_count=N_POINTS, median_window=1,
-                min_quality=0, laser_power_mw=4.0)
+                min_quality=0, laser_power_mw=4.0, ray_times=False)
     base.update(kw)
     return m.ScanSettings(**base)
 

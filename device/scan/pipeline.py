@@ -19,12 +19,14 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class ScanRays:
     """Ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry, and
-    when ray 0 was measured and the step per ray (device.scan.timing)."""
+    when ray 0 was measured and the step per ray (device.scan.timing); ray_times_ns: each ray's
+    own time (float64 CLOCK_MONOTONIC ns, NaN: not measured; None: not timed one by one)."""
 
     ranges: np.ndarray
     quality: np.ndarray
     first_ray_ns: int
     ray_interval_ns: int
+    ray_times_ns: np.ndarray | None = None
 
 
 #: (lit, the nearest unlit neighbour, the other unlit neighbour or None) -> ScanRays.
@@ -59,6 +61,6 @@ class ScanPipeline:
         quality = np.where(np.isfinite(ranges), np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8)
         times = column_times_ns(lit, np.asarray(meas.row, dtype=np.float64)[ok][order])[nearest]
         g = self.pipeline.geometry
-        timing = scan_timing(np.where(np.isfinite(ranges), times, np.nan),
-                             column_times_ns(lit, np.array((g.roi_lo.min() + g.roi_hi.max()) / 2)))
-        return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns)
+        ray_times = np.where(np.isfinite(ranges), times, np.nan)
+        timing = scan_timing(ray_times, column_times_ns(lit, np.array((g.roi_lo.min() + g.roi_hi.max()) / 2)))
+        return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns, ray_times)

@@ -251,8 +251,9 @@ class SensorSource:
         self.counters.scans_made += 1
         # the host's region of interest starts at ray roi_first: its time moves with it
         first_ns = rays.first_ray_ns + s.roi_first * rays.ray_interval_ns
+        times = None if rays.ray_times_ns is None else rays.ray_times_ns[sl]
         return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first,
-                          ray_interval_ns=rays.ray_interval_ns)
+                          ray_interval_ns=rays.ray_interval_ns, ray_times_ns=times)
 
     # failures
     def _camera_failed(self, why: str) -> None:

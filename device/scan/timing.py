@@ -14,9 +14,11 @@ A LaserScan has one time per ray on a line: ``stamp + i time_increment``. The sc
 times (device time of ray 0, and the step per ray), so they are exact for a scan whose rows
 change linearly across it (a flat wall seen squarely is close to that) and otherwise off by the
 residual, which :func:`scan_timing` returns; where no ray was measured, the middle of the region
-of interest's rows. A host de-skews a scan with odometry by moving each ray i by the robot's
-motion between ``device_time + i time_increment`` and the time it wants the scan at (README,
-"Scans on a moving robot").
+of interest's rows. The rays' own times (``ScanRays.ray_times_ns``) go to a host that asks for
+them (settings ``ray_times``, protocol minor 4: ``Scan.ray_times``). A host de-skews a scan with
+odometry by moving each ray i by the robot's motion between its time (its own, or
+``device_time + i time_increment``) and the time it wants the scan at (README, "Scans on a moving
+robot").
 """
 
 from __future__ import annotations

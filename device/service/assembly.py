@@ -235,7 +235,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     source = SensorSource(camera, laser, scan, geometry, clock=clock, sync_degraded=degraded)
     power_mw = min(cfg.laser.power_w * 1e3, limit)
     settings = m.ScanSettings(scan_rate_hz=op.scan_rate_hz, exposure_us=int(op.exposure_us), roi_first=0, roi_count=count,
-                              median_window=1, min_quality=0, laser_power_mw=power_mw)
+                              median_window=1, min_quality=0, laser_power_mw=power_mw, ray_times=False)
     log.info("sensor %s: %d points, rows %d-%d, pulse %.1f ms, Class 1 limit %.1f mW, %s",
              cfg.name, count, row_min, row_max, pulse_s * 1e3, limit, "simulated" if setup.simulate else "on a Pi")
     return BuiltSensor(source, settings, limit, closers, faults, hw)

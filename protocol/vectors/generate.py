@@ -8,6 +8,7 @@ that today's encoder reproduces these bytes and today's decoder reads them back 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -69,6 +70,18 @@ VECTORS: dict[str, tuple[int, object]] = {
     # protocol minor 3: the ray interval is signed (rays measured latest first)
     "scan_minor3": (21, m.ScanMessage(8, 2**40 + 9, -12500, 61000, 2, np.array([0.5, -math.inf], dtype=np.float64),
                                       np.array([200, 0], dtype=np.uint8), boot_id=0xCAFEF00D)),
+    # protocol minor 4: ray times on request (settings bit 7, its value after the message's fields)
+    "get_info_minor4": (22, m.GetInfo(1, 4, request_id=0x1238)),
+    "set_config_minor4": (23, m.SetConfig(m.ScanSettings(ray_times=True), request_id=0x1239)),
+    "info_minor4": (24, m.Info(1, 4, "0.3.0", "LP-000042", 10.0, 0.125, 3.0, np.zeros(0, np.float32),
+                               dataclasses.replace(_SETTINGS, ray_times=True), 5.5, request_id=0x1238,
+                               boot_id=0xCAFEF00D, n_columns=8,
+                               angles_crc=m.angles_crc(np.linspace(0.5, -0.5, 8, dtype=np.float32)),
+                               startup_s=5.0, host_timeout_s=5.0)),
+    # a ray 1.5 ms after device_time, one without a time (NaN: the line's), one 0.3 ms before it
+    "scan_minor4": (25, m.ScanMessage(9, 2**40 + 9, -12500, 61000, 2, np.array([0.5, math.nan, 1.0], dtype=np.float64),
+                                      np.array([200, 0, 90], dtype=np.uint8), boot_id=0xCAFEF00D,
+                                      ray_times_us=np.array([2**40 + 9 + 1500, math.nan, 2**40 + 9 - 300]))),
 }
 
 
