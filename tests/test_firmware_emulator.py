@@ -32,7 +32,7 @@ from device.laser.comcu import CoMcu, CoMcuNack
 from device.model.envelope import FirmwareEnvelope, LineLaserOptics, parse_makefile_envelope, verify_envelope
 from device.sim.comcu_emulator import CYCLES_PER_TICK, CPU_HZ, FreeRunningEmulator, SteppedMcuPort, build_emulator
 from protocol import mcu
-from protocol.framing import MAX_PAYLOAD_MCU, encode_frame
+from protocol.framing import MAX_PAYLOAD_MCU, decode_frame, encode_frame
 
 MS = 2000  # ticks per millisecond (the default 16 MHz build)
 #: the production envelope's rate limit (us), from its one source of truth
@@ -637,3 +637,27 @@ def test_a_harness_that_writes_much_to_its_stderr_never_blocks(emulator):
     port.reset_input_buffer()
     assert comcu.ping().mcu_ticks > 0
     port.close()
+
+
+@CLOCKS
+def test_a_ping_behind_a_burst_of_frames_is_stamped_between_its_arrival_and_its_reply(clock_link):
+    """The firmware keeps the arrival tick of the last few frame delimiters for PONG (hw_avr.c's
+    delimiter ring). While it transmits a long reply (hw_tx waits for each byte) the Pi's next
+    frames keep arriving: more delimiters than that ring holds. A PING among them must still get
+    an rx tick between its last byte's arrival and its PONG (the Pi's clock map takes it as such
+    a bound), never 0, which the Pi reads as the co-MCU's clock going back, a reset: the
+    simulated 20/s device lost its sync lock so, 9 scans."""
+    port, comcu = clock_link
+    count = port.timer_count_at
+    burst = b"".join(b"\x00" + mcu.encode_message(msg, seq) for seq, msg in
+                     [(101, mcu.InfoRequest())] + [(0xFFFF, mcu.Heartbeat())] * 2 + [(102, mcu.Ping())])
+    assert len(burst) < 64  # the firmware's receive ring takes it all: no byte is lost
+    port.write(burst)
+    written = port.cycle
+    port.advance(0.02)
+    frames = [f for f in (decode_frame(x, max_payload=MAX_PAYLOAD_MCU) for x in port.read(port.in_waiting).split(b"\x00") if x)]
+    pongs = [mcu.decode_message(f) for f in frames if f.seq == 102]
+    assert len(pongs) == 1 and isinstance(pongs[0], mcu.Pong), frames
+    # the PING's last byte arrives after the whole burst has crossed the 250 kbaud line
+    arrived = count(written) + len(burst) * 10 * comcu.info().ticks_per_second // 250_000
+    assert arrived - 2 * ticks_per_ms(comcu) // 10 <= pongs[0].rx_ticks <= pongs[0].tx_ticks, (pongs[0], arrived)

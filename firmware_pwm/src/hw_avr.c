@@ -89,11 +89,19 @@ int main(void)
             }
             if (b == 0) {
                 uint8_t s = hw_irq_save();
-                if (delim_tail != delim_head) {
+                uint8_t stamped = delim_tail != delim_head;
+                if (stamped) {
                     tick = delim_tick[delim_tail];
                     delim_tail = (uint8_t)((delim_tail + 1) % DELIM_RING);
                 }
                 hw_irq_restore(s);
+                /* More delimiters arrived than the ring holds (the Pi's frames keep coming while
+                 * hw_tx sends a long reply): the ticks of the last ones were dropped, so a
+                 * delimiter gets the tick of one that arrived after it, or none is left. Either
+                 * way the time now is no earlier than its arrival and no later than its reply,
+                 * the bounds PONG's rx tick promises; 0 would read as the clock going back. */
+                if (!stamped)
+                    tick = hw_now();
             }
             core_rx_byte(&core, b, tick);
         }
