@@ -70,6 +70,21 @@ def test_edges_boot_info_and_stale_or_damaged_frames_are_kept_apart():
     assert comcu.heartbeat_state == (mcu.McuState.RUNNING, mcu.Fault.HEARTBEAT) and comcu.heartbeat_acks == 1
 
 
+
+@pytest.mark.parametrize("state", list(mcu.McuState))
+def test_a_fault_free_heartbeat_ack_counts_as_its_decoded_message_would(state):
+    acks = [mcu.Ack(0x45, 1 | (mcu.Fault.LATE << 8)), mcu.Ack(0x45, int(state)), mcu.Ack(0x45, int(state))]
+    port = ScriptedPort(lambda f: mcu.encode_message(acks.pop(0), f.seq))
+    comcu = CoMcu(port)
+    comcu.send_heartbeat()
+    comcu.edges()
+    assert comcu.heartbeat_state == (mcu.McuState.RUNNING, mcu.Fault.LATE) and comcu.heartbeat_acks == 1
+    comcu.send_heartbeat()
+    comcu.send_heartbeat()
+    assert comcu.edges() == [] and comcu.bad_frames == 0
+    assert comcu.heartbeat_state == (state, mcu.Fault(0)) and comcu.heartbeat_acks == 3
+    assert type(comcu.heartbeat_state[0]) is mcu.McuState and type(comcu.heartbeat_state[1]) is mcu.Fault
+
 def test_heartbeat_acks_never_answer_a_request_and_a_stop_forgets_their_state():
     seqs = []
 

@@ -207,3 +207,55 @@ def test_resolve_takes_its_arguments_grouped_as_the_kernels_structs():
         _resolve(status_dtype=np.int8)
     with pytest.raises(ValueError, match=r"idx2 must be increasing columns in \[0, 8\)"):
         _resolve(idx=(3, 3))
+
+
+def _scan_rays_numpy(angle, rng, quality, row, grid, max_gap):
+    """scan_rays' definition in numpy: resample_scan, and quality and row of the nearest column
+    with a finite angle where the resampled range is finite."""
+    from device.model.scan_frame import resample_scan
+
+    out = resample_scan(angle, rng, grid, max_gap)
+    fin = np.isfinite(angle)
+    order = np.argsort(angle[fin])
+    a, q, r = angle[fin][order], quality[fin][order], row[fin][order]
+    idx = np.clip(np.searchsorted(a, grid), 1, max(a.size - 1, 1))
+    nearest = np.where(np.abs(a[idx - 1] - grid) <= np.abs(a[np.minimum(idx, a.size - 1)] - grid), idx - 1,
+                       np.minimum(idx, a.size - 1))
+    measured = np.isfinite(out)
+    return out, np.where(measured, np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8), np.where(measured, r[nearest], np.nan)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_scan_rays_equals_resample_scan_and_the_nearest_columns(seed):
+    from device.model.scan_frame import angle_order
+
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(1, 300)), int(rng.integers(2, 400))
+    grid = np.linspace(-1.0, 1.0, m)
+    angle = np.sort(rng.uniform(-1.2, 1.2, n))[::-1].copy()  # a camera's columns: angle falls with the column
+    angle += rng.normal(0, 0.002, n) * (rng.random(n) < 0.3)  # out of order near depth jumps
+    angle[rng.random(n) < 0.05] = np.nan
+    r = np.where(rng.random(n) < 0.5, 2.0, rng.choice([1.0, 2.0, 3.5], n)) * rng.uniform(0.97, 1.03, n)
+    codes = rng.random(n)
+    r[codes < 0.15] = np.inf
+    r[(codes >= 0.15) & (codes < 0.2)] = -np.inf
+    r[(codes >= 0.2) & (codes < 0.25)] = np.nan
+    quality = rng.uniform(-5, 300, n)
+    row = rng.uniform(0, 900, n)
+    if not np.isfinite(angle).any():
+        angle[0] = 0.0
+    max_gap = float(rng.choice([0.005, 0.02, 0.3]))
+    order = angle_order(angle)
+    out, q, rows = np.empty(m), np.empty(m, np.uint8), np.empty(m)
+    K.scan_rays(angle, r, quality, row, order, grid, max_gap, 0.05, np.empty_like(order), out, q, rows)
+    want = _scan_rays_numpy(angle, r, quality, row, grid, max_gap)
+    for got, expected in zip((out, q, rows), want):
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_scan_rays_names_a_bad_order():
+    a = np.zeros(3)
+    with pytest.raises(ValueError, match="order"):
+        K.scan_rays(a, a, a, a, np.array([0, 5]), np.linspace(0, 1, 4), 0.1, 0.05, np.empty(2, np.intp),
+                    np.empty(4), np.empty(4, np.uint8), np.empty(4))

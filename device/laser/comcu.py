@@ -78,6 +78,11 @@ class CoMcu:
         self.boot_infos: list[mcu.Info] = []
         self.bad_frames = 0
         self._heartbeat_wire = b"\x00" + mcu.encode_message(mcu.Heartbeat(), HEARTBEAT_SEQ)
+        #: a heartbeat's ACK without faults as it comes off the wire (COBS, no delimiter) -> its
+        #: state: the ~67 a second are counted by a lookup, not decoded (they are all the same few)
+        self._fault_free_heartbeat_acks = {
+            mcu.encode_message(mcu.Ack(mcu.Heartbeat.MSG_TYPE, state), HEARTBEAT_SEQ)[:-1]: (state, mcu.Fault(0))
+            for state in mcu.McuState}
         self.heartbeats_sent = 0
         self.heartbeat_acks = 0
         #: (state, latched faults) from the newest heartbeat ACK since the last STOP; None before one
@@ -160,19 +165,26 @@ class CoMcu:
         if isinstance(msg, mcu.Edge):
             self._edges.append(msg)
         elif isinstance(msg, mcu.Ack) and frame.seq == HEARTBEAT_SEQ:
-            self.heartbeat_acks += 1
-            self.heartbeat_state = mcu.McuState(msg.info & 0xFF), mcu.Fault((msg.info >> 8) & 0xFF)
+            self._heartbeat_acked((mcu.McuState(msg.info & 0xFF), mcu.Fault((msg.info >> 8) & 0xFF)))
         elif isinstance(msg, mcu.Info) and frame.seq == 0:
             log.info("co-MCU (re)started: reset cause 0x%02x", msg.reset_cause)
             self.boot_infos.append(msg)
         else:
             log.debug("co-MCU frame ignored: %s seq %d", type(msg).__name__, frame.seq)
 
+    def _heartbeat_acked(self, state: tuple[mcu.McuState, mcu.Fault]) -> None:
+        self.heartbeat_acks += 1
+        self.heartbeat_state = state
+
     def _next_buffered_frame(self):
         while (end := self._buf.find(b"\x00")) >= 0:
             encoded = bytes(self._buf[:end])
             del self._buf[: end + 1]
             if not encoded:
+                continue
+            state = self._fault_free_heartbeat_acks.get(encoded)
+            if state is not None:  # what _keep_unsolicited would make of it, without decoding it
+                self._heartbeat_acked(state)
                 continue
             try:
                 return decode_frame(encoded, max_payload=MAX_PAYLOAD_MCU)

@@ -57,8 +57,20 @@ def uniform_angles(angle_min: float, angle_max: float, count: int) -> np.ndarray
     return np.linspace(angle_min, angle_max, count)
 
 
+def angle_order(angles: np.ndarray) -> np.ndarray:
+    """Indices of the finite ``angles`` in increasing angle order."""
+    angles = np.asarray(angles)
+    finite = np.flatnonzero(np.isfinite(angles))
+    return finite[np.argsort(angles[finite])]
+
+
+#: Largest relative range step between two columns that resample_scan interpolates across.
+MAX_JUMP_RATIO = 0.05
+
+
 def resample_scan(
-    angles: np.ndarray, ranges: np.ndarray, grid: np.ndarray, max_gap: float, max_jump_ratio: float = 0.05
+    angles: np.ndarray, ranges: np.ndarray, grid: np.ndarray, max_gap: float, max_jump_ratio: float = MAX_JUMP_RATIO,
+    order: np.ndarray | None = None,
 ) -> np.ndarray:
     """Resample measured points (angle, range) onto the scan's uniform angle grid.
 
@@ -67,6 +79,7 @@ def resample_scan(
     of the nearer one: never across a depth jump, so no phantom points between a foreground and
     a background surface. Grid angles with no measurement get +inf (no return, REP 117);
     non-finite input ranges (-inf too close, NaN invalid) are carried to the nearest grid cell.
+    ``order``: :func:`angle_order` of ``angles``, when the caller has it already.
     """
     angles = np.asarray(angles, dtype=float).ravel()
     ranges = np.asarray(ranges, dtype=float).ravel()
@@ -74,10 +87,9 @@ def resample_scan(
     if angles.shape != ranges.shape:
         raise ValueError(f"angles {angles.shape} and ranges {ranges.shape} must have the same shape")
     out = np.full(grid.shape, np.inf)
-    ok = np.isfinite(angles) & np.isfinite(ranges)
+    order = angle_order(angles) if order is None else order
+    ok = order[np.isfinite(ranges[order])]  # the measured points, in increasing angle
     a, r = angles[ok], ranges[ok]
-    order = np.argsort(a)
-    a, r = a[order], r[order]
     if a.size:
         k = np.searchsorted(a, grid)  # a[k-1] <= g < a[k]
         lo, hi = np.clip(k - 1, 0, a.size - 1), np.clip(k, 0, a.size - 1)

@@ -10,8 +10,10 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from device.camera.frame import Frame
-from device.model.scan_frame import uniform_angles
+from device.model.scan_frame import MAX_JUMP_RATIO, angle_order, uniform_angles
 from device.scan.timing import column_times_ns, scan_timing
+from device.vision.kernel import columns_kernel
+from device.vision.measurements import bridged_gap
 
 if TYPE_CHECKING:
     from device.vision.measurements import Pipeline
@@ -35,7 +37,7 @@ ScanFunction = Callable[[Frame, Frame, "Frame | None"], ScanRays]
 
 class ScanPipeline:
     """ScanFunction of a device.vision Pipeline: its per-column measurements resampled onto
-    ``count`` uniform angles (device.vision.measurements.to_laser_scan: never across a depth
+    ``count`` uniform angles (device.model.scan_frame.resample_scan: never across a depth
     jump), quality from the nearest measured column."""
 
     def __init__(self, pipeline: Pipeline, count: int):
@@ -46,21 +48,20 @@ class ScanPipeline:
         self.pipeline = pipeline
         self.angle_min, self.angle_max = float(a.min()), float(a.max())
         self.angles = uniform_angles(self.angle_min, self.angle_max, count)
+        g = pipeline.geometry
+        self._middle_row = np.array((g.roi_lo.min() + g.roi_hi.max()) / 2)  # rays without a time: this row's
 
     def __call__(self, lit: Frame, dark: Frame, other_dark: Frame | None = None) -> ScanRays:
-        from device.vision.measurements import to_laser_scan
-
         meas = self.pipeline.process(lit, dark, other_unlit=other_dark)
-        _, ranges = to_laser_scan(meas, self.angle_min, self.angle_max, self.angles.size)
-        ok = np.isfinite(meas.angle)
-        order = np.argsort(meas.angle[ok])
-        a, q = meas.angle[ok][order], np.asarray(meas.quality, dtype=np.float64)[ok][order]
-        idx = np.clip(np.searchsorted(a, self.angles), 1, max(a.size - 1, 1))
-        nearest = np.where(np.abs(a[idx - 1] - self.angles) <= np.abs(a[np.minimum(idx, a.size - 1)] - self.angles),
-                           idx - 1, np.minimum(idx, a.size - 1))
-        quality = np.where(np.isfinite(ranges), np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8)
-        times = column_times_ns(lit, np.asarray(meas.row, dtype=np.float64)[ok][order])[nearest]
-        g = self.pipeline.geometry
-        ray_times = np.where(np.isfinite(ranges), times, np.nan)
-        timing = scan_timing(ray_times, column_times_ns(lit, np.array((g.roi_lo.min() + g.roi_hi.max()) / 2)))
+        angle = np.ascontiguousarray(meas.angle, dtype=np.float64)
+        order = angle_order(angle)
+        n = self.angles.size
+        ranges, quality, rows = np.empty(n), np.empty(n, np.uint8), np.empty(n)
+        # resample_scan's arithmetic and the nearest column's quality and row in one compiled pass
+        # (one call instead of ~100 numpy ones: no GIL hand-over to other threads between them)
+        columns_kernel().scan_rays(angle, *(np.ascontiguousarray(x, dtype=np.float64) for x in (meas.range, meas.quality, meas.row)),
+                                   order, self.angles, bridged_gap(angle[order], self.angles), MAX_JUMP_RATIO,
+                                   np.empty_like(order), ranges, quality, rows)
+        ray_times = column_times_ns(lit, rows)  # NaN where the ray has no range (the kernel's row)
+        timing = scan_timing(ray_times, column_times_ns(lit, self._middle_row))
         return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns, ray_times)

@@ -367,6 +367,9 @@ class FastPipeline:
         ok = status == STATUS_U8[ColumnStatus.OK]
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
         cols = np.nonzero(ok & moved)[0]
+        blind = none & (noise > p.blind_noise)
+        if not cols.size:  # nothing moved where a line was found (a still scene): no shape to check
+            return np.where(blind, STATUS_U8[ColumnStatus.REJECTED], status)
         # the difference of the last search (band rows t0.. at buffer rows pad..) from
         # flank_rows above each line to flank_rows below it, in one gather
         d = self._padded_buf
@@ -387,8 +390,7 @@ class FastPipeline:
         shape = np.zeros(status.size, bool)
         shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
                        | ~(spread <= p.moving_max_spread_px))
-        bad = shape | (none & (noise > p.blind_noise))
-        return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
+        return np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         H = self.config.height

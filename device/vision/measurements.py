@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from ..camera.frame import Frame
-from ..model.scan_frame import resample_scan, uniform_angles
+from ..model.scan_frame import angle_order, resample_scan, uniform_angles
 from ..model.triangulation import RangeStatus, Triangulation
 from . import postcal
 from .geometry import ColumnGeometry
@@ -120,12 +120,20 @@ def to_laser_scan(meas: ColumnMeasurements, angle_min: float, angle_max: float, 
                   max_gap: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(angles, ranges) of a uniform LaserScan grid, resampled without crossing depth jumps.
 
-    ``max_gap`` (rad): largest angular gap bridged between two measured columns; default three
-    times the median column spacing.
+    ``max_gap`` (rad): largest angular gap bridged between two measured columns; default
+    :func:`bridged_gap`.
     """
     grid = uniform_angles(angle_min, angle_max, count)
     a = np.asarray(meas.angle, dtype=float)
+    order = angle_order(a)
     if max_gap is None:
-        fin = np.sort(a[np.isfinite(a)])
-        max_gap = 3.0 * float(np.median(np.diff(fin))) if fin.size > 2 else (grid[1] - grid[0])
-    return grid, resample_scan(a, meas.range, grid, max_gap)
+        max_gap = bridged_gap(a[order], grid)
+    return grid, resample_scan(a, meas.range, grid, max_gap, order=order)
+
+
+def bridged_gap(sorted_angles: np.ndarray, grid: np.ndarray) -> float:
+    """The default largest gap (rad) a scan bridges between two measured columns: three times
+    the median spacing of the columns' ``sorted_angles`` (the grid's step with fewer than 3)."""
+    if sorted_angles.size > 2:
+        return 3.0 * float(np.median(np.diff(sorted_angles)))
+    return grid[1] - grid[0]

@@ -15,6 +15,8 @@
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
  *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
+ *   scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out,
+ *             quality_out, row_out)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -310,6 +312,34 @@ static PyObject *py_triangulate(PyObject *self, PyObject *args)
     return done(&vs, r, &err, NULL);
 }
 
+/* scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out,
+ *           quality_out, row_out): columns_scan_rays; `measured` is workspace of order's length. */
+static PyObject *py_scan_rays(PyObject *self, PyObject *args)
+{
+    PyObject *o_a, *o_r, *o_q, *o_row, *o_order, *o_grid, *o_meas, *o_rout, *o_qout, *o_rowout;
+    double max_gap, ratio;
+    if (!PyArg_ParseTuple(args, "OOOOOOddOOOO", &o_a, &o_r, &o_q, &o_row, &o_order, &o_grid, &max_gap, &ratio,
+                          &o_meas, &o_rout, &o_qout, &o_rowout))
+        return NULL;
+    Views vs = {.n = 0};
+    idx_t N, K, M;
+    const double *a = arg(&vs, o_a, 'd', -1, 0, 1, 0, "angle", &N);
+    const double *r = a ? arg(&vs, o_r, 'd', N, 0, 1, 0, "range", NULL) : NULL;
+    const double *q = r ? arg(&vs, o_q, 'd', N, 0, 1, 0, "quality", NULL) : NULL;
+    const double *row = q ? arg(&vs, o_row, 'd', N, 0, 1, 0, "row", NULL) : NULL;
+    const idx_t *order = row ? arg(&vs, o_order, 'i', -1, 0, 1, 0, "order", &K) : NULL;
+    const double *grid = order ? arg(&vs, o_grid, 'd', -1, 0, 1, 0, "grid", &M) : NULL;
+    idx_t *meas = grid ? arg(&vs, o_meas, 'i', K, 0, 1, 1, "measured", NULL) : NULL;
+    double *rout = meas ? arg(&vs, o_rout, 'd', M, 0, 1, 1, "range_out", NULL) : NULL;
+    uint8_t *qout = rout ? arg(&vs, o_qout, 'u', M, 0, 1, 1, "quality_out", NULL) : NULL;
+    double *rowout = qout ? arg(&vs, o_rowout, 'd', M, 0, 1, 1, "row_out", NULL) : NULL;
+    if (!rowout) return failed(&vs);
+    ColumnsError err;
+    ColumnsResult res = columns_scan_rays(N, a, r, q, row, K, order, M, grid, max_gap, ratio, meas, rout, qout, rowout,
+                                          &err);
+    return done(&vs, res, &err, NULL);
+}
+
 static PyMethodDef methods[] = {
     {"candidates", py_candidates, METH_VARARGS, "candidates(sm, padded, pad, sep, k_out, s_out)"},
     {"refine_com", py_refine_com, METH_VARARGS,
@@ -322,6 +352,9 @@ static PyMethodDef methods[] = {
     {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
     {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},
+    {"scan_rays", py_scan_rays, METH_VARARGS,
+     "scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out, quality_out, "
+     "row_out)"},
     {NULL, NULL, 0, NULL},
 };
 

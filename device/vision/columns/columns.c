@@ -728,3 +728,87 @@ ColumnsResult columns_triangulate(const ColumnsRays *rays, const ColumnsPlane *p
     }
     return COLUMNS_DONE;
 }
+
+/* ---- the scan's rays (device.model.scan_frame.resample_scan's arithmetic) ---------------- */
+
+/* The first of the n ascending values a[lo..n) that is >= g (numpy's searchsorted, side left),
+ * from lo on: the grid ascends, so each search starts where the previous one ended. */
+static idx_t lower_bound_from(const double *a, const idx_t *at, idx_t n, idx_t lo, double g)
+{
+    idx_t hi = n;
+    while (lo < hi) {
+        idx_t mid = lo + (hi - lo) / 2;
+        if (a[at[mid]] < g)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
+                                const double *row, ptrdiff_t n_order, const ptrdiff_t *order, ptrdiff_t m,
+                                const double *grid, double max_gap, double max_jump_ratio, ptrdiff_t *measured,
+                                double *range_out, uint8_t *quality_out, double *row_out, ColumnsError *err)
+{
+    if (n_order < 1 || n_order > n || m < 2)
+        return bad_argument(err, "columns_scan_rays: need 1 <= n_order <= n and m >= 2, got %td, %td, %td", n_order,
+                            n, m);
+    for (idx_t j = 0; j < n_order; j++)
+        if (order[j] < 0 || order[j] >= n)
+            return bad_argument(err, "columns_scan_rays: order[%td] = %td is not a column of %td", j, order[j], n);
+    /* the measured columns (finite range) in increasing angle: resample_scan's a, r */
+    idx_t nm = 0;
+    for (idx_t j = 0; j < n_order; j++)
+        if (isfinite(range[order[j]])) measured[nm++] = order[j];
+    idx_t k = 0;
+    for (idx_t i = 0; i < m; i++) {
+        const double g = grid[i];
+        double out = INFINITY;
+        if (nm > 0) {
+            k = lower_bound_from(angle, measured, nm, k, g);
+            const idx_t lo = k - 1 < 0 ? 0 : k - 1, hi = k < nm - 1 ? k : nm - 1;
+            const double a0 = angle[measured[lo]], a1 = angle[measured[hi]];
+            const double r0 = range[measured[lo]], r1 = range[measured[hi]];
+            const double span = a1 - a0;
+            const bool inside = k > 0 && k < nm && span <= max_gap;
+            const bool smooth = fabs(r1 - r0) <= max_jump_ratio * (r0 < r1 ? r0 : r1);
+            const double w = span > 0 ? (g - a0) / span : 0.0;
+            if (inside && smooth) {
+                out = r0 + w * (r1 - r0);
+            } else { /* across a jump: the nearer-in-angle neighbour within half the gap limit */
+                const idx_t near = fabs(g - a0) <= fabs(a1 - g) ? lo : hi;
+                if (fabs(angle[measured[near]] - g) <= max_gap / 2) out = range[measured[near]];
+            }
+        }
+        range_out[i] = out;
+    }
+    /* REP 117 codes (finite angle, no finite range) in the nearest cell, the first one in the
+     * columns' order that says more than "no return" in a cell nothing was resampled into */
+    const double step = (grid[m - 1] - grid[0]) / (double)(m - 1);
+    for (idx_t j = 0; j < n; j++) {
+        const double code = range[j];
+        if (!isfinite(angle[j]) || isfinite(code) || code > 0) continue;
+        const double cell = rint((angle[j] - grid[0]) / step);
+        if (cell >= 0 && cell < (double)m && range_out[(idx_t)cell] == INFINITY) range_out[(idx_t)cell] = code;
+    }
+    /* quality and row of the nearest column with a finite angle (measured or not) */
+    const idx_t last = n_order - 1 > 1 ? n_order - 1 : 1;
+    idx_t kq = 0;
+    for (idx_t i = 0; i < m; i++) {
+        const double g = grid[i];
+        kq = lower_bound_from(angle, order, n_order, kq, g);
+        const idx_t c = kq < 1 ? 1 : kq > last ? last : kq;
+        const idx_t next = c < n_order - 1 ? c : n_order - 1;
+        const idx_t near = order[fabs(angle[order[c - 1]] - g) <= fabs(angle[order[next]] - g) ? c - 1 : next];
+        if (isfinite(range_out[i])) {
+            const double q = rint(quality[near]);
+            quality_out[i] = q > 0 ? (q < 255 ? (uint8_t)q : 255) : 0;
+            row_out[i] = row[near];
+        } else {
+            quality_out[i] = 0;
+            row_out[i] = NAN;
+        }
+    }
+    return COLUMNS_DONE;
+}

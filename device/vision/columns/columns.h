@@ -159,4 +159,17 @@ void columns_running_median(const double *x, const bool *found, ptrdiff_t n, dou
 /* The length of the run of true elements each of n elements belongs to (0 where false). */
 void columns_run_length(const bool *mask, ptrdiff_t n, ptrdiff_t *out);
 
+/* One frame's columns (n of them: angle, range with REP 117 codes, quality, row) on a scan's m
+ * ascending uniform angles `grid` (device/scan/pipeline.py ScanPipeline): `order` (n_order indices) lists
+ * the columns with a finite angle in increasing angle. range_out: the columns' ranges resampled
+ * as device.model.scan_frame.resample_scan does (bridging at most max_gap rad, never a depth
+ * jump of max_jump_ratio; its arithmetic in its order, so bit for bit); quality_out and row_out:
+ * the quality (rounded, clipped to 0..255) and row of the column nearest in angle to each ray with
+ * a finite range, 0 and NaN at the others. `measured`: n_order indices of workspace. Needs
+ * n_order >= 1 and m >= 2. */
+ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
+                                const double *row, ptrdiff_t n_order, const ptrdiff_t *order, ptrdiff_t m,
+                                const double *grid, double max_gap, double max_jump_ratio, ptrdiff_t *measured,
+                                double *range_out, uint8_t *quality_out, double *row_out, ColumnsError *err);
+
 #endif
