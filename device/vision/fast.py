@@ -54,6 +54,14 @@ Per frame pair (or triple):
    of the neighbours past a depth jump. A line seen but not measurable is REJECTED (NaN), never
    "no return". The effective angular resolution is the fit window
    (:attr:`FastPipeline.resolution_deg`).
+   The range gate (``max_range_sigma``, off by default: see BENCHMARKS.md "Motion" for its price):
+   far away one row is worth 5-8 % of range, so a fit 0.7 px off is a gross error. Each fitted
+   row's 1 sigma is propagated from the fit (a sandwich estimator over the window's columns:
+   each column's residual over its leverage, at least its centre of mass's noise for its peak),
+   plus a break term where the lines through the window's left and right halves disagree beyond
+   their own sigmas (a depth edge the fit bridges), and through the geometry's range change per
+   row (the 1/z table's slope); above ``max_range_sigma`` the column is REJECTED (NaN), never a
+   guess (``columns.c``: ``line_at``, ``fit_sigma``).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
@@ -117,6 +125,7 @@ class FastParams:
     max_gap: int = 3  # columns without a measurement filled inside a continuous run (line fit on)
     own_peak_fraction: float = 0.5  # a column's own peak must reach this x its smoothed peak to end a run (depth jumps)
     dim_peak_fraction: float = 0.1  # ... and this inside a run, between columns that reach own_peak_fraction (dark speckle grains)
+    max_range_sigma: float = math.inf  # a range whose predicted 1 sigma (relative, step 5) exceeds this is REJECTED (inf: off)
     track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
@@ -145,8 +154,9 @@ class FastParams:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
-        if not (0 < self.jump_rel < 1 and self.min_peak > 0):
-            raise ValueError(f"need 0 < jump_rel < 1 and min_peak > 0, got {self.jump_rel}, {self.min_peak}")
+        if not (0 < self.jump_rel < 1 and self.min_peak > 0 and self.max_range_sigma > 0):
+            raise ValueError(f"need 0 < jump_rel < 1, min_peak > 0 and max_range_sigma > 0, got {self.jump_rel}, "
+                             f"{self.min_peak}, {self.max_range_sigma}")
         if not 0 < self.dim_peak_fraction <= self.own_peak_fraction <= 1:
             raise ValueError(f"need 0 < dim_peak_fraction <= own_peak_fraction <= 1, got "
                              f"{self.dim_peak_fraction}, {self.own_peak_fraction}")
@@ -198,8 +208,8 @@ class FastPipeline:
         self._kernel = columns_kernel()
         # the kernel's ColumnsResolveParams (device/vision/columns/columns.h), in its order
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
-                                params.jump_factor, params.min_peak, params.min_run, params.smooth_half,
-                                params.support_half, params.max_gap)
+                                params.jump_factor, params.min_peak, params.max_range_sigma, params.min_run,
+                                params.smooth_half, params.support_half, params.max_gap)
         self._pad = rows_read(params.estimator, params.half_width)  # zero rows around the difference
         # image-sized temporaries kept between frame pairs (a search uses their first rows): one
         # allocated per frame costs page faults whenever the allocator returns it to the system

@@ -513,15 +513,74 @@ static void local_line_fit(double *row, const double *weight, const bool *inrun,
     }
 }
 
+/* The centre of mass's row error per unit of noise level / peak (FastPipeline step 5's gate):
+ * over a window of rows r = -4..4 around the line (half_width 4), noise of sigma n per pixel
+ * moves it by n sqrt(sum r^2) / M = n sqrt(60) / M, M the line's sum over the window, M ~ peak
+ * sqrt(2 pi) 1.3 for a line of 1.3 px RMS width (the simulated laser line; a wider one is
+ * measured better per unit peak, so this errs on the safe side). The noise level (step 1: the
+ * largest 5 x 3 box mean of the negative difference) stands in for n. */
+#define COM_ROWS_PER_NOISE 2.4
+
+/* The weighted least-squares line through the measured rows raw[j] of columns [a, b] (weights
+ * w_j; FastPipeline step 5), evaluated at column i: *value and its 1 sigma *sigma (rows). The
+ * value is sum_j c_j raw_j with c_j = w_j (sxx - sx dx_j) / det (dx_j = j - i); with independent
+ * row errors of variance s_j^2 its variance is sum_j c_j^2 s_j^2 (a sandwich estimator). s_j is
+ * the larger of what column j's own peak allows (com_sigma[j]: its centre of mass's noise) and what
+ * it shows: its residual e_j from the line over its leverage (e_j / (1 - h_j), h_j = w_j (sxx -
+ * 2 sx dx_j + s0 dx_j^2) / det: the "HC3" estimator, MacKinnon and White 1985), so a line on
+ * dim columns, on columns that scatter, or resting on few columns or on one bright column
+ * (h_j near 1) reports a large sigma. Infinite when [a, b] holds fewer than two columns with
+ * weight. */
+static void line_at(const double *raw, const double *weight, const double *com_sigma, idx_t i, idx_t a, idx_t b,
+                    double *value, double *sigma)
+{
+    double s0 = 0.0, sx = 0.0, sxx = 0.0, sy = 0.0, sxy = 0.0;
+    for (idx_t j = a; j <= b; j++) {
+        double w = weight[j], dx = (double)(j - i);
+        if (w <= 0.0) continue;
+        s0 += w, sx += w * dx, sxx += w * dx * dx, sy += w * raw[j], sxy += w * dx * raw[j];
+    }
+    double det = s0 * sxx - sx * sx;
+    *value = NAN, *sigma = INFINITY;
+    if (!(s0 > 0.0) || !(det > 1e-9 * s0 * s0)) return; /* no column, or all weight on one */
+    double v = (sxx * sy - sx * sxy) / det, slope = (s0 * sxy - sx * sy) / det, var = 0.0;
+    for (idx_t j = a; j <= b; j++) {
+        double w = weight[j], dx = (double)(j - i);
+        if (w <= 0.0) continue;
+        double c = w * (sxx - sx * dx) / det, h = w * (sxx - 2.0 * sx * dx + s0 * dx * dx) / det;
+        if (!(h < 1.0 - 1e-9)) return;
+        double e = (raw[j] - v - slope * dx) / (1.0 - h);
+        var += c * c * MAX(e * e, com_sigma[j] * com_sigma[j]);
+    }
+    *value = v, *sigma = sqrt(var);
+}
+
+/* The 1 sigma (rows) of the local line fit's row at column i (fitted over columns [lo, hi] of its
+ * run): the fit's own (line_at), and a break at i: the lines through [lo, i] and through [i, hi]
+ * should meet at i; where they differ by more than their own sigmas allow (a surface ends at i
+ * and another begins, a step that the straight line bridges), the column's row may be either,
+ * and the fit is off by up to their difference (its estimate, less what their noise explains,
+ * is added in quadrature). */
+static double fit_sigma(const double *raw, const double *weight, const double *com_sigma, idx_t i, idx_t lo, idx_t hi)
+{
+    double v, s, vl, sl, vr, sr;
+    line_at(raw, weight, com_sigma, i, lo, hi, &v, &s);
+    line_at(raw, weight, com_sigma, i, lo, i, &vl, &sl);
+    line_at(raw, weight, com_sigma, i, i, hi, &vr, &sr);
+    double brk = (vl - vr) * (vl - vr) - sl * sl - sr * sr; /* NaN or -inf where a side has too few columns */
+    return sqrt(s * s + (brk > 0.0 ? brk : 0.0));
+}
+
 /* See FastPipeline._search for the meaning of each rule. */
 ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolveParams *params, ColumnsLine *out,
                               ColumnsError *err)
 {
     const ColumnsResolveParams p = *params;
     idx_t W = in->cols, m = in->m, top = in->top, t0 = in->t0, t1 = in->t1;
-    if (W < 2 || p.min_run < 1 || p.support_half < 1 || p.smooth_half < 0 || p.max_gap < 0 || t1 <= t0)
+    if (W < 2 || p.min_run < 1 || p.support_half < 1 || p.smooth_half < 0 || p.max_gap < 0 || !(p.max_range_sigma > 0)
+        || t1 <= t0)
         return bad_argument(err, "resolve: need >= 2 columns, min_run >= 1, support_half >= 1, smooth_half >= 0, "
-                            "max_gap >= 0 and t1 > t0");
+                            "max_gap >= 0, max_range_sigma > 0 and t1 > t0");
     const idx_t *idx = in->idx;
     for (idx_t j = 0; j < m; j++) {
         if (idx[j] < 0 || idx[j] >= W || (j && idx[j] <= idx[j - 1]))
@@ -538,8 +597,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     bool *found = out->found;
     double *row = out->row, *peak = out->peak;
     uint8_t *status = out->status;
-    /* scratch: 7 double arrays of W, the running sums ((W + 1) x 5), 5 index and 8 flag arrays of W */
-    double *buf = malloc((size_t)(7 * W + 5 * (W + 1)) * sizeof(double));
+    /* scratch: 10 double arrays of W, the running sums ((W + 1) x 5), 5 index and 8 flag arrays of W */
+    double *buf = malloc((size_t)(10 * W + 5 * (W + 1)) * sizeof(double));
     idx_t *ibuf = malloc((size_t)(5 * W) * sizeof(idx_t));
     bool *cbuf = malloc((size_t)(8 * W) * sizeof(bool));
     if (!buf || !ibuf || !cbuf) {
@@ -547,14 +606,14 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
         return no_memory(err, "resolve");
     }
     double *r1 = buf, *r2 = r1 + W, *v2 = r2 + W, *med = v2 + W, *step = med + W, *weight = step + W,
-           *snorm = weight + W, *T = snorm + W;
+           *snorm = weight + W, *raw = snorm + W, *com_sigma = raw + W, *sigma = com_sigma + W, *T = sigma + W;
     idx_t *label = ibuf, *start = label + W, *stop = start + W, *lastb = stop + W, *nextb = lastb + W;
     bool *det1 = cbuf, *det2 = det1 + W, *ok2 = det2 + W, *pick2 = ok2 + W, *failed = pick2 + W, *outlier = failed + W,
          *bright = outlier + W, *line_seen = bright + W;
     const idx_t *k1 = in->k, *k2 = in->k + W;
     const double *s1 = in->s, *s2 = in->s + W;
 
-    bool two = false;
+    bool two = false, gate = p.smooth_half && isfinite(p.max_range_sigma); /* the gate needs the line fit */
     /* detection: smoothed peak above threshold, the column's own peak not too dim, one line wide */
     for (idx_t i = 0; i < W; i++) {
         det1[i] = s1[i] >= thr[i] && c1peak[i] >= p.dim_peak_fraction * s1[i] && c1spread[i] <= p.max_spread_px;
@@ -630,7 +689,12 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     }
     if (p.smooth_half) {
         for (idx_t i = 0; i < W; i++) weight[i] = found[i] && !outlier[i] ? (peak[i] >= 1.0 || isnan(peak[i]) ? peak[i] : 1.0) : 0.0;
+        memcpy(raw, row, (size_t)W * sizeof(double));
+        for (idx_t i = 0; gate && i < W; i++) com_sigma[i] = COM_ROWS_PER_NOISE * MAX(noise[i], 1.0) / peak[i];
         local_line_fit(row, weight, found, start, stop, W, p.smooth_half, T);
+        for (idx_t i = 0; gate && i < W; i++)
+            sigma[i] = found[i] ? fit_sigma(raw, weight, com_sigma, i, MAX(i - p.smooth_half, start[i]),
+                                            MIN(i + p.smooth_half, stop[i])) : NAN;
         /* gaps of up to max_gap columns inside a surface (dark speckle grains) */
         for (idx_t i = 0; i < W; i++) {
             line_seen[i] = status[i] != COLUMNS_NO_RETURN;
@@ -646,6 +710,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
                 row[i] = rl + (rr - rl) * ((double)(i - l) / (double)span);
                 status[i] = COLUMNS_OK; /* found after the loop: the ends of every gap are measured columns */
                 peak[i] = 0.0;
+                /* the interpolation's sigma, whatever the ends' correlation: at most this */
+                if (gate) sigma[i] = sigma[l] * ((double)(r - i) / (double)span) + sigma[r] * ((double)(i - l) / (double)span);
             }
         }
         for (idx_t i = 0; i < W; i++) found[i] = status[i] == COLUMNS_OK;
@@ -680,6 +746,17 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
                     hi_seen = r > hi_seen ? r : hi_seen;
                 }
             a = b;
+        }
+    }
+    /* the gate: a range whose predicted 1 sigma exceeds max_range_sigma (relative) is REJECTED; the
+     * range's relative change per row is that of the depth, |d(1/z)/d row| / (1/z) (the ray's
+     * length changes ~1e-3 as fast). found stays: tracking follows the line that was seen. */
+    if (gate) {
+        for (idx_t i = 0; i < W; i++) {
+            if (status[i] != COLUMNS_OK) continue;
+            double iz, slope;
+            inverse_depth(&g, row[i], i, &iz, &slope);
+            if (sigma[i] * fabs(slope / iz) > p.max_range_sigma) status[i] = COLUMNS_REJECTED;
         }
     }
     free(buf), free(ibuf), free(cbuf);
