@@ -287,7 +287,7 @@ class FastPipeline:
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, moved, t0)
         if lit_rows is not None:
-            status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
+            status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
@@ -400,7 +400,10 @@ class FastPipeline:
         bad = shape | (none & (noise > p.blind_noise))
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
-    def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
+    def _unlit(self, status: np.ndarray, found: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
+        """UNLIT: columns without a line where the pulse missed rows of their region of interest, and
+        columns whose line (``found``: measured, also where a later check REJECTED it) lies near
+        such rows."""
         H = self.config.height
         if lit_rows.shape != (H,):
             raise ValueError(f"lit_rows must have shape ({H},), got {lit_rows.shape}")
@@ -411,11 +414,10 @@ class FastPipeline:
         roi_dark = dark[hi] - dark[lo] > 0
         status = status.copy()
         status[(status == ColumnStatus.NO_RETURN) & roi_dark] = ColumnStatus.UNLIT
-        ok = status == ColumnStatus.OK
-        r = np.where(ok, np.rint(row), 0).astype(np.intp)
+        r = np.where(found, np.rint(row), 0).astype(np.intp)
         w = self.params.half_width
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
-        status[ok & near_dark] = ColumnStatus.UNLIT
+        status[found & near_dark] = ColumnStatus.UNLIT
         return status
 
 

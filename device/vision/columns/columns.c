@@ -556,19 +556,25 @@ static void line_at(const double *raw, const double *weight, const double *com_s
 }
 
 /* The 1 sigma (rows) of the local line fit's row at column i (fitted over columns [lo, hi] of its
- * run): the fit's own (line_at), and a break at i: the lines through [lo, i] and through [i, hi]
- * should meet at i; where they differ by more than their own sigmas allow (a surface ends at i
- * and another begins, a step that the straight line bridges), the column's row may be either,
- * and the fit is off by up to their difference (its estimate, less what their noise explains,
- * is added in quadrature). */
+ * run): the root of its mean squared error, the fit's variance (line_at) plus its squared bias
+ * where the line breaks at i. The lines through [lo, i] and through [i, hi] should meet at i;
+ * where a surface ends at i and another begins (a step that the straight line bridges, e.g. from
+ * a bright near surface into a dark far one with little peak of its own), they differ, the
+ * column's row may be on either side's line, and the fit is off by up to their difference d. Its
+ * square less what their noise explains (E d^2 = bias^2 + sl^2 + sr^2 for independent sides) is
+ * the squared bias's estimate, 0 when negative. Where a side has no line (a run's end), the
+ * column's own measurement stands for it (its row and floor, also when it is an outlier left out
+ * of the fit): it checks the line extrapolated to it (a surface that ended a column earlier). */
 static double fit_sigma(const double *raw, const double *weight, const double *com_sigma, idx_t i, idx_t lo, idx_t hi)
 {
     double v, s, vl, sl, vr, sr;
     line_at(raw, weight, com_sigma, i, lo, hi, &v, &s);
     line_at(raw, weight, com_sigma, i, lo, i, &vl, &sl);
     line_at(raw, weight, com_sigma, i, i, hi, &vr, &sr);
-    double brk = (vl - vr) * (vl - vr) - sl * sl - sr * sr; /* NaN or -inf where a side has too few columns */
-    return sqrt(s * s + (brk > 0.0 ? brk : 0.0));
+    if (isinf(sl)) vl = raw[i], sl = com_sigma[i];
+    if (isinf(sr)) vr = raw[i], sr = com_sigma[i];
+    double bias2 = (vl - vr) * (vl - vr) - sl * sl - sr * sr; /* NaN or -inf where a side has too few columns */
+    return sqrt(s * s + (bias2 > 0.0 ? bias2 : 0.0));
 }
 
 /* See FastPipeline._search for the meaning of each rule. */
