@@ -521,60 +521,96 @@ static void local_line_fit(double *row, const double *weight, const bool *inrun,
  * largest 5 x 3 box mean of the negative difference) stands in for n. */
 #define COM_ROWS_PER_NOISE 2.4
 
-/* The weighted least-squares line through the measured rows raw[j] of columns [a, b] (weights
- * w_j; FastPipeline step 5), evaluated at column i: *value and its 1 sigma *sigma (rows). The
- * value is sum_j c_j raw_j with c_j = w_j (sxx - sx dx_j) / det (dx_j = j - i); with independent
- * row errors of variance s_j^2 its variance is sum_j c_j^2 s_j^2 (a sandwich estimator). s_j is
- * the larger of what column j's own peak allows (com_sigma[j]: its centre of mass's noise) and what
- * it shows: its residual e_j from the line over its leverage (e_j / (1 - h_j), h_j = w_j (sxx -
- * 2 sx dx_j + s0 dx_j^2) / det: the "HC3" estimator, MacKinnon and White 1985), so a line on
- * dim columns, on columns that scatter, or resting on few columns or on one bright column
- * (h_j near 1) reports a large sigma. Infinite when [a, b] holds fewer than two columns with
- * weight. */
-static void line_at(const double *raw, const double *weight, const double *com_sigma, idx_t i, idx_t a, idx_t b,
-                    double *value, double *sigma)
+/* A weighted least-squares line through the measured rows raw[j] of some columns j (weights w_j;
+ * FastPipeline step 5), evaluated at column i, dx_j = j - i: its sums, then its value
+ * v = sum_j c_j raw_j with c_j = w_j (sxx - sx dx_j) / det, and the 1 sigma of v. With
+ * independent row errors of variance s_j^2 its variance is sum_j c_j^2 s_j^2 (a sandwich
+ * estimator). s_j is the larger of what column j's own peak allows (com_sigma[j]: its centre of
+ * mass's noise) and what it shows: its residual e_j from the line over its leverage
+ * (e_j / (1 - h_j), h_j = w_j (sxx - 2 sx dx_j + s0 dx_j^2) / det: the "HC3" estimator, MacKinnon
+ * and White 1985), so a line on dim columns, on columns that scatter, or resting on few columns
+ * or on one bright column (h_j near 1) reports a large sigma. None (ok 0) through fewer than two
+ * columns with weight. */
+typedef struct {
+    double s0, sx, sxx, sy, sxy;
+} LineSums;
+
+typedef struct {
+    LineSums s;
+    double inv_det, v, slope, var;
+    int ok;
+} Line;
+
+/* The sums over columns [a, b] (none if b < a) about column i, from local_line_fit's running sums
+ * T (as it takes them) */
+static inline LineSums window_sums(const double *T, idx_t i, idx_t a, idx_t b)
 {
-    double s0 = 0.0, sx = 0.0, sxx = 0.0, sy = 0.0, sxy = 0.0;
-    for (idx_t j = a; j <= b; j++) {
-        double w = weight[j], dx = (double)(j - i);
-        if (w <= 0.0) continue;
-        s0 += w, sx += w * dx, sxx += w * dx * dx, sy += w * raw[j], sxy += w * dx * raw[j];
+    LineSums s = {0.0, 0.0, 0.0, 0.0, 0.0};
+    if (b < a) return s;
+    const double *p = T + 5 * a, *q = T + 5 * (b + 1);
+    double x = (double)i, s0 = q[0] - p[0], swx = q[1] - p[1], swxx = q[2] - p[2], swy = q[3] - p[3], swxy = q[4] - p[4];
+    s.s0 = s0, s.sx = swx - x * s0, s.sxx = swxx - 2.0 * x * swx + x * x * s0, s.sy = swy, s.sxy = swxy - x * swy;
+    return s;
+}
+
+static inline LineSums sums_plus(LineSums a, LineSums b)
+{
+    LineSums s = {a.s0 + b.s0, a.sx + b.sx, a.sxx + b.sxx, a.sy + b.sy, a.sxy + b.sxy};
+    return s;
+}
+
+static Line line_solve(LineSums s)
+{
+    Line l = {s, 0.0, NAN, NAN, 0.0, 0};
+    double det = s.s0 * s.sxx - s.sx * s.sx;
+    if (!(s.s0 > 0.0) || !(det > 1e-9 * s.s0 * s.s0)) return l; /* no column, or all weight on one */
+    l.inv_det = 1.0 / det, l.ok = 1;
+    l.v = (s.sxx * s.sy - s.sx * s.sxy) * l.inv_det;
+    l.slope = (s.s0 * s.sxy - s.sx * s.sy) * l.inv_det;
+    return l;
+}
+
+/* column j's term of the line's variance (none once a column has leverage 1) */
+static inline void line_variance_add(Line *l, double w, double dx, double y, double floor2)
+{
+    const LineSums *s = &l->s;
+    double c = w * (s->sxx - s->sx * dx) * l->inv_det, h = w * (s->sxx - 2.0 * s->sx * dx + s->s0 * dx * dx) * l->inv_det;
+    if (!(h < 1.0 - 1e-9)) {
+        l->ok = 0;
+        return;
     }
-    double det = s0 * sxx - sx * sx;
-    *value = NAN, *sigma = INFINITY;
-    if (!(s0 > 0.0) || !(det > 1e-9 * s0 * s0)) return; /* no column, or all weight on one */
-    double v = (sxx * sy - sx * sxy) / det, slope = (s0 * sxy - sx * sy) / det, var = 0.0;
-    for (idx_t j = a; j <= b; j++) {
-        double w = weight[j], dx = (double)(j - i);
-        if (w <= 0.0) continue;
-        double c = w * (sxx - sx * dx) / det, h = w * (sxx - 2.0 * sx * dx + s0 * dx * dx) / det;
-        if (!(h < 1.0 - 1e-9)) return;
-        double e = (raw[j] - v - slope * dx) / (1.0 - h);
-        var += c * c * MAX(e * e, com_sigma[j] * com_sigma[j]);
-    }
-    *value = v, *sigma = sqrt(var);
+    double e = (y - l->v - l->slope * dx) / (1.0 - h);
+    l->var += c * c * MAX(e * e, floor2);
 }
 
 /* The 1 sigma (rows) of the local line fit's row at column i (fitted over columns [lo, hi] of its
- * run): the root of its mean squared error, the fit's variance (line_at) plus its squared bias
- * where the line breaks at i. The lines through [lo, i] and through [i, hi] should meet at i;
- * where a surface ends at i and another begins (a step that the straight line bridges, e.g. from
- * a bright near surface into a dark far one with little peak of its own), they differ, the
- * column's row may be on either side's line, and the fit is off by up to their difference d. Its
- * square less what their noise explains (E d^2 = bias^2 + sl^2 + sr^2 for independent sides) is
- * the squared bias's estimate, 0 when negative. Where a side has no line (a run's end), the
- * column's own measurement stands for it (its row and floor, also when it is an outlier left out
- * of the fit): it checks the line extrapolated to it (a surface that ended a column earlier). */
-static double fit_sigma(const double *raw, const double *weight, const double *com_sigma, idx_t i, idx_t lo, idx_t hi)
+ * run): the root of its mean squared error, the fit's variance (Line) plus its squared bias where
+ * the line breaks at i. The lines through [lo, i] and through [i, hi] should meet at i; where a
+ * surface ends at i and another begins (a step that the straight line bridges, e.g. from a bright
+ * near surface into a dark far one with little peak of its own), they differ, the column's row
+ * may be on either side's line, and the fit is off by up to their difference d. Its square less
+ * what their noise explains (E d^2 = bias^2 + sl^2 + sr^2 for independent sides) is the squared
+ * bias's estimate, 0 when negative. Where a side has no line (a run's end), the column's own
+ * measurement stands for it (its row and com_sigma, also when it is an outlier left out of the
+ * fit): it checks the line extrapolated to it (a surface that ended a column earlier). */
+static double fit_sigma(const double *raw, const double *weight, const double *com_sigma, const double *T, idx_t i,
+                        idx_t lo, idx_t hi)
 {
-    double v, s, vl, sl, vr, sr;
-    line_at(raw, weight, com_sigma, i, lo, hi, &v, &s);
-    line_at(raw, weight, com_sigma, i, lo, i, &vl, &sl);
-    line_at(raw, weight, com_sigma, i, i, hi, &vr, &sr);
-    if (isinf(sl)) vl = raw[i], sl = com_sigma[i];
-    if (isinf(sr)) vr = raw[i], sr = com_sigma[i];
-    double bias2 = (vl - vr) * (vl - vr) - sl * sl - sr * sr; /* NaN or -inf where a side has too few columns */
-    return sqrt(s * s + (bias2 > 0.0 ? bias2 : 0.0));
+    LineSums left = window_sums(T, i, lo, i - 1), right = window_sums(T, i, i + 1, hi), own = window_sums(T, i, i, i);
+    Line f = line_solve(sums_plus(sums_plus(left, right), own));
+    Line l = line_solve(sums_plus(left, own)), r = line_solve(sums_plus(right, own));
+    if (!f.ok) return INFINITY;
+    for (idx_t j = lo; j <= hi; j++) { /* columns without weight add 0 (every raw row is finite) */
+        double w = weight[j], dx = (double)(j - i), y = raw[j], floor2 = com_sigma[j] * com_sigma[j];
+        line_variance_add(&f, w, dx, y, floor2);
+        if (j <= i && l.ok) line_variance_add(&l, w, dx, y, floor2);
+        if (j >= i && r.ok) line_variance_add(&r, w, dx, y, floor2);
+    }
+    if (!f.ok) return INFINITY;
+    double vl = l.ok ? l.v : raw[i], sl2 = l.ok ? l.var : com_sigma[i] * com_sigma[i];
+    double vr = r.ok ? r.v : raw[i], sr2 = r.ok ? r.var : com_sigma[i] * com_sigma[i];
+    double bias2 = (vl - vr) * (vl - vr) - sl2 - sr2; /* NaN where column i has no row of its own either */
+    return sqrt(f.var + (bias2 > 0.0 ? bias2 : 0.0));
 }
 
 /* See FastPipeline._search for the meaning of each rule. */
@@ -699,7 +735,7 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
         for (idx_t i = 0; gate && i < W; i++) com_sigma[i] = COM_ROWS_PER_NOISE * MAX(noise[i], 1.0) / peak[i];
         local_line_fit(row, weight, found, start, stop, W, p.smooth_half, T);
         for (idx_t i = 0; gate && i < W; i++)
-            sigma[i] = found[i] ? fit_sigma(raw, weight, com_sigma, i, MAX(i - p.smooth_half, start[i]),
+            sigma[i] = found[i] ? fit_sigma(raw, weight, com_sigma, T, i, MAX(i - p.smooth_half, start[i]),
                                             MIN(i + p.smooth_half, stop[i])) : NAN;
         /* gaps of up to max_gap columns inside a surface (dark speckle grains) */
         for (idx_t i = 0; i < W; i++) {
