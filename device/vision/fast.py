@@ -54,14 +54,17 @@ Per frame pair (or triple):
    of the neighbours past a depth jump. A line seen but not measurable is REJECTED (NaN), never
    "no return". The effective angular resolution is the fit window
    (:attr:`FastPipeline.resolution_deg`).
-   The range gate (``max_range_sigma``, off by default: see BENCHMARKS.md "Motion" for its price):
-   far away one row is worth 5-8 % of range, so a fit 0.7 px off is a gross error. Each fitted
-   row's 1 sigma is propagated from the fit (a sandwich estimator over the window's columns:
-   each column's residual over its leverage, at least its centre of mass's noise for its peak),
-   plus a break term where the lines through the window's left and right halves disagree beyond
-   their own sigmas (a depth edge the fit bridges), and through the geometry's range change per
-   row (the 1/z table's slope); above ``max_range_sigma`` the column is REJECTED (NaN), never a
-   guess (``columns.c``: ``line_at``, ``fit_sigma``).
+   The range gate (``max_range_sigma``; off, ``inf``, by default: what it costs in valid columns
+   is in BENCHMARKS.md "Motion"). Far away one row is worth 5-8 % of range, so a fit 0.7 px off
+   is a gross error. Each fitted row's 1 sigma is propagated from its fit: a sandwich estimator
+   over the window's columns (each column's residual over its leverage, at least its centre of
+   mass's noise for its peak), plus the squared bias where the lines through the window's left
+   and right halves disagree beyond their own sigmas (a depth edge the fit bridges into a dark
+   surface with little peak of its own); at a run's end the column's own row, also an outlier's,
+   stands for the missing side (a surface that ended a column earlier). Times the range's change
+   per row (the 1/z table's slope) it is the range's predicted relative 1 sigma; above
+   ``max_range_sigma`` the column is REJECTED (NaN), never a guess (``columns.c``: ``Line``,
+   ``fit_sigma``). A line next to rows the pulse missed is UNLIT rather than REJECTED (the cause).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
