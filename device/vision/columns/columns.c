@@ -600,8 +600,9 @@ static double fit_sigma(const double *raw, const double *weight, const double *c
     Line f = line_solve(sums_plus(sums_plus(left, right), own));
     Line l = line_solve(sums_plus(left, own)), r = line_solve(sums_plus(right, own));
     if (!f.ok) return INFINITY;
-    for (idx_t j = lo; j <= hi; j++) { /* columns without weight add 0 (every raw row is finite) */
+    for (idx_t j = lo; j <= hi; j++) {
         double w = weight[j], dx = (double)(j - i), y = raw[j], floor2 = com_sigma[j] * com_sigma[j];
+        if (w <= 0.0) continue; /* not in the fit (its floor may be infinite: no peak) */
         line_variance_add(&f, w, dx, y, floor2);
         if (j <= i && l.ok) line_variance_add(&l, w, dx, y, floor2);
         if (j >= i && r.ok) line_variance_add(&r, w, dx, y, floor2);
@@ -798,7 +799,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
             if (status[i] != COLUMNS_OK) continue;
             double iz, slope;
             inverse_depth(&g, row[i], i, &iz, &slope);
-            if (sigma[i] * fabs(slope / iz) > p.max_range_sigma) status[i] = COLUMNS_REJECTED;
+            double rel = fabs(slope / iz); /* NaN outside the table: triangulation says why */
+            if (isfinite(rel) && !(sigma[i] * rel <= p.max_range_sigma)) status[i] = COLUMNS_REJECTED; /* also NaN */
         }
     }
     free(buf), free(ibuf), free(cbuf);

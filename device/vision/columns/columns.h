@@ -88,8 +88,9 @@ typedef struct {
 } ColumnsResolveInput;
 
 /* The line that steps 3-5 find, W columns each: found, row (image rows), peak (0 where a gap
- * was filled), status (COLUMNS_*); seen_first / seen_last: the first and last band row of the
- * line or of a run of second candidates, (t1, -1) if none. */
+ * was filled), status (COLUMNS_*; found also where the range gate then REJECTED the column:
+ * the line was seen there); seen_first / seen_last: the first and last band row of the line or
+ * of a run of second candidates, (t1, -1) if none. */
 typedef struct {
     bool *found;
     double *row, *peak;
