@@ -194,7 +194,7 @@ def _resolve(W=8, status_dtype=np.uint8, idx=()):
     m = len(idx)
     second = (np.array(idx, np.intp), np.full(m, 5.0), np.full(m, 50.0), np.ones(m, bool), np.ones(m))
     inv_depth = np.tile(np.linspace(0.1, 0.3, 20)[:, None], (1, W))
-    params = (0.1, 0.5, 2.5, 0.08, 3.0, 3.0, 5, 0, 4, 3)
+    params = (0.1, 0.5, 2.5, 0.08, 3.0, 3.0, 0.015, 5, 0, 4, 3)
     out = (np.empty(W, bool), np.empty(W), np.empty(W), np.empty(W, status_dtype))
     seen = K.resolve((k, s), np.full(W, 10.0), np.zeros(W), first, second, (inv_depth, 90), (100, 0, 16), params, out)
     return seen, out
@@ -259,3 +259,10 @@ def test_scan_rays_names_a_bad_order():
     with pytest.raises(ValueError, match="order"):
         K.scan_rays(a, a, a, a, np.array([0, 5]), np.linspace(0, 1, 4), 0.1, 0.05, np.empty(2, np.intp),
                     np.empty(4), np.empty(4, np.uint8), np.empty(4))
+
+
+def test_resolve_refuses_a_range_gate_that_is_not_positive():
+    from device.vision.fast import FastParams
+
+    with pytest.raises(ValueError, match="max_range_sigma > 0"):
+        FastParams(max_range_sigma=0.0)

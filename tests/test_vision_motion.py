@@ -55,6 +55,25 @@ def test_a_still_wall_is_measured_as_accurately_with_both_neighbours(distance, m
     assert s_both.summary()["valid_fraction"] >= s_one.summary()["valid_fraction"] - 0.01
 
 
+def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
+    # still office, 3x light: dim lines far away (1 row is 5-8 % of range there), a depth edge
+    # bridged by the fit, an outlier beside a shadow gap reporting the fit
+    import dataclasses
+
+    from device.service.assembly import PIPELINE
+    from device.vision.fast import FastPipeline
+
+    pairs = sequence(CFG, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
+    op = CFG.operating_point
+    pipe = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    off = score([(_process("fast", pipe, p), p.truth) for p in pairs])
+    gated = FastPipeline(CFG, dataclasses.replace(pipe.params, max_range_sigma=0.015), op.min_m, op.max_m)
+    on = score([(_process("fast", gated, p), p.truth) for p in pairs])
+    assert off["gross_fraction"] > 0.002 and off["false_returns"] > 0  # the gate off: the failure
+    assert on["gross_fraction"] <= 0.001 and on["false_returns"] == 0
+    assert on["valid_fraction"] > 0.75 and on["sigma_pct"] < off["sigma_pct"]
+
+
 def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
     sim = tmp_path / "sim"
     assert main(["simulate", "--scene", "person", "--frames", "5", "--out", str(sim), "--exposure-us", "9200",

@@ -54,6 +54,17 @@ Per frame pair (or triple):
    of the neighbours past a depth jump. A line seen but not measurable is REJECTED (NaN), never
    "no return". The effective angular resolution is the fit window
    (:attr:`FastPipeline.resolution_deg`).
+   The range gate (``max_range_sigma``; off, ``inf``, by default: what it costs in valid columns
+   is in BENCHMARKS.md "Motion"). Far away one row is worth 5-8 % of range, so a fit 0.7 px off
+   is a gross error. Each fitted row's 1 sigma is propagated from its fit: a sandwich estimator
+   over the window's columns (each column's residual over its leverage, at least its centre of
+   mass's noise for its peak), plus the squared bias where the lines through the window's left
+   and right halves disagree beyond their own sigmas (a depth edge the fit bridges into a dark
+   surface with little peak of its own); at a run's end the column's own row, also an outlier's,
+   stands for the missing side (a surface that ended a column earlier). Times the range's change
+   per row (the 1/z table's slope) it is the range's predicted relative 1 sigma; above
+   ``max_range_sigma`` the column is REJECTED (NaN), never a guess (``columns.c``: ``Line``,
+   ``fit_sigma``). A line next to rows the pulse missed is UNLIT rather than REJECTED (the cause).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
@@ -117,6 +128,7 @@ class FastParams:
     max_gap: int = 3  # columns without a measurement filled inside a continuous run (line fit on)
     own_peak_fraction: float = 0.5  # a column's own peak must reach this x its smoothed peak to end a run (depth jumps)
     dim_peak_fraction: float = 0.1  # ... and this inside a run, between columns that reach own_peak_fraction (dark speckle grains)
+    max_range_sigma: float = math.inf  # a range whose predicted 1 sigma (relative, step 5) exceeds this is REJECTED (inf: off)
     track_margin: int = 0  # rows searched each side of the previous frame's line (0: whole ROI every frame)
     track_full_every: int = 5  # with tracking: a full search at least every this many frames (new objects)
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
@@ -145,8 +157,9 @@ class FastParams:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
-        if not (0 < self.jump_rel < 1 and self.min_peak > 0):
-            raise ValueError(f"need 0 < jump_rel < 1 and min_peak > 0, got {self.jump_rel}, {self.min_peak}")
+        if not (0 < self.jump_rel < 1 and self.min_peak > 0 and self.max_range_sigma > 0):
+            raise ValueError(f"need 0 < jump_rel < 1, min_peak > 0 and max_range_sigma > 0, got {self.jump_rel}, "
+                             f"{self.min_peak}, {self.max_range_sigma}")
         if not 0 < self.dim_peak_fraction <= self.own_peak_fraction <= 1:
             raise ValueError(f"need 0 < dim_peak_fraction <= own_peak_fraction <= 1, got "
                              f"{self.dim_peak_fraction}, {self.own_peak_fraction}")
@@ -198,8 +211,8 @@ class FastPipeline:
         self._kernel = columns_kernel()
         # the kernel's ColumnsResolveParams (device/vision/columns/columns.h), in its order
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
-                                params.jump_factor, params.min_peak, params.min_run, params.smooth_half,
-                                params.support_half, params.max_gap)
+                                params.jump_factor, params.min_peak, params.max_range_sigma, params.min_run,
+                                params.smooth_half, params.support_half, params.max_gap)
         self._pad = rows_read(params.estimator, params.half_width)  # zero rows around the difference
         # image-sized temporaries kept between frame pairs (a search uses their first rows): one
         # allocated per frame costs page faults whenever the allocator returns it to the system
@@ -277,7 +290,7 @@ class FastPipeline:
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, moved, t0)
         if lit_rows is not None:
-            status = self._unlit(status, row, np.asarray(lit_rows, dtype=bool))
+            status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
@@ -392,7 +405,10 @@ class FastPipeline:
                        | ~(spread <= p.moving_max_spread_px))
         return np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
 
-    def _unlit(self, status: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
+    def _unlit(self, status: np.ndarray, found: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
+        """UNLIT: columns without a line where the pulse missed rows of their region of interest, and
+        columns whose line (``found``: measured, also where a later check REJECTED it) lies near
+        such rows."""
         H = self.config.height
         if lit_rows.shape != (H,):
             raise ValueError(f"lit_rows must have shape ({H},), got {lit_rows.shape}")
@@ -403,11 +419,10 @@ class FastPipeline:
         roi_dark = dark[hi] - dark[lo] > 0
         status = status.copy()
         status[(status == ColumnStatus.NO_RETURN) & roi_dark] = ColumnStatus.UNLIT
-        ok = status == ColumnStatus.OK
-        r = np.where(ok, np.rint(row), 0).astype(np.intp)
+        r = np.where(found, np.rint(row), 0).astype(np.intp)
         w = self.params.half_width
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
-        status[ok & near_dark] = ColumnStatus.UNLIT
+        status[found & near_dark] = ColumnStatus.UNLIT
         return status
 
 

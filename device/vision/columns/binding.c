@@ -245,10 +245,11 @@ static PyObject *py_resolve(PyObject *self, PyObject *args)
     PyObject *o_found, *o_row, *o_peak, *o_status;
     ColumnsResolveInput in;
     ColumnsResolveParams p;
-    if (!PyArg_ParseTuple(args, "(OO)OO(OOOO)(OOOOO)(On)(nnn)(ddddddnnnn)(OOOO)", &o_k, &o_s, &o_thr, &o_noise, &o_r1,
+    if (!PyArg_ParseTuple(args, "(OO)OO(OOOO)(OOOOO)(On)(nnn)(dddddddnnnn)(OOOO)", &o_k, &o_s, &o_thr, &o_noise, &o_r1,
                           &o_p1, &o_v1, &o_sp1, &o_idx, &o_r2, &o_p2, &o_v2, &o_sp2, &o_tab, &in.inv_depth.top, &in.top,
                           &in.t0, &in.t1, &p.dim_peak_fraction, &p.own_peak_fraction, &p.max_spread_px, &p.jump_rel,
-                          &p.jump_factor, &p.min_peak, &p.min_run, &p.smooth_half, &p.support_half, &p.max_gap,
+                          &p.jump_factor, &p.min_peak, &p.max_range_sigma, &p.min_run, &p.smooth_half, &p.support_half,
+                          &p.max_gap,
                           &o_found, &o_row, &o_peak, &o_status))
         return NULL;
     Views vs = {.n = 0};

@@ -513,15 +513,117 @@ static void local_line_fit(double *row, const double *weight, const bool *inrun,
     }
 }
 
+/* The centre of mass's row error per unit of noise level / peak (FastPipeline step 5's gate):
+ * over a window of rows r = -4..4 around the line (half_width 4), noise of sigma n per pixel
+ * moves it by n sqrt(sum r^2) / M = n sqrt(60) / M, M the line's sum over the window, M ~ peak
+ * sqrt(2 pi) 1.3 for a line of 1.3 px RMS width (the simulated laser line; a wider one is
+ * measured better per unit peak, so this errs on the safe side). The noise level (step 1: the
+ * largest 5 x 3 box mean of the negative difference) stands in for n. */
+#define COM_ROWS_PER_NOISE 2.4
+
+/* A weighted least-squares line through the measured rows raw[j] of some columns j (weights w_j;
+ * FastPipeline step 5), evaluated at column i, dx_j = j - i: its sums, then its value
+ * v = sum_j c_j raw_j with c_j = w_j (sxx - sx dx_j) / det, and the 1 sigma of v. With
+ * independent row errors of variance s_j^2 its variance is sum_j c_j^2 s_j^2 (a sandwich
+ * estimator). s_j is the larger of what column j's own peak allows (com_sigma[j]: its centre of
+ * mass's noise) and what it shows: its residual e_j from the line over its leverage
+ * (e_j / (1 - h_j), h_j = w_j (sxx - 2 sx dx_j + s0 dx_j^2) / det: the "HC3" estimator, MacKinnon
+ * and White 1985), so a line on dim columns, on columns that scatter, or resting on few columns
+ * or on one bright column (h_j near 1) reports a large sigma. None (ok 0) through fewer than two
+ * columns with weight. */
+typedef struct {
+    double s0, sx, sxx, sy, sxy;
+} LineSums;
+
+typedef struct {
+    LineSums s;
+    double inv_det, v, slope, var;
+    int ok;
+} Line;
+
+/* The sums over columns [a, b] (none if b < a) about column i, from local_line_fit's running sums
+ * T (as it takes them) */
+static inline LineSums window_sums(const double *T, idx_t i, idx_t a, idx_t b)
+{
+    LineSums s = {0.0, 0.0, 0.0, 0.0, 0.0};
+    if (b < a) return s;
+    const double *p = T + 5 * a, *q = T + 5 * (b + 1);
+    double x = (double)i, s0 = q[0] - p[0], swx = q[1] - p[1], swxx = q[2] - p[2], swy = q[3] - p[3], swxy = q[4] - p[4];
+    s.s0 = s0, s.sx = swx - x * s0, s.sxx = swxx - 2.0 * x * swx + x * x * s0, s.sy = swy, s.sxy = swxy - x * swy;
+    return s;
+}
+
+static inline LineSums sums_plus(LineSums a, LineSums b)
+{
+    LineSums s = {a.s0 + b.s0, a.sx + b.sx, a.sxx + b.sxx, a.sy + b.sy, a.sxy + b.sxy};
+    return s;
+}
+
+static Line line_solve(LineSums s)
+{
+    Line l = {s, 0.0, NAN, NAN, 0.0, 0};
+    double det = s.s0 * s.sxx - s.sx * s.sx;
+    if (!(s.s0 > 0.0) || !(det > 1e-9 * s.s0 * s.s0)) return l; /* no column, or all weight on one */
+    l.inv_det = 1.0 / det, l.ok = 1;
+    l.v = (s.sxx * s.sy - s.sx * s.sxy) * l.inv_det;
+    l.slope = (s.s0 * s.sxy - s.sx * s.sy) * l.inv_det;
+    return l;
+}
+
+/* column j's term of the line's variance (none once a column has leverage 1) */
+static inline void line_variance_add(Line *l, double w, double dx, double y, double floor2)
+{
+    const LineSums *s = &l->s;
+    double c = w * (s->sxx - s->sx * dx) * l->inv_det, h = w * (s->sxx - 2.0 * s->sx * dx + s->s0 * dx * dx) * l->inv_det;
+    if (!(h < 1.0 - 1e-9)) {
+        l->ok = 0;
+        return;
+    }
+    double e = (y - l->v - l->slope * dx) / (1.0 - h);
+    l->var += c * c * MAX(e * e, floor2);
+}
+
+/* The 1 sigma (rows) of the local line fit's row at column i (fitted over columns [lo, hi] of its
+ * run): the root of its mean squared error, the fit's variance (Line) plus its squared bias where
+ * the line breaks at i. The lines through [lo, i] and through [i, hi] should meet at i; where a
+ * surface ends at i and another begins (a step that the straight line bridges, e.g. from a bright
+ * near surface into a dark far one with little peak of its own), they differ, the column's row
+ * may be on either side's line, and the fit is off by up to their difference d. Its square less
+ * what their noise explains (E d^2 = bias^2 + sl^2 + sr^2 for independent sides) is the squared
+ * bias's estimate, 0 when negative. Where a side has no line (a run's end), the column's own
+ * measurement stands for it (its row and com_sigma, also when it is an outlier left out of the
+ * fit): it checks the line extrapolated to it (a surface that ended a column earlier). */
+static double fit_sigma(const double *raw, const double *weight, const double *com_sigma, const double *T, idx_t i,
+                        idx_t lo, idx_t hi)
+{
+    LineSums left = window_sums(T, i, lo, i - 1), right = window_sums(T, i, i + 1, hi), own = window_sums(T, i, i, i);
+    Line f = line_solve(sums_plus(sums_plus(left, right), own));
+    Line l = line_solve(sums_plus(left, own)), r = line_solve(sums_plus(right, own));
+    if (!f.ok) return INFINITY;
+    for (idx_t j = lo; j <= hi; j++) {
+        double w = weight[j], dx = (double)(j - i), y = raw[j], floor2 = com_sigma[j] * com_sigma[j];
+        if (w <= 0.0) continue; /* not in the fit (its floor may be infinite: no peak) */
+        line_variance_add(&f, w, dx, y, floor2);
+        if (j <= i && l.ok) line_variance_add(&l, w, dx, y, floor2);
+        if (j >= i && r.ok) line_variance_add(&r, w, dx, y, floor2);
+    }
+    if (!f.ok) return INFINITY;
+    double vl = l.ok ? l.v : raw[i], sl2 = l.ok ? l.var : com_sigma[i] * com_sigma[i];
+    double vr = r.ok ? r.v : raw[i], sr2 = r.ok ? r.var : com_sigma[i] * com_sigma[i];
+    double bias2 = (vl - vr) * (vl - vr) - sl2 - sr2; /* NaN where column i has no row of its own either */
+    return sqrt(f.var + (bias2 > 0.0 ? bias2 : 0.0));
+}
+
 /* See FastPipeline._search for the meaning of each rule. */
 ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolveParams *params, ColumnsLine *out,
                               ColumnsError *err)
 {
     const ColumnsResolveParams p = *params;
     idx_t W = in->cols, m = in->m, top = in->top, t0 = in->t0, t1 = in->t1;
-    if (W < 2 || p.min_run < 1 || p.support_half < 1 || p.smooth_half < 0 || p.max_gap < 0 || t1 <= t0)
+    if (W < 2 || p.min_run < 1 || p.support_half < 1 || p.smooth_half < 0 || p.max_gap < 0 || !(p.max_range_sigma > 0)
+        || t1 <= t0)
         return bad_argument(err, "resolve: need >= 2 columns, min_run >= 1, support_half >= 1, smooth_half >= 0, "
-                            "max_gap >= 0 and t1 > t0");
+                            "max_gap >= 0, max_range_sigma > 0 and t1 > t0");
     const idx_t *idx = in->idx;
     for (idx_t j = 0; j < m; j++) {
         if (idx[j] < 0 || idx[j] >= W || (j && idx[j] <= idx[j - 1]))
@@ -538,8 +640,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     bool *found = out->found;
     double *row = out->row, *peak = out->peak;
     uint8_t *status = out->status;
-    /* scratch: 7 double arrays of W, the running sums ((W + 1) x 5), 5 index and 8 flag arrays of W */
-    double *buf = malloc((size_t)(7 * W + 5 * (W + 1)) * sizeof(double));
+    /* scratch: 10 double arrays of W, the running sums ((W + 1) x 5), 5 index and 8 flag arrays of W */
+    double *buf = malloc((size_t)(10 * W + 5 * (W + 1)) * sizeof(double));
     idx_t *ibuf = malloc((size_t)(5 * W) * sizeof(idx_t));
     bool *cbuf = malloc((size_t)(8 * W) * sizeof(bool));
     if (!buf || !ibuf || !cbuf) {
@@ -547,14 +649,14 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
         return no_memory(err, "resolve");
     }
     double *r1 = buf, *r2 = r1 + W, *v2 = r2 + W, *med = v2 + W, *step = med + W, *weight = step + W,
-           *snorm = weight + W, *T = snorm + W;
+           *snorm = weight + W, *raw = snorm + W, *com_sigma = raw + W, *sigma = com_sigma + W, *T = sigma + W;
     idx_t *label = ibuf, *start = label + W, *stop = start + W, *lastb = stop + W, *nextb = lastb + W;
     bool *det1 = cbuf, *det2 = det1 + W, *ok2 = det2 + W, *pick2 = ok2 + W, *failed = pick2 + W, *outlier = failed + W,
          *bright = outlier + W, *line_seen = bright + W;
     const idx_t *k1 = in->k, *k2 = in->k + W;
     const double *s1 = in->s, *s2 = in->s + W;
 
-    bool two = false;
+    bool two = false, gate = p.smooth_half && isfinite(p.max_range_sigma); /* the gate needs the line fit */
     /* detection: smoothed peak above threshold, the column's own peak not too dim, one line wide */
     for (idx_t i = 0; i < W; i++) {
         det1[i] = s1[i] >= thr[i] && c1peak[i] >= p.dim_peak_fraction * s1[i] && c1spread[i] <= p.max_spread_px;
@@ -630,7 +732,12 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     }
     if (p.smooth_half) {
         for (idx_t i = 0; i < W; i++) weight[i] = found[i] && !outlier[i] ? (peak[i] >= 1.0 || isnan(peak[i]) ? peak[i] : 1.0) : 0.0;
+        memcpy(raw, row, (size_t)W * sizeof(double));
+        for (idx_t i = 0; gate && i < W; i++) com_sigma[i] = COM_ROWS_PER_NOISE * MAX(noise[i], 1.0) / peak[i];
         local_line_fit(row, weight, found, start, stop, W, p.smooth_half, T);
+        for (idx_t i = 0; gate && i < W; i++)
+            sigma[i] = found[i] ? fit_sigma(raw, weight, com_sigma, T, i, MAX(i - p.smooth_half, start[i]),
+                                            MIN(i + p.smooth_half, stop[i])) : NAN;
         /* gaps of up to max_gap columns inside a surface (dark speckle grains) */
         for (idx_t i = 0; i < W; i++) {
             line_seen[i] = status[i] != COLUMNS_NO_RETURN;
@@ -646,6 +753,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
                 row[i] = rl + (rr - rl) * ((double)(i - l) / (double)span);
                 status[i] = COLUMNS_OK; /* found after the loop: the ends of every gap are measured columns */
                 peak[i] = 0.0;
+                /* the interpolation's sigma, whatever the ends' correlation: at most this */
+                if (gate) sigma[i] = sigma[l] * ((double)(r - i) / (double)span) + sigma[r] * ((double)(i - l) / (double)span);
             }
         }
         for (idx_t i = 0; i < W; i++) found[i] = status[i] == COLUMNS_OK;
@@ -680,6 +789,18 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
                     hi_seen = r > hi_seen ? r : hi_seen;
                 }
             a = b;
+        }
+    }
+    /* the gate: a range whose predicted 1 sigma exceeds max_range_sigma (relative) is REJECTED; the
+     * range's relative change per row is that of the depth, |d(1/z)/d row| / (1/z) (the ray's
+     * length changes ~1e-3 as fast). found stays: tracking follows the line that was seen. */
+    if (gate) {
+        for (idx_t i = 0; i < W; i++) {
+            if (status[i] != COLUMNS_OK) continue;
+            double iz, slope;
+            inverse_depth(&g, row[i], i, &iz, &slope);
+            double rel = fabs(slope / iz); /* NaN outside the table: triangulation says why */
+            if (isfinite(rel) && !(sigma[i] * rel <= p.max_range_sigma)) status[i] = COLUMNS_REJECTED; /* also NaN */
         }
     }
     free(buf), free(ibuf), free(cbuf);

@@ -65,7 +65,7 @@ typedef struct {
 
 /* FastParams' fields that steps 3-5 use (device/vision/fast.py). */
 typedef struct {
-    double dim_peak_fraction, own_peak_fraction, max_spread_px, jump_rel, jump_factor, min_peak;
+    double dim_peak_fraction, own_peak_fraction, max_spread_px, jump_rel, jump_factor, min_peak, max_range_sigma;
     ptrdiff_t min_run, smooth_half, support_half, max_gap;
 } ColumnsResolveParams;
 
@@ -88,8 +88,9 @@ typedef struct {
 } ColumnsResolveInput;
 
 /* The line that steps 3-5 find, W columns each: found, row (image rows), peak (0 where a gap
- * was filled), status (COLUMNS_*); seen_first / seen_last: the first and last band row of the
- * line or of a run of second candidates, (t1, -1) if none. */
+ * was filled), status (COLUMNS_*; found also where the range gate then REJECTED the column:
+ * the line was seen there); seen_first / seen_last: the first and last band row of the line or
+ * of a run of second candidates, (t1, -1) if none. */
 typedef struct {
     bool *found;
     double *row, *peak;
@@ -138,9 +139,10 @@ ColumnsResult columns_refine_com(const ColumnsPadded *diff, ptrdiff_t m, const p
                                  ColumnsError *err);
 
 /* Steps 3-5 (FastPipeline._search): detection, the choice between two candidates, continuity
- * runs and outliers, the dim-column rule, the minimum run, the local line fit, gap filling and
- * the statuses. Needs cols >= 2, min_run >= 1, support_half >= 1, smooth_half >= 0,
- * max_gap >= 0, t1 > t0, idx increasing columns, an inv_depth table of `cols` columns. */
+ * runs and outliers, the dim-column rule, the minimum run, the local line fit, gap filling, the
+ * range uncertainty gate and the statuses. Needs cols >= 2, min_run >= 1, support_half >= 1,
+ * smooth_half >= 0, max_gap >= 0, max_range_sigma > 0 (may be infinite: no gate), t1 > t0, idx
+ * increasing columns, an inv_depth table of `cols` columns. */
 ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolveParams *params, ColumnsLine *out,
                               ColumnsError *err);
 

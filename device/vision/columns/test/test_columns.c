@@ -440,7 +440,7 @@ static Scene *scene_new(ptrdiff_t smooth_half)
     ColumnsResolveInput in = {RW, sc->k, sc->s, sc->thr, sc->noise, peaks_view(&sc->first), 0, sc->idx,
                               peaks_view(&sc->second), {sc->table, TABLE_ROWS, RW, TABLE_TOP}, BAND_TOP, 0, 64};
     sc->in = in;
-    ColumnsResolveParams p = {0.1, 0.5, 2.5, 0.08, 3.0, 3.0, 5, smooth_half, 4, 3};
+    ColumnsResolveParams p = {0.1, 0.5, 2.5, 0.08, 3.0, 3.0, 0.015, 5, smooth_half, 4, 3};
     sc->params = p;
     ColumnsLine line = {sc->found, sc->row, sc->peak, sc->status, 0, 0};
     sc->line = line;
@@ -624,6 +624,93 @@ static void test_resolve_keeps_the_nearer_line_at_an_occlusion_edge(void)
     scene_free(sc);
 }
 
+/* 1/z = iz + 0.022 (image row - image_row(30)): a range that changes by 0.022 / iz per row at the
+ * line (6.7 % per row at 3 m, as the device's geometry far away; 2.2 % at 1 m) */
+static void scene_depth(Scene *sc, double iz)
+{
+    for (ptrdiff_t r = 0; r < TABLE_ROWS; r++)
+        for (ptrdiff_t c = 0; c < RW; c++)
+            sc->table[r * RW + c] = iz + 0.022 * ((double)(r + TABLE_TOP) - image_row(30.0));
+}
+
+/* a dim line (peak 4, noise level 1.5) in columns [a, b) at band row r + the speckle's scatter
+ * (+-0.3 rows, alternating) */
+static void dim_line(Scene *sc, ptrdiff_t a, ptrdiff_t b, double r)
+{
+    for (ptrdiff_t i = a; i < b; i++) {
+        first_line(sc, i, r + (i % 2 ? 0.3 : -0.3), 4.0);
+        sc->thr[i] = 3.0, sc->noise[i] = 1.5;
+    }
+}
+
+static void test_resolve_rejects_a_dim_line_that_a_fit_bridges_to_a_bright_one(void)
+{
+    /* at 3 m: a bright surface (peak 60) in columns 0..19 at band row 30, a dark one 1.1 rows
+     * lower (7 % nearer: less than the 8 % that separates surfaces) in columns 20..39. Without
+     * the gate, the fit carries the bright line into the dark columns: more than 5 % off */
+    Scene *sc = scene_new(6);
+    scene_depth(sc, 1.0 / 3.0);
+    for (ptrdiff_t i = 0; i < 20; i++) first_line(sc, i, 30.0, 60.0);
+    dim_line(sc, 20, RW, 31.1);
+    sc->params.max_range_sigma = INFINITY;
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    CHECK(sc->status[20] == COLUMNS_OK && fabs(sc->row[20] - image_row(31.1)) * 0.066 > 0.05,
+          "without the gate column 20 is a gross error: row %g", sc->row[20]);
+    sc->params.max_range_sigma = 0.015;
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    int trusted = 1, bright = 1;
+    for (ptrdiff_t i = 0; i < RW; i++) {
+        double truth = image_row(i < 20 ? 30.0 : 31.1);
+        if (sc->status[i] == COLUMNS_OK) trusted &= fabs(sc->row[i] - truth) * 0.066 <= 0.05;
+        else trusted &= sc->status[i] == COLUMNS_REJECTED && sc->found[i]; /* seen, not trusted */
+    }
+    for (ptrdiff_t i = 0; i < 15; i++) bright &= sc->status[i] == COLUMNS_OK;
+    CHECK(trusted, "every range within 5 %%, the others REJECTED");
+    CHECK(sc->status[20] == COLUMNS_REJECTED && sc->status[21] == COLUMNS_REJECTED, "the bridged columns");
+    CHECK(bright, "the bright surface away from the edge is kept");
+    scene_free(sc);
+}
+
+static void test_resolve_rejects_a_runs_end_that_its_own_row_contradicts(void)
+{
+    /* at 3 m: a line (peak 20) in columns 0..19 ends; column 20, in the shadow behind it, shows a
+     * weak peak 1.5 rows off (an outlier: left out of the fit, it would report the fit, a range
+     * where there is none) */
+    Scene *sc = scene_new(6);
+    scene_depth(sc, 1.0 / 3.0);
+    for (ptrdiff_t i = 0; i < 20; i++) first_line(sc, i, 30.0, 20.0), sc->thr[i] = 3.0, sc->noise[i] = 1.0;
+    first_line(sc, 20, 31.5, 3.0);
+    sc->thr[20] = 3.0, sc->noise[20] = 1.0;
+    sc->params.max_range_sigma = INFINITY;
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    CHECK(sc->status[20] == COLUMNS_OK && near(sc->row[20], image_row(30.0), 1e-6), "without the gate: the fit, %g",
+          sc->row[20]);
+    sc->params.max_range_sigma = 0.015;
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    CHECK(sc->status[20] == COLUMNS_REJECTED, "REJECTED: %d", sc->status[20]);
+    CHECK(sc->status[10] == COLUMNS_OK, "the line itself is kept");
+    scene_free(sc);
+}
+
+static void test_resolve_keeps_a_dim_line_near_by(void)
+{
+    /* the same dim line at 1 m, where a row is worth 2.2 %: its fit is good to ~0.6 % */
+    Scene *sc = scene_new(6);
+    scene_depth(sc, 1.0);
+    dim_line(sc, 0, RW, 30.0);
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    int kept = 1;
+    for (ptrdiff_t i = 0; i < RW; i++) kept &= sc->status[i] == COLUMNS_OK && fabs(sc->row[i] - image_row(30.0)) < 0.3;
+    CHECK(kept, "every column measured");
+    /* at 3 m the same line is not good to 5 %: REJECTED */
+    scene_depth(sc, 1.0 / 3.0);
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    int rejected = 1;
+    for (ptrdiff_t i = 0; i < RW; i++) rejected &= sc->status[i] == COLUMNS_REJECTED;
+    CHECK(rejected, "at 3 m: every column REJECTED");
+    scene_free(sc);
+}
+
 static void test_resolve_refuses_bad_arguments(void)
 {
     Scene *sc = scene_new(6);
@@ -632,7 +719,11 @@ static void test_resolve_refuses_bad_arguments(void)
     sc->params.min_run = 0;
     CHECK(columns_resolve(&sc->in, &sc->params, &sc->line, &err) == COLUMNS_BAD_ARGUMENT, "min_run 0");
     CHECK(strstr(err.message, "resolve: need >= 2 columns") != NULL, "%s", err.message);
-    sc->params.min_run = 5, sc->in.t1 = 0;
+    sc->params.min_run = 5, sc->params.max_range_sigma = 0.0;
+    CHECK(scene_resolve(sc) == COLUMNS_BAD_ARGUMENT, "max_range_sigma 0");
+    sc->params.max_range_sigma = NAN;
+    CHECK(scene_resolve(sc) == COLUMNS_BAD_ARGUMENT, "max_range_sigma NaN");
+    sc->params.max_range_sigma = 0.015, sc->in.t1 = 0;
     CHECK(scene_resolve(sc) == COLUMNS_BAD_ARGUMENT, "t1 <= t0");
     sc->in.t1 = 64, sc->in.cols = 1, sc->in.inv_depth.cols = 1;
     CHECK(scene_resolve(sc) == COLUMNS_BAD_ARGUMENT, "one column");
@@ -765,6 +856,9 @@ static void (*const TESTS[])(void) = {
     test_resolve_counts_dim_columns_only_between_bright_ones,
     test_resolve_prefers_the_farther_of_two_continuous_lines,
     test_resolve_keeps_the_nearer_line_at_an_occlusion_edge,
+    test_resolve_rejects_a_dim_line_that_a_fit_bridges_to_a_bright_one,
+    test_resolve_rejects_a_runs_end_that_its_own_row_contradicts,
+    test_resolve_keeps_a_dim_line_near_by,
     test_resolve_refuses_bad_arguments,
     test_running_median,
     test_run_length,
