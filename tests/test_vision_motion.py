@@ -58,16 +58,15 @@ def test_a_still_wall_is_measured_as_accurately_with_both_neighbours(distance, m
 def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
     # still office, 3x light: dim lines far away (1 row is 5-8 % of range there), a depth edge
     # bridged by the fit, an outlier beside a shadow gap reporting the fit
-    import dataclasses
-
     from device.service.assembly import PIPELINE
-    from device.vision.fast import FastPipeline
 
     pairs = sequence(CFG, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
     op = CFG.operating_point
-    pipe = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
-    off = score([(_process("fast", pipe, p), p.truth) for p in pairs])
-    gated = FastPipeline(CFG, dataclasses.replace(pipe.params, max_range_sigma=0.015), op.min_m, op.max_m)
+    assert PIPELINE == "fast-com-track-gated"  # the device runs the gate
+    ungated = make_pipeline("fast-com-track", CFG, op.min_m, op.max_m)
+    off = score([(_process("fast", ungated, p), p.truth) for p in pairs])
+    gated = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    assert gated.params.max_range_sigma == 0.015
     on = score([(_process("fast", gated, p), p.truth) for p in pairs])
     assert off["gross_fraction"] > 0.002 and off["false_returns"] > 0  # the gate off: the failure
     assert on["gross_fraction"] <= 0.001 and on["false_returns"] == 0
@@ -83,7 +82,7 @@ def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
     assert main(["evaluate", "--recording", str(sim / "frames.npz"), "--out", str(out), "--truth",
                  str(sim / "truth.npz"), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    assert result["variant"] == "fast-com-track" and result["scans"] == 3  # the device's pipeline, lit frames 0, 2, 4
+    assert result["variant"] == "fast-com-track-gated" and result["scans"] == 3  # the device's pipeline, lit frames 0, 2, 4
     assert result["columns_with_return"] > 1000 and result["false_return_fraction"] == 0
     z = np.load(out)
     W = CFG.width

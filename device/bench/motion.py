@@ -11,8 +11,8 @@ speed, in the point's ambient light (x the default indoor) with or without 100 H
 - ``reference``: the thesis pipeline, lit minus the unlit frame after it;
 - ``fast one-unlit``: the device's pipeline before issue 16 (fast-com-track, lit minus the unlit
   frame after it);
-- ``fast``: the device's pipeline now: both unlit neighbours (device/scan/pairing.py,
-  device.vision.fast step 0).
+- ``fast``: the device's pipeline now (device/service/assembly.py PIPELINE): both unlit
+  neighbours (device/scan/pairing.py, device.vision.fast step 0) and the range gate (step 5).
 
 Measured against the truth at each column's light's time: gross errors (a valid range > 5 %
 off the truth) as a share of the columns with a true return; false returns (a valid range where
@@ -79,7 +79,8 @@ def _pipelines(cfg):
     from ..vision.pipelines import make_pipeline
 
     op = cfg.operating_point
-    return {"reference": make_pipeline("reference", cfg), "fast one-unlit": make_pipeline(PIPELINE, cfg, op.min_m, op.max_m),
+    return {"reference": make_pipeline("reference", cfg),
+            "fast one-unlit": make_pipeline("fast-com-track", cfg, op.min_m, op.max_m),
             "fast": make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)}
 
 

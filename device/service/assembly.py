@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-PIPELINE = "fast-com-track"
+PIPELINE = "fast-com-track-gated"  # device/vision/pipelines.py VARIANTS
 COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
 
 
