@@ -73,6 +73,28 @@ def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
     assert on["valid_fraction"] > 0.75 and on["sigma_pct"] < off["sigma_pct"]
 
 
+def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
+    # 1 m/s towards the office in 3x light: horizontal edges cross the rows between the unlit
+    # frames, and each leaves a bright band in the difference that looks like a line at ~0.7 m
+    # (the wall is at 2.3-2.5 m). Two step-0 checks stop them, each needed: a line must stand
+    # above what changed between the unlit neighbours on its own rows, and a change a few rows
+    # high counts as motion (block by block, not only the column's mean)
+    import dataclasses
+    import math
+
+    from device.service.assembly import PIPELINE
+    from device.vision.fast import FastPipeline
+
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 0)
+    op = CFG.operating_point
+    device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    now = score([(_process("fast", device, p), p.truth) for p in pairs])
+    assert now["gross"] == 0 and now["false_returns"] == 0 and now["valid_fraction"] > 0.3
+    for off in ({"moving_change_ratio": 0.0}, {"moved_block_level": math.inf}):
+        without = FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
+        assert score([(_process("fast", without, p), p.truth) for p in pairs])["gross"] >= 5, off
+
+
 def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
     sim = tmp_path / "sim"
     assert main(["simulate", "--scene", "person", "--frames", "5", "--out", str(sim), "--exposure-us", "9200",
@@ -115,3 +137,11 @@ def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
     assert "3 frames have no lit flag" in capsys.readouterr().out
     assert main(["evaluate", "--scene", "wall", "--out", str(tmp_path / "x.npz")]) == 2
     assert "--out and --truth go with --recording" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("bad", [{"moved_block_level": 0.0}, {"moved_block_ratio": -1.0}, {"moving_change_ratio": -0.5}])
+def test_step_0_refuses_motion_thresholds_that_mean_nothing(bad):
+    from device.vision.fast import FastParams
+
+    with pytest.raises(ValueError, match=f"{next(iter(bad))}"):
+        FastParams(**bad)

@@ -10,12 +10,16 @@ Per frame pair (or triple):
    before and after the lit one, the band's background is their mean (the lit frame lies half
    way between them in time: a smooth motion's residue is second order, and mains flicker,
    whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
-   neighbours differ (the mean |difference| of their 8-column x 4-row block means, every other
-   row, above ``moved_level``: the
-   background moved there; sensor noise alone stays below) keeps a line only if the line
+   neighbours differ (their 8-column x 4-row block means, every other row: the mean |difference|
+   above ``moved_level``, or one block's above ``moved_block_level`` and ``moved_block_ratio``
+   times the frame's median block difference, i.e. its sensor noise: an edge a few rows high
+   that moved, as a horizontal edge crosses the rows when the robot drives forward; sensor noise
+   alone stays below) keeps a line only if the line
    stands ``moving_noise_ratio`` (3) times above the noise level (the residue's largest negative
    difference, step 1) of the columns within ``moving_noise_columns`` (16; a moved feature leaves
-   its residue where it was), is no wider than ``moving_max_spread_px`` and has dark flanks
+   its residue where it was), above ``moving_change_ratio`` times what changed between the two
+   neighbours on its own rows (a moved edge's residue lies on the rows it crossed, a single
+   bright band), is no wider than ``moving_max_spread_px`` and has dark flanks
    ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
    the laser a narrow line); otherwise it is REJECTED (NaN), never a guess. And any column
    whose noise level exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
@@ -135,11 +139,14 @@ class FastParams:
     # with both unlit neighbours (step 0): background that moved or flickered
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
     moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
+    moved_block_level: float = 3.0  # ... or one of its blocks by this much (levels)
+    moved_block_ratio: float = 5.0  # ... and this x the frame's median block change
     moving_noise_ratio: float = 3.0  # a line must exceed this x the largest noise of the columns
     moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
     flank_rows: int = 6  # and this many rows above and below it
     flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
+    moving_change_ratio: float = 1.0  # ... and exceed this x the change between the unlit neighbours on its own rows
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -153,6 +160,9 @@ class FastParams:
         if self.track_margin < 0 or self.track_full_every < 1 or self.track_lost_run < 1:
             raise ValueError(f"need track_margin >= 0, track_full_every >= 1, track_lost_run >= 1, got "
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
+        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moving_change_ratio >= 0):
+            raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moving_change_ratio >= 0, got "
+                             f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moving_change_ratio}")
         if self.flank_rows < self.half_width:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
@@ -238,15 +248,24 @@ class FastPipeline:
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
-        moved = None
+        moved = neighbours = None
         if other_unlit is not None:  # step 0
             other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
+            neighbours = (background, other)
             # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
             # a texture that moved stays), then their mean |difference| per 8 columns
             W, n = background.shape[1], self.rows // 8
             small = [cv2.resize(x[: 8 * n : 2], (-(-W // 8), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
-            change = cv2.reduce(cv2.absdiff(*small), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
-            moved = np.repeat(change > self.params.moved_level * n, 8)[:W]
+            diff = cv2.absdiff(*small)
+            change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
+            # a change over the whole band, or a local one (an edge a few rows high that moved:
+            # under forward motion a horizontal edge crosses the rows, its residue a bright
+            # band): a block changed by moved_block_level, and by moved_block_ratio x the
+            # frame's median block change (its sensor noise, higher on a bright scene)
+            local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
+            p0 = self.params
+            block_level = max(p0.moved_block_level, p0.moved_block_ratio * float(np.median(diff)))
+            moved = np.repeat((change > p0.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
         p = self.params
         band = self._tracking_band()
@@ -288,7 +307,7 @@ class FastPipeline:
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
-            status = self._untrusted(status, row, peak, noise, moved, t0)
+            status = self._untrusted(status, row, peak, noise, moved, neighbours, t0)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -369,7 +388,7 @@ class FastPipeline:
                             p.pedestal, 255)
 
     def _untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, noise: np.ndarray,
-                   moved: np.ndarray, t0: int) -> np.ndarray:
+                   moved: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray], t0: int) -> np.ndarray:
         """Step 0's rejections. In a column whose background moved: a line that does not stand
         far enough above what the background left there and around it (``moving_noise_columns``),
         or does not have a line's shape (wider than a line, or as bright ``flank_rows`` above or
@@ -400,9 +419,17 @@ class FastPipeline:
         # columns around, ``moving_noise_columns`` each side
         k = 2 * p.moving_noise_columns + 1
         around = cv2.dilate(noise.astype(np.float32)[None, :], np.ones((1, k), np.uint8))[0]
+        # what changed between the two unlit neighbours on the line's own rows: a moving edge
+        # leaves a residue there that a line must stand above (under forward motion a
+        # horizontal edge moves across the rows, and its residue is a single bright band)
+        before, after = neighbours
+        rb = clamp(r - self._pad + t0, 0, before.shape[0] - 1)  # the lines' band rows
+        line_rows = clamp(rb[None, :] + np.arange(-h, h + 1)[:, None], 0, before.shape[0] - 1)
+        at = line_rows * before.shape[1] + cols[None, :]
+        change = np.abs(before.ravel().take(at).astype(np.int16) - after.ravel().take(at)).max(axis=0)
         shape = np.zeros(status.size, bool)
         shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
-                       | ~(spread <= p.moving_max_spread_px))
+                       | ~(spread <= p.moving_max_spread_px) | (peak[cols] < p.moving_change_ratio * change))
         return np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, found: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
