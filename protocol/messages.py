@@ -759,6 +759,9 @@ def _unpack_ray_times(payload: bytes, offset: int, device_time_us: int, n: int) 
     count, base = _SCAN_TIMES.unpack_from(payload, offset)
     if count == 0:
         return None
+    if device_time_us + base < 0:
+        raise MessageError("value", f"SCAN ray time block's base_us {base} puts its rays before device time 0 "
+                                    f"(device_time_us {device_time_us})")
     if count != n:
         raise MessageError("value", f"SCAN ray time block has {count} times for {n} rays")
     _need(payload, offset + _SCAN_TIMES.size + BYTES_PER_RAY_TIME * n, f"SCAN ray time block of {n} rays")

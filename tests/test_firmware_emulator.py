@@ -661,3 +661,4 @@ def test_a_ping_behind_a_burst_of_frames_is_stamped_between_its_arrival_and_its_
     # the PING's last byte arrives after the whole burst has crossed the 250 kbaud line
     arrived = count(written) + len(burst) * 10 * comcu.info().ticks_per_second // 250_000
     assert arrived - 2 * ticks_per_ms(comcu) // 10 <= pongs[0].rx_ticks <= pongs[0].tx_ticks, (pongs[0], arrived)
+

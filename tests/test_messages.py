@@ -271,6 +271,10 @@ def _scan_minor4(**change) -> bytes:
     block = 24 + 3 * 3 + 4
     if "count" in change:
         payload[block:block + 2] = change["count"].to_bytes(2, "little")
+    if "base" in change:
+        payload[block + 2:block + 6] = change["base"].to_bytes(4, "little", signed=True)
+    if "device_time_us" in change:  # SCAN's head: seq u32, then device_time_us u64
+        payload[4:12] = change["device_time_us"].to_bytes(8, "little")
     for i, v in change.get("offsets", {}).items():
         payload[block + 6 + 2 * i:block + 8 + 2 * i] = v.to_bytes(2, "little")
     return bytes(payload[:len(payload) - change.get("cut", 0)])
@@ -283,6 +287,7 @@ def _scan_minor4(**change) -> bytes:
     (_scan_minor4(cut=8), "short", "ray time block"),  # inside the block's head
     (_scan_minor4(offsets={1: m.RAY_TIME_SPAN_MAX_US + 1}), "value", "ray 1's time 65001 µs .* outside one frame"),
     (_scan_minor4(offsets={0: 0xFFFE}), "value", "ray 0's time 65534 µs"),
+    (_scan_minor4(device_time_us=1000, base=-5000), "value", "base_us -5000 puts its rays before device time 0"),
 ])
 def test_a_scan_whose_time_block_lies_is_refused_naming_what_is_wrong(payload, reason, what):
     with pytest.raises(m.MessageError, match=what) as exc:

@@ -145,3 +145,12 @@ def test_step_0_refuses_motion_thresholds_that_mean_nothing(bad):
 
     with pytest.raises(ValueError, match=f"{next(iter(bad))}"):
         FastParams(**bad)
+
+
+def test_the_range_gate_needs_the_line_fit():
+    from device.vision.fast import FastParams
+
+    with pytest.raises(ValueError, match="max_range_sigma needs the line fit"):
+        FastParams(smooth_half=0, max_range_sigma=0.015)
+    with pytest.raises(ValueError, match="max_range_sigma needs the line fit"):
+        make_pipeline("fast-com-raw-gated", CFG)

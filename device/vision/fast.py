@@ -160,6 +160,8 @@ class FastParams:
         if self.track_margin < 0 or self.track_full_every < 1 or self.track_lost_run < 1:
             raise ValueError(f"need track_margin >= 0, track_full_every >= 1, track_lost_run >= 1, got "
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
+        if math.isfinite(self.max_range_sigma) and self.smooth_half == 0:
+            raise ValueError("max_range_sigma needs the line fit (smooth_half > 0): the range gate propagates its sigma")
         if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moving_change_ratio >= 0):
             raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moving_change_ratio >= 0, got "
                              f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moving_change_ratio}")

@@ -40,12 +40,12 @@ ISR(USART_RX_vect)
 {
     uint8_t b = UDR0;
     uint8_t next = (uint8_t)((rx_head + 1) % RX_RING);
-    if (next != rx_tail) {
-        rx_ring[rx_head] = b;
-        rx_head = next;
-    } else {
+    if (next == rx_tail) {
         rx_lost = 1;
+        return; /* a dropped delimiter leaves no tick: the main loop pops one per delimiter it reads */
     }
+    rx_ring[rx_head] = b;
+    rx_head = next;
     if (b == 0) {
         uint8_t dn = (uint8_t)((delim_head + 1) % DELIM_RING);
         if (dn != delim_tail) {
