@@ -427,6 +427,8 @@ class LinkServer:
             refusal = (m.NackCode.NOT_SUPPORTED, f"ray_times needs a host of protocol minor >= 4, and this host's "
                        f"GET_INFO said minor {self._host_minor}: it could not read the ray times")
         else:
+            if self._host_minor < 4:  # it cannot read them, nor turn them off: the budget without them
+                new = dataclasses.replace(new, ray_times=False)
             refusal = settings_refusal(new, self.config, self.geometry.angles.size)
         if refusal is None:
             try:

@@ -300,6 +300,22 @@ def test_a_host_that_did_not_say_minor_4_cannot_turn_ray_times_on(host_minor):
         assert m.ScanMessage.decode(_scan_payloads(host)[-1]).ray_times_us is None
 
 
+def test_a_host_of_minor_3_is_not_refused_for_ray_times_another_host_left_on():
+    # 400 points at 250 kbit/s: 10 scans/s fit with ray times, 15 only without them
+    host, server = _timed_link(link_rate_bps=250_000)
+    with server:
+        host.send(m.GetInfo(1, 4, request_id=1))
+        host.receive(lambda o: isinstance(o[-1], m.Info))
+        host.send(m.SetConfig(m.ScanSettings(ray_times=True), request_id=2))
+        assert isinstance(host.receive(lambda o: isinstance(o[-1], (m.Ack, m.Nack)))[-1], m.Ack)
+        host.send(m.GetInfo(1, 3, request_id=3))  # another host, which knows nothing of ray times
+        host.receive(lambda o: isinstance(o[-1], m.Info))
+        host.send(m.SetConfig(m.ScanSettings(scan_rate_hz=15.0), request_id=4))
+        answer = host.receive(lambda o: isinstance(o[-1], (m.Ack, m.Nack)))[-1]
+        assert isinstance(answer, m.Ack), answer
+        assert server.settings.ray_times is False and server.settings.scan_rate_hz == 15.0
+
+
 def test_a_source_without_ray_times_sends_every_ray_on_the_line():
     host_end, dev_end = pipe_pair()
     with LinkServer(dev_end, LatestFirstSource(), DeviceConfig(laser_limit_mw=5.0, settings=default_settings(400))):
