@@ -240,8 +240,7 @@ class LaserPi:
         if unknown:
             raise ValueError(f"unknown settings {sorted(unknown)}; known: {', '.join(m.ScanSettings.FIELDS)}")
         update = m.ScanSettings(**settings)
-        minor = self.info().protocol_minor
-        if update.ray_times is not None and minor < 4:
+        if update.ray_times is not None and (minor := self.info().protocol_minor) < 4:
             raise CommandRefused("SetConfig", m.NackCode.NOT_SUPPORTED, f"ray_times needs a device of protocol "
                                  f"minor >= 4; {self.port_name} speaks {PROTOCOL_VERSION}.{minor}")
         try:

@@ -135,8 +135,7 @@ class ReplayServer:
             return
         if t == m.MsgType.GET_INFO:
             reply = self.info if self.info.boot_id is None else dataclasses.replace(self.info, request_id=rid)
-            if msg is None or msg.host_minor < 4:  # it knows no ray_times: it would refuse the settings
-                reply = dataclasses.replace(reply, settings=dataclasses.replace(reply.settings, ray_times=None))
+            reply = dataclasses.replace(reply, settings=reply.settings.for_host(0 if msg is None else msg.host_minor))
         elif t == m.MsgType.GET_HEALTH:
             playing = self._playing.is_set()
             state = m.DeviceState.SCANNING if playing else m.DeviceState.IDLE

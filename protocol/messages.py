@@ -16,7 +16,7 @@ import enum
 import math
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -271,6 +271,11 @@ class ScanSettings:
 
     def as_dict(self) -> dict:
         return {n: getattr(self, n) for n in self.FIELDS if getattr(self, n) is not None}
+
+    def for_host(self, host_minor: int) -> ScanSettings:
+        """These settings as a host of ``host_minor`` can read them in INFO: without the
+        minor-4 fields for an older host (it would refuse their mask bits)."""
+        return self if host_minor >= 4 else replace(self, **{n: None for n in self.MINOR4_FIELDS})
 
 
 SETTINGS_SIZE = ScanSettings._S.size
@@ -782,6 +787,8 @@ def scan_time_for_host(device_time_us: int, ray_interval_ns: int, n: int, host_m
     if ray_interval_ns >= 0 or host_minor >= 3:
         return device_time_us, ray_interval_ns
     return device_time_us + (n - 1) * ray_interval_ns // 2000, 0
+
+
 SCAN_TRAILER_SIZE = _SCAN_BOOT.size  # 4
 BYTES_PER_POINT = 3
 

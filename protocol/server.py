@@ -359,11 +359,9 @@ class LinkServer:
         # a host of minor >= 2 that numbers its requests fetches the angles in chunks (GET_ANGLES):
         # its INFO stays small; any other host gets them here, as before
         angles = g.angles[:0] if msg.host_minor >= 2 and msg.request_id else g.angles
-        # a host of minor < 4 knows no ray_times (it would refuse the settings' mask bit)
-        settings = self.settings if msg.host_minor >= 4 else dataclasses.replace(self.settings, ray_times=None)
         self._reply(m.Info(PROTOCOL_VERSION, m.PROTOCOL_MINOR, self.config.software_version,
                            self.config.serial_number, self.settings.scan_rate_hz, g.range_min_m, g.range_max_m,
-                           angles, settings, self.config.laser_limit_mw, request_id=msg.request_id,
+                           angles, self.settings.for_host(msg.host_minor), self.config.laser_limit_mw, request_id=msg.request_id,
                            boot_id=self.config.boot_id, n_columns=g.angles.size, angles_crc=self._angles_crc,
                            startup_s=self.config.startup_s, host_timeout_s=self.config.host_timeout_s))
 

@@ -655,7 +655,7 @@ def test_a_ping_behind_a_burst_of_frames_is_stamped_between_its_arrival_and_its_
     port.write(burst)
     written = port.cycle
     port.advance(0.02)
-    frames = [f for f in (decode_frame(x, max_payload=MAX_PAYLOAD_MCU) for x in port.read(port.in_waiting).split(b"\x00") if x)]
+    frames = [decode_frame(x, max_payload=MAX_PAYLOAD_MCU) for x in port.read(port.in_waiting).split(b"\x00") if x]
     pongs = [mcu.decode_message(f) for f in frames if f.seq == 102]
     assert len(pongs) == 1 and isinstance(pongs[0], mcu.Pong), frames
     # the PING's last byte arrives after the whole burst has crossed the 250 kbaud line

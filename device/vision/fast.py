@@ -250,6 +250,7 @@ class FastPipeline:
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
+        p = self.params
         moved = neighbours = None
         if other_unlit is not None:  # step 0
             other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
@@ -265,11 +266,9 @@ class FastPipeline:
             # band): a block changed by moved_block_level, and by moved_block_ratio x the
             # frame's median block change (its sensor noise, higher on a bright scene)
             local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
-            p0 = self.params
-            block_level = max(p0.moved_block_level, p0.moved_block_ratio * float(np.median(diff)))
-            moved = np.repeat((change > p0.moved_level * n) | (local >= block_level), 8)[:W]
+            block_level = max(p.moved_block_level, p.moved_block_ratio * float(np.median(diff)))
+            moved = np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
-        p = self.params
         band = self._tracking_band()
         if band is None:
             found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)

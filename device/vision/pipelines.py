@@ -23,6 +23,10 @@ TRACK_MARGIN_ROWS = 24
 #: "Motion"): the still scenes' gross errors 0.28 % -> 0.04 % and no false returns, at the price
 #: of the far, dim columns (a 90 % wall at 3 m keeps 83 % of its columns instead of 99 %).
 RANGE_GATE_SIGMA = 0.015
+#: A variant's name suffix -> the FastParams field it sets and the value; the last suffix first
+#: (``fast-com-track-gated``).
+_SUFFIXES = {"-gated": ("max_range_sigma", RANGE_GATE_SIGMA), "-track": ("track_margin", TRACK_MARGIN_ROWS),
+             "-raw": ("smooth_half", 0)}
 
 
 def make_pipeline(name: str, config: SensorConfig, min_m: float | None = None, max_m: float | None = None):
@@ -31,16 +35,10 @@ def make_pipeline(name: str, config: SensorConfig, min_m: float | None = None, m
     if name == "reference":
         return ReferencePipeline(config)
     if name.startswith("fast-"):
-        est = name[len("fast-"):]
-        gated = est.endswith("-gated")
-        est = est[: -len("-gated")] if gated else est
-        track = est.endswith("-track")
-        est = est[: -len("-track")] if track else est
-        raw = est.endswith("-raw")
-        est = est[: -len("-raw")] if raw else est
+        est, changes = name[len("fast-"):], {}
+        for suffix, (field, value) in _SUFFIXES.items():  # in the order they are stripped
+            if est.endswith(suffix):
+                est, changes[field] = est[: -len(suffix)], value
         if est in ESTIMATORS:
-            params = FastParams(estimator=est, smooth_half=0 if raw else FastParams.smooth_half,
-                                track_margin=TRACK_MARGIN_ROWS if track else 0,
-                                max_range_sigma=RANGE_GATE_SIGMA if gated else FastParams.max_range_sigma)
-            return FastPipeline(config, params, min_m, max_m)
+            return FastPipeline(config, FastParams(estimator=est, **changes), min_m, max_m)
     raise ValueError(f"unknown pipeline {name!r}; choose from {', '.join(VARIANTS)}")
