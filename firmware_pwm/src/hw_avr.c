@@ -96,7 +96,9 @@ int main(void)
                 }
                 hw_irq_restore(s);
                 /* More delimiters arrived than the ring holds (the Pi's frames keep coming while
-                 * hw_tx sends a long reply): the ticks of the last ones were dropped, so a
+                 * hw_tx sends a long reply: it waits on UDRE0 with interrupts on, and the receive
+                 * interrupt runs whenever RXC0 is set and RXCIE0 and the I bit are on, ATmega328P
+                 * datasheet, USART0, "Receive Compete Flag and Interrupt"): the ticks of the last ones were dropped, so a
                  * delimiter gets the tick of one that arrived after it, or none is left. Either
                  * way the time now is no earlier than its arrival and no later than its reply,
                  * the bounds PONG's rx tick promises; 0 would read as the clock going back. */
