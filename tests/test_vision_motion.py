@@ -88,11 +88,62 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 0)
     op = CFG.operating_point
     device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
-    now = score([(_process("fast", device, p), p.truth) for p in pairs])
-    assert now["gross"] == 0 and now["false_returns"] == 0 and now["valid_fraction"] > 0.3
-    for off in ({"moving_change_ratio": 0.0}, {"moved_block_level": math.inf}):
-        without = FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
-        assert score([(_process("fast", without, p), p.truth) for p in pairs])["gross"] >= 5, off
+    measured = [(_process("fast", device, p), p.truth) for p in pairs]
+    now = score(measured)
+    # no phantom line (the issue's target beside it: at most 0.1 % gross errors; one column of
+    # the side wall at 3 m, where a row is worth 6 % of range, is one row off)
+    assert _phantoms(measured) == 0
+    assert now["gross_fraction"] <= 0.001 and now["false_returns"] == 0 and now["valid_fraction"] > 0.3
+    without = FastPipeline(CFG, dataclasses.replace(device.params, moved_block_level=math.inf), op.min_m, op.max_m)
+    assert _phantoms([(_process("fast", without, p), p.truth) for p in pairs]) >= 5
+
+
+def _device_and_without(off: dict):
+    import dataclasses
+
+    from device.service.assembly import PIPELINE
+    from device.vision.fast import FastPipeline
+
+    op = CFG.operating_point
+    device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    return device, FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
+
+
+def test_turning_in_bright_light_keeps_much_of_the_wall():
+    # 90 deg/s in 3x light: the textured back wall's residue varies slowly along the columns and
+    # is taken out with the background's trend; before, 3 % of that wall was measured
+    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=3), 3, 0)
+    device, _ = _device_and_without({})
+    measured = [(_process("fast", device, p), p.truth) for p in pairs]
+    now = score(measured)
+    assert now["gross_fraction"] <= 0.001 and now["false_returns"] == 0 and now["blind_fraction"] < 0.02
+    assert now["valid_fraction"] > 0.4
+    wall = sum(int(np.sum(m.valid & (t.surface[m.column] == 0) & np.isfinite(t.range_m[m.column]))) for m, t in measured)
+    assert wall / sum(int(np.sum((t.surface == 0) & np.isfinite(t.range_m))) for _, t in measured) > 0.35
+
+
+@pytest.mark.parametrize("off,point", [
+    ({"lit_ridge_fraction": 0.0}, dict(yaw_rate_deg_s=90, ambient_scale=3, seed=0)),
+    ({"moving_min_run": 1}, dict(yaw_rate_deg_s=14, ambient_scale=3, seed=0)),
+    ({"moving_change_ratio": 0.0}, dict(yaw_rate_deg_s=90, ambient_scale=10, seed=2)),
+])
+def test_each_check_on_a_moved_background_is_needed(off, point):
+    # without each, lines that are not the laser's get through on these frames (more than 0.1 %
+    # gross errors); with all, none
+    seed = point.pop("seed")
+    pairs = sequence(CFG, with_motion(get_scene("office"), **point), 3, seed)
+    device, without = _device_and_without(off)
+    assert score([(_process("fast", device, p), p.truth) for p in pairs])["gross_fraction"] <= 0.001
+    assert score([(_process("fast", without, p), p.truth) for p in pairs])["gross"] >= 5
+
+
+def _phantoms(measured) -> int:
+    """Valid ranges nearer than 80 % of the truth: a line that is not the laser's."""
+    n = 0
+    for meas, truth in measured:
+        with np.errstate(invalid="ignore"):
+            n += int(np.sum(meas.valid & (meas.range < 0.8 * truth.range_m[meas.column])))
+    return n
 
 
 def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
@@ -154,3 +205,62 @@ def test_the_range_gate_needs_the_line_fit():
         FastParams(smooth_half=0, max_range_sigma=0.015)
     with pytest.raises(ValueError, match="max_range_sigma needs the line fit"):
         make_pipeline("fast-com-raw-gated", CFG)
+
+
+def test_stands_out_tells_a_ridge_and_a_dip_from_an_edge():
+    from device.vision.fast import _stands_out
+
+    column = np.full(80, 10, np.int16)
+    column[20] += 8  # a ridge one row high
+    column[40:] += 20  # an edge: 10 -> 30
+    column[60] -= 6  # a dip
+    image = np.repeat(column[:, None], 3, axis=1)
+    rows = np.array([[20, 38, 40, 42, 60, 0, 79]])
+    out = _stands_out(image, rows.repeat(3, axis=0).T.copy(), np.arange(3)[None, :], 4)
+    assert out.shape == (7, 3) and np.all(out == out[:, :1])
+    assert list(out[:, 0]) == [8, 0, 0, 0, -6, 0, 0]  # rows past the image's ends clamp to its edge
+
+
+def test_a_moved_backgrounds_trend_is_taken_out_and_the_line_kept():
+    # a line 1.3 px wide on a lit frame whose background differs from the unlit frames' mean by a
+    # slow, tall residue (a moved texture, +-25 levels, up to 1.8 levels a row): against the
+    # trend-corrected background the difference is the line alone, and the noise side has no
+    # dips; a column that did not move keeps the mean
+    from device.vision.fast import _moved_backgrounds
+
+    rows, W = 80, 40
+    r = np.arange(rows, dtype=float)[:, None]
+    c = np.arange(W, dtype=float)[None, :]
+    mean = np.clip(60 + 20 * np.sin(c / 7.0) + 0 * r, 0, 255)
+    residue = 25 * np.sin(r / 14.0 + c / 11.0)
+    line = 30 * np.exp(-0.5 * ((r - 40.3) / 1.3) ** 2)
+    lit = np.clip(np.rint(mean + residue + line), 0, 255).astype(np.uint8)
+    background = np.rint(mean).astype(np.uint8)
+    moved = np.ones(W, bool)
+    moved[-4:] = False
+    line_bg, noise_bg = _moved_backgrounds(lit, background, moved, 11)
+    assert line_bg.dtype == noise_bg.dtype == np.uint8 and line_bg.shape == lit.shape
+    # the columns the 5-column smoothing keeps apart from the image's edge and the still columns
+    plain = lit[:, 2:-8].astype(int) - background[:, 2:-8]
+    diff = lit[:, 2:-8].astype(int) - line_bg[:, 2:-8]
+    assert np.abs(plain[:34]).max() >= 20  # against the mean alone the residue is as bright as the line
+    assert np.abs(diff[:34]).max() <= 3 and np.abs(diff[47:]).max() <= 3 and diff.min() >= -4
+    assert (noise_bg[:, 2:-8].astype(int) - lit[:, 2:-8]).max() <= 6  # no dips beside the line
+    # the line is kept (the envelope rises under it by about the slope times its half height),
+    # and its centre of mass is less biased than against the mean alone
+    assert diff[40].min() >= 0.6 * 30
+
+    def com_bias(d):
+        d = np.clip(d[36:45], 0, None).astype(float)
+        return np.abs((d * np.arange(36, 45)[:, None]).sum(0) / d.sum(0) - 40.3).max()
+
+    assert com_bias(diff) < com_bias(plain)
+    assert np.array_equal(line_bg[:, -4:], background[:, -4:]) and np.array_equal(noise_bg[:, -4:], background[:, -4:])
+
+
+@pytest.mark.parametrize("bad", [{"trend_rows": 9}, {"moving_min_run": 0}, {"lit_ridge_fraction": -0.1}])
+def test_step_0_refuses_a_trend_window_no_taller_than_a_line_and_checks_that_mean_nothing(bad):
+    from device.vision.fast import FastParams
+
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        FastParams(**bad)

@@ -14,15 +14,26 @@ Per frame pair (or triple):
    above ``moved_level``, or one block's above ``moved_block_level`` and ``moved_block_ratio``
    times the frame's median block difference, i.e. its sensor noise: an edge a few rows high
    that moved, as a horizontal edge crosses the rows when the robot drives forward; sensor noise
-   alone stays below) keeps a line only if the line
-   stands ``moving_noise_ratio`` (3) times above the noise level (the residue's largest negative
-   difference, step 1) of the columns within ``moving_noise_columns`` (16; a moved feature leaves
-   its residue where it was), above ``moving_change_ratio`` times what changed between the two
+   alone stays below) moved. In a moved column the residue a moved texture leaves in
+   ``lit - mean`` varies slowly along the column, except at its horizontal edges, while the laser
+   line is a few rows high: the residue's trend along the column (its morphological opening over
+   ``trend_rows`` rows, the largest envelope from below of what is at least that tall) joins the
+   background the line is measured against, and the closing of that trend the one the noise
+   level is measured against (narrow dark dips, the counterpart of narrow bright ridges that
+   are not a line; the closing of the residue itself would bridge to the line). A line found
+   there is kept only if it stands ``moving_noise_ratio`` times above the noise level (step 1) of
+   the columns within ``moving_noise_columns`` (16; a moved feature leaves its residue where it
+   was), above ``moving_change_ratio`` times the narrow part of what changed between the two
    neighbours on its own rows (a moved edge's residue lies on the rows it crossed, a single
-   bright band), is no wider than ``moving_max_spread_px`` and has dark flanks
+   bright band), ``lit_ridge_fraction`` of its smoothed peak above the lit frame's own rows
+   ``half_width`` above and below it (the laser adds a ridge to the lit frame whatever the
+   background did; a band of residue where an edge of the unlit frames moved against the lit
+   one's is not a ridge there), is no wider than ``moving_max_spread_px``, has dark flanks
    ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
-   the laser a narrow line); otherwise it is REJECTED (NaN), never a guess. And any column
-   whose noise level exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
+   the laser a narrow line), and what is left after these checks is part of a run of
+   ``moving_min_run`` continuous columns (a moved edge's residue passes in fragments); otherwise
+   it is REJECTED (NaN), never a guess. And any column whose noise level in the residue (before
+   the trend is taken out) exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
    robot): REJECTED. A still scene's output differs from the one-neighbour pipeline only by
    the lower noise of the mean background (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
    without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
@@ -141,12 +152,15 @@ class FastParams:
     moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
     moved_block_level: float = 3.0  # ... or one of its blocks by this much (levels)
     moved_block_ratio: float = 5.0  # ... and this x the frame's median block change
-    moving_noise_ratio: float = 3.0  # a line must exceed this x the largest noise of the columns
+    moving_noise_ratio: float = 1.5  # a line must exceed this x the largest noise of the columns
     moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
     flank_rows: int = 6  # and this many rows above and below it
     flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
     moving_change_ratio: float = 1.0  # ... and exceed this x the change between the unlit neighbours on its own rows
+    lit_ridge_fraction: float = 0.7  # ... and stand this x its smoothed peak above the lit frame's own rows half_width above and below it
+    moving_min_run: int = 5  # ... and, after these checks, be part of a run of this many continuous columns
+    trend_rows: int = 11  # the moved background's trend along each column is taken over this many rows (taller than a line)
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -165,6 +179,9 @@ class FastParams:
         if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moving_change_ratio >= 0):
             raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moving_change_ratio >= 0, got "
                              f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moving_change_ratio}")
+        if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1 or self.lit_ridge_fraction < 0:
+            raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line), moving_min_run >= 1 and "
+                             f"lit_ridge_fraction >= 0, got {self.trend_rows}, {self.moving_min_run}, {self.lit_ridge_fraction}")
         if self.flank_rows < self.half_width:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
@@ -252,6 +269,7 @@ class FastPipeline:
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
         p = self.params
         moved = neighbours = None
+        noise_background = residue_noise = None
         if other_unlit is not None:  # step 0
             other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
             neighbours = (background, other)
@@ -269,11 +287,18 @@ class FastPipeline:
             block_level = max(p.moved_block_level, p.moved_block_ratio * float(np.median(diff)))
             moved = np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
+            if moved.any():
+                # a line hidden in what the moved background left cannot be told from no line:
+                # "no return" is judged on that residue's noise (blind_noise)
+                residue_noise = np.empty(W)
+                self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], background, residue_noise)
+                background, noise_background = _moved_backgrounds(lum_lit[self.top : self.top + self.rows], background,
+                                                                  moved, p.trend_rows)
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, 0, self.rows)
         else:
-            found, row, peak, status, seen, noise = self._search(lum_lit, background, *band)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
             if (np.any(_run_length(lost) >= p.track_lost_run)
@@ -281,7 +306,7 @@ class FastPipeline:
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
                 # may continue outside): search the whole region of interest now
-                found, row, peak, status, seen, noise = self._search(lum_lit, background, 0, self.rows)
+                found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
@@ -308,7 +333,8 @@ class FastPipeline:
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
-            status = self._untrusted(status, row, peak, noise, moved, neighbours, t0)
+            status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise, moved,
+                                     neighbours, lum_lit[self.top : self.top + self.rows], t0)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -327,7 +353,7 @@ class FastPipeline:
         t1 = min(-(-(tr.last_row + p.track_margin + 1) // BLOCK_ROWS) * BLOCK_ROWS, self.rows)
         return None if t1 - t0 >= self.rows else (t0, t1)
 
-    def _search(self, lum_lit: np.ndarray, background: np.ndarray, t0: int, t1: int):
+    def _search(self, lum_lit: np.ndarray, background: np.ndarray, noise_background: np.ndarray | None, t0: int, t1: int):
         """Find the line in rows [t0, t1) of the band (whole blocks) of ``lum_lit`` against
         ``background`` (the band's rows of the unlit frame(s)): steps 1-5 of the module docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
         the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
@@ -343,8 +369,8 @@ class FastPipeline:
         # left out: the band's rows are as noisy as the column's own interval, and it saves work.
         # Computed first: it streams the whole band through the cache, the steps below reuse theirs
         noise = np.empty(W)
-        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], background,
-                                 noise)
+        self._kernel.noise_level(lum_lit[self.top : self.top + self.rows],
+                                 background if noise_background is None else noise_background, noise)
         # the difference goes into a buffer with zero rows above and below (sub-pixel windows at
         # the band's edges need no clamping). A saturated lit pixel that the laser clearly
         # brightened is "at least full scale": flat top at 255, so the estimators' plateau handling
@@ -389,18 +415,21 @@ class FastPipeline:
                             p.pedestal, 255)
 
     def _untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, noise: np.ndarray,
-                   moved: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray], t0: int) -> np.ndarray:
+                   residue_noise: np.ndarray, moved: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray],
+                   lit: np.ndarray, t0: int) -> np.ndarray:
         """Step 0's rejections. In a column whose background moved: a line that does not stand
-        far enough above what the background left there and around it (``moving_noise_columns``),
-        or does not have a line's shape (wider than a line, or as bright ``flank_rows`` above or
-        below it: a band of moved texture). Anywhere: "no return" where the noise could hide a line."""
+        far enough above what the background left there and around it (``moving_noise_columns``)
+        and what changed between the neighbours on its rows, does not have a line's shape (wider
+        than a line, as bright ``flank_rows`` above or below it: a band of moved texture; no ridge
+        in the lit frame itself), or is left in a fragment shorter than ``moving_min_run``.
+        Anywhere: "no return" where the noise of the residue (``residue_noise``) could hide a line."""
         import cv2
 
         p = self.params
         ok = status == STATUS_U8[ColumnStatus.OK]
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
         cols = np.nonzero(ok & moved)[0]
-        blind = none & (noise > p.blind_noise)
+        blind = none & (residue_noise > p.blind_noise)
         if not cols.size:  # nothing moved where a line was found (a still scene): no shape to check
             return np.where(blind, STATUS_U8[ColumnStatus.REJECTED], status)
         # the difference of the last search (band rows t0.. at buffer rows pad..) from
@@ -427,11 +456,29 @@ class FastPipeline:
         rb = clamp(r - self._pad + t0, 0, before.shape[0] - 1)  # the lines' band rows
         line_rows = clamp(rb[None, :] + np.arange(-h, h + 1)[:, None], 0, before.shape[0] - 1)
         at = line_rows * before.shape[1] + cols[None, :]
-        change = np.abs(before.ravel().take(at).astype(np.int16) - after.ravel().take(at)).max(axis=0)
+        # (its part narrower than a moved band of the lit frame's residue can be: the change
+        # between the neighbours spans twice the rows a moved edge crossed by the lit frame's time),
+        # on the 5 x 3 smoothed images as detection sees them, over the rows these checks read
+        lo = max(int(rb.min()) - h - p.trend_rows - 1, 0)
+        hi = min(int(rb.max()) + h + p.trend_rows + 2, before.shape[0])
+        delta = cv2.blur(cv2.subtract(before[lo:hi], after[lo:hi], dtype=cv2.CV_16S), (5, 3))
+        change = np.abs(_stands_out(delta, line_rows - lo, cols, p.trend_rows)).max(axis=0)
+        # the laser adds a narrow ridge to the lit frame itself, whatever the background did: a
+        # band of residue where an edge of the unlit frames moved against the lit one's is not one
+        core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, before.shape[0] - 1)
+        lit_ridge = _stands_out(cv2.blur(lit[lo:hi], (5, 3)).astype(np.int16), core - lo, cols, h).max(axis=0)
+        sm = self._sm_buf  # the smoothed difference of the last search (its band rows t0..)
+        smoothed_peak = sm.ravel().take(clamp(core - t0, 0, sm.shape[0] - 1) * sm.shape[1] + cols[None, :]).max(axis=0)
         shape = np.zeros(status.size, bool)
         shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
-                       | ~(spread <= p.moving_max_spread_px) | (peak[cols] < p.moving_change_ratio * change))
-        return np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
+                       | ~(spread <= p.moving_max_spread_px) | (peak[cols] < p.moving_change_ratio * change)
+                       | (lit_ridge < p.lit_ridge_fraction * smoothed_peak))
+        status = np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
+        # what these checks leave of a moved edge's residue are fragments: in moved columns a
+        # line is one only as part of moving_min_run continuous columns
+        ok = status == STATUS_U8[ColumnStatus.OK]
+        short = moved & ok & (_run_length(ok) < p.moving_min_run)
+        return np.where(short, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _unlit(self, status: np.ndarray, found: np.ndarray, row: np.ndarray, lit_rows: np.ndarray) -> np.ndarray:
         """UNLIT: columns without a line where the pulse missed rows of their region of interest, and
@@ -452,6 +499,44 @@ class FastPipeline:
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[found & near_dark] = ColumnStatus.UNLIT
         return status
+
+
+def _stands_out(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, k: int) -> np.ndarray:
+    """How far ``image`` (int16) at (``rows``, ``cols``) stands out of both the pixels ``k`` rows
+    above and below it, with its sign: above both (> 0), below both (< 0), 0 between them (an
+    edge, not a line or a band)."""
+    n, W = image.shape
+    flat = image.ravel()
+    at = flat.take(rows * W + cols)
+    above = flat.take(clamp(rows - k, 0, n - 1) * W + cols)
+    below = flat.take(clamp(rows + k, 0, n - 1) * W + cols)
+    return np.maximum(at - np.maximum(above, below), 0) + np.minimum(at - np.minimum(above, below), 0)
+
+
+def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarray, trend_rows: int):
+    """Step 0's backgrounds where the background moved (``moved`` columns): the residue
+    ``lit - background`` a moved texture leaves varies slowly along a column except at its
+    horizontal edges, while the line is a few rows high. So the residue's trend along the column
+    (its opening over ``trend_rows`` rows: the largest envelope from below of what is at least
+    that tall) joins the background the line is measured against, and the residue's closing
+    joins the one the noise level is measured against (narrow dark dips, the counterpart of
+    narrow bright ridges that are not a line). Returns (background for the line, for the noise)."""
+    import cv2
+
+    residue = cv2.blur(cv2.subtract(lit, background, dtype=cv2.CV_16S), (5, 3))
+    # the band's ends continue flat (trend_rows rows, as far as an opening and a closing look):
+    # a residue that rises towards them is not a ridge there
+    n = residue.shape[0]
+    residue = cv2.copyMakeBorder(residue, trend_rows, trend_rows, 0, 0, cv2.BORDER_REPLICATE)
+    se = np.ones((trend_rows, 1), np.uint8)
+    below = cv2.morphologyEx(residue, cv2.MORPH_OPEN, se)
+    above = cv2.morphologyEx(below, cv2.MORPH_CLOSE, se)[trend_rows : trend_rows + n]
+    below = below[trend_rows : trend_rows + n]
+    line_bg, noise_bg = cv2.add(background, below, dtype=cv2.CV_8U), cv2.add(background, above, dtype=cv2.CV_8U)
+    still = ~moved
+    if still.any():  # the columns that did not move keep the mean of the neighbours
+        line_bg[:, still] = noise_bg[:, still] = background[:, still]
+    return line_bg, noise_bg
 
 
 def _run_length(mask: np.ndarray) -> np.ndarray:
