@@ -18,8 +18,9 @@ Measured against the truth at each column's light's time: gross errors (a valid 
 off the truth) as a share of the columns with a true return; false returns (a valid range where
 there is none); valid share of the columns with a true return; "blind" columns (+inf, "nothing
 there", where there is a surface); the range error's sigma (%, valid columns without the gross
-errors). Speed beside it: CPU time per lit frame of each variant on the still office scene
-(median of ``--repeats`` calls, one thread, the variants interleaved call by call), and its ratio
+errors). Speed beside it: CPU time per lit frame of each variant on the still office scene and on
+the office turning at 90 deg/s, both in 3x light (median of ``--repeats`` calls, one thread, the
+variants interleaved call by call), and its ratio
 to ``fast one-unlit``. And the static
 accuracy as ``laserpi bench pipeline`` measures it (fast-com, 90 % walls at 2 m and 3 m, the
 simulator's 40 ms exposure), with one unlit frame and with both neighbours, on the same frames.
@@ -51,6 +52,8 @@ SWEEP = (
     ("person, yaw 45", "person", 45, 0.0, 3, 0.0),
 )
 VARIANTS = ("reference", "fast one-unlit", "fast")
+#: the scenes the variants are timed on: (yaw deg/s, ambient x indoor) of the office
+TIMED = {"still": (0, 3), "yaw 90": (90, 3)}
 FLICKER_HZ = 100.0
 
 
@@ -133,36 +136,45 @@ def measure(args) -> dict:
     if unknown:
         raise ValueError(f"unknown sweep point(s) {', '.join(sorted(unknown))}; choose from {', '.join(s[0] for s in SWEEP)}")
     points = []
-    timing_pairs = None
+    timed = {}
     for label, scene_name, yaw, speed, ambient, flicker in SWEEP:
         if wanted is not None and label not in wanted:
             continue
         scene = with_motion(get_scene(scene_name), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient,
                             flicker_hz=FLICKER_HZ, flicker_depth=flicker)
         pairs = sequence(cfg, scene, args.frames, args.seed)
-        if label == "still":
-            timing_pairs = pairs
+        if label in TIMED:
+            timed[label] = pairs[0]
         row = {"point": label, "scene": scene_name, "yaw_deg_s": yaw, "speed_m_s": speed, "ambient_x": ambient,
                "flicker_depth": flicker}
         for name, pipe in _pipelines(cfg).items():
             row[name] = score([(_process(name, pipe, p), p.truth) for p in pairs])
         points.append(row)
-    if timing_pairs is None:
-        timing_pairs = sequence(cfg, get_scene("office"), 1, args.seed)
-    # the variants interleaved call by call (each round in another order), so that what the machine
-    # does meanwhile falls on all of them alike: their ratio is what is compared
+    for label, (yaw, ambient) in TIMED.items():
+        if label not in timed:
+            scene = with_motion(get_scene("office"), yaw_rate_deg_s=yaw, ambient_scale=ambient)
+            timed[label] = sequence(cfg, scene, 1, args.seed)[0]
+    ms = {label: _ms_per_lit_frame(cfg, pair, args.repeats) for label, pair in timed.items()}
+    return {"points": points, "ms_per_lit_frame": ms["still"], "ms_per_moving_lit_frame": ms["yaw 90"],
+            "static": static_accuracy(cfg, args.frames, args.seed),
+            "ratio_vs_one_unlit": ms["still"]["fast"] / ms["still"]["fast one-unlit"],
+            "operating_point": {"exposure_us": cfg.operating_point.exposure_us,
+                                "analog_gain": cfg.operating_point.analog_gain}}
+
+
+def _ms_per_lit_frame(cfg, pair, repeats: int) -> dict[str, float]:
+    """CPU ms per call of each variant on ``pair``: the median of ``repeats`` calls, the variants
+    interleaved call by call (each round in another order), so that what the machine does
+    meanwhile falls on all of them alike: their ratio is what is compared."""
     pipes = _pipelines(cfg)
     times: dict[str, list[float]] = {name: [] for name in pipes}
     names = list(pipes)
-    for k in range(max(args.repeats, 1)):
+    for k in range(max(repeats, 1)):
         for name in names[k % len(names):] + names[:k % len(names)]:
             t0 = time.thread_time()
-            _process(name, pipes[name], timing_pairs[0])
+            _process(name, pipes[name], pair)
             times[name].append(time.thread_time() - t0)
-    ms = {name: sorted(t)[len(t) // 2] * 1e3 for name, t in times.items()}
-    return {"points": points, "ms_per_lit_frame": ms, "static": static_accuracy(cfg, args.frames, args.seed), "ratio_vs_one_unlit": ms["fast"] / ms["fast one-unlit"],
-            "operating_point": {"exposure_us": cfg.operating_point.exposure_us,
-                                "analog_gain": cfg.operating_point.analog_gain}}
+    return {name: sorted(t)[len(t) // 2] * 1e3 for name, t in times.items()}
 
 
 def static_accuracy(cfg, frames: int, seed: int) -> dict:
@@ -265,9 +277,11 @@ def _print(result: dict, frames: int) -> None:
             print(f"{p['point'] if name == VARIANTS[0] else '':<22} {name:<15} {f(s['gross_fraction'] * 100, '8.2f')} "
                   f"{s['false_returns']:>6d} {f(s['valid_fraction'] * 100, '8.1f')} {f(s['blind_fraction'] * 100, '8.1f')} "
                   f"{f(s['sigma_pct'], '8.2f')}")
-    ms = result["ms_per_lit_frame"]
+    ms, moving = result["ms_per_lit_frame"], result["ms_per_moving_lit_frame"]
     print("CPU per lit frame (still office scene): " + ", ".join(f"{n} {ms[n]:.3f} ms" for n in VARIANTS)
           + f"; fast / fast one-unlit = {result['ratio_vs_one_unlit']:.2f}")
+    print("CPU per lit frame (office, turning 90 deg/s): " + ", ".join(f"{n} {moving[n]:.3f} ms" for n in VARIANTS)
+          + f"; fast / fast one-unlit = {moving['fast'] / moving['fast one-unlit']:.2f}")
     print("still 90 % walls, fast-com (range error 1 sigma, valid): " + ", ".join(
         f"{k} {v['sigma_pct']:.3f} % {v['valid_fraction']:.3f}" for k, v in result["static"].items()))
     for line in targets(result):
