@@ -264,3 +264,32 @@ def test_step_0_refuses_a_trend_window_no_taller_than_a_line_and_checks_that_mea
 
     with pytest.raises(ValueError, match=next(iter(bad))):
         FastParams(**bad)
+
+
+def test_a_saturated_line_on_a_moved_background_is_kept():
+    # near a wall the line saturates the lit frame, and its difference counts as full scale (255)
+    # however bright the background; the lit frame itself can rise only to 255. Vertical stripes
+    # (120 +- 30 levels) moved 3 px each way between the unlit neighbours (a turning robot), the
+    # line 400 levels high at 1.3 px sigma: the one-neighbour pipeline measures it, so must the
+    # device's (before the fix the lit frame's ridge test rejected every column)
+    from device.vision.fast import FastPipeline
+
+    device, _ = _device_and_without({})
+    pipe = FastPipeline(CFG, device.params)
+    H, W = CFG.height, CFG.width
+    rng = np.random.default_rng(1)
+    r = np.arange(H, dtype=float)[:, None]
+    c = np.arange(W, dtype=float)[None, :]
+    y = pipe.top + 60
+
+    def frame(shift, line):
+        x = 120 + 30 * np.sin(2 * np.pi * (c + shift) / 23) + line * np.exp(-0.5 * ((r - y) / 1.3) ** 2)
+        return np.clip(np.rint(x + rng.standard_normal((H, W))), 0, 255).astype(np.uint8)
+
+    lit, after, before = frame(0, 400), frame(3, 0), frame(-3, 0)
+    assert np.mean(lit[y] == 255) > 0.99
+    one = pipe.process(lit, after, np.ones(H, bool))
+    pipe.reset()
+    both = pipe.process(lit, after, np.ones(H, bool), other_unlit=before)
+    assert one.valid.sum() > 1000
+    assert both.valid.sum() >= 0.95 * one.valid.sum()
