@@ -466,13 +466,19 @@ class FastPipeline:
         # the laser adds a narrow ridge to the lit frame itself, whatever the background did: a
         # band of residue where an edge of the unlit frames moved against the lit one's is not one
         core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, before.shape[0] - 1)
-        lit_ridge = _stands_out(cv2.blur(lit[lo:hi], (5, 3)).astype(np.int16), core - lo, cols, h).max(axis=0)
+        blurred = cv2.blur(lit[lo:hi], (5, 3)).astype(np.int16)
+        ridge = _stands_out(blurred, core - lo, cols, h)
+        lit_ridge = ridge.max(axis=0)
         sm = self._sm_buf  # the smoothed difference of the last search (its band rows t0..)
         smoothed_peak = sm.ravel().take(clamp(core - t0, 0, sm.shape[0] - 1) * sm.shape[1] + cols[None, :]).max(axis=0)
+        # a saturated line's difference counts as full scale (step 1), but the laser lifts the lit
+        # frame at most to 255: it can stand only as far above the rows beside it as that leaves
+        room = 255 - blurred.ravel().take((core - lo) * blurred.shape[1] + cols[None, :]) + ridge
+        smoothed_peak = np.minimum(smoothed_peak, room.max(axis=0))
         shape = np.zeros(status.size, bool)
         shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
                        | ~(spread <= p.moving_max_spread_px) | (peak[cols] < p.moving_change_ratio * change)
-                       | (lit_ridge < p.lit_ridge_fraction * smoothed_peak))
+                       | (lit_ridge < p.lit_ridge_fraction * smoothed_peak) | (lit_ridge <= 0))
         status = np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
         # what these checks leave of a moved edge's residue are fragments: in moved columns a
         # line is one only as part of moving_min_run continuous columns
