@@ -80,8 +80,25 @@ def test_answered_requests_leave_the_clock_stepping_in_whole_quanta(hardware):
         hardware.limit_ns = hardware.now_ns() + 3_000_000
         assert hardware.wait_until(hardware.limit_ns, 2.0)
         time.sleep(0.1)
-        assert hardware.now_ns() == hardware.limit_ns
+        assert 0 <= hardware.now_ns() - hardware.limit_ns <= 1e9 / hardware.cpu_hz + 1  # within a CPU cycle
         # a request while held is answered (the answer window lets the MCU's time run on)
         assert comcu.ping().mcu_ticks > 0 and hardware.now_ns() > hardware.limit_ns
     finally:
         comcu.port.close()
+
+
+def test_a_waiter_is_woken_when_its_time_has_come_not_at_every_step(hardware):
+    """wait_until's callers (the simulated camera waiting for its next frame) are notified once
+    the clock reaches the time they wait for, not at each of the ~50 steps before it."""
+    notified: list[int] = []
+    notify_all = hardware._advanced.notify_all
+
+    def counting() -> None:
+        notified.append(hardware.now_ns())
+        notify_all()
+
+    hardware._advanced.notify_all = counting
+    target = hardware.now_ns() + 50_000_000
+    assert hardware.wait_until(target, 2.0)
+    assert hardware.now_ns() >= target
+    assert 1 <= len(notified) <= 2 and notified[-1] >= target, notified

@@ -101,6 +101,7 @@ class SimulatedHardware:
         self._rng = np.random.default_rng([seed, 0x6910])
         self._lock = threading.RLock()  # the emulator: one command at a time
         self._advanced = threading.Condition(self._lock)
+        self._awaited_ns: list[int] = []  # the simulated times wait_until's callers wait for
         self._windows: collections.deque[tuple[int, int]] = collections.deque(maxlen=int(64 * history_s))
         self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
         self._rise: int | None = None
@@ -158,7 +159,8 @@ class SimulatedHardware:
                 self.mcu.run_cycles(max(1, (step_end - now) * self.cpu_hz // 1_000_000_000))
                 self._collect()
                 self._mcu_to_pi()
-                self._advanced.notify_all()
+                if self._awaited_ns and self.now_ns() >= min(self._awaited_ns):
+                    self._advanced.notify_all()  # not at every step: a waiter wakes when its time has come
 
     def _pi_to_mcu(self) -> None:
         """Bytes the Pi wrote to its end of the UART go into the MCU's receiver now."""
@@ -211,11 +213,15 @@ class SimulatedHardware:
         """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
         deadline = time.monotonic() + timeout_s
         with self._advanced:
-            while self.now_ns() < t_ns:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._advanced.wait(min(left, 0.01))
+            self._awaited_ns.append(t_ns)
+            try:
+                while self.now_ns() < t_ns:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return False
+                    self._advanced.wait(min(left, 0.01))
+            finally:
+                self._awaited_ns.remove(t_ns)
         return True
 
     # the co-MCU
