@@ -193,15 +193,14 @@ class SimulatedHardware:
                 pass
 
     def _run_tickers(self) -> None:
-        # simulated time never runs ahead of the wall clock, so sleeping the simulated interval
-        # is never too long (waiting on the clock's condition instead would wake at every step)
+        # woken by the clock thread when simulated time reaches the tick (wait_until), not by
+        # sleeping the interval in wall time: the clock lags the wall clock by up to a step, and
+        # polling for it would wake several times a tick
         next_tick = self.now_ns() + self.tick_ns
         work_s = 0.0
         while not self._stop.is_set():
             self.ticker_wait_cpu_s = time.thread_time() - work_s
-            left_ns = next_tick - self.now_ns()
-            if left_ns > 0:
-                self._stop.wait(left_ns * 1e-9)
+            if not self.wait_until(next_tick, 0.1):
                 continue
             next_tick += self.tick_ns
             started = time.thread_time()
@@ -219,7 +218,7 @@ class SimulatedHardware:
                     left = deadline - time.monotonic()
                     if left <= 0:
                         return False
-                    self._advanced.wait(min(left, 0.01))
+                    self._advanced.wait(left)  # the clock thread notifies when t_ns has come
             finally:
                 self._awaited_ns.remove(t_ns)
         return True
