@@ -132,3 +132,46 @@ def test_train_adapter_replaces_the_train_and_sends_period_differences():
         train.schedule(10_000, 66_667, 20_000, [False, False])
     assert port.requests == [mcu.Stop(), mcu.Schedule(10_000, 66_667, 20_000, 0b01, 2, True),
                              mcu.Trim(-40, -7), mcu.Trim(3, 1)]
+
+
+class FullPort(ScriptedPort):
+    """A port whose transmit buffer takes only ``room`` more bytes (a non-blocking write)."""
+
+    def __init__(self, room):
+        super().__init__(lambda f: mcu.encode_message(mcu.Pong(1, 2), f.seq))
+        self.room = room
+
+    def write(self, data):
+        return super().write(bytes(data)) if len(data) <= self.room else self.room
+
+
+def test_a_frame_the_port_takes_only_part_of_is_a_lost_link():
+    comcu = CoMcu(FullPort(room=5))
+    with pytest.raises(OSError, match="took 5 of a frame's 14 bytes"):
+        comcu.send_heartbeat()
+    with pytest.raises(OSError, match="took 5 of"):
+        comcu.ping()
+    assert comcu.heartbeats_sent == 0
+    roomy = CoMcu(FullPort(room=64))
+    roomy.send_heartbeat()
+    assert roomy.ping().mcu_ticks == 2 and roomy.heartbeats_sent == 1
+
+
+def test_the_serial_port_is_opened_with_non_blocking_writes():
+    import os
+    import pty
+
+    from device.laser.comcu import open_comcu
+
+    master, slave = pty.openpty()
+    try:
+        comcu = open_comcu(os.ttyname(slave))
+        assert comcu.port.write_timeout == 0 and comcu.port.timeout == 0.05
+        comcu.send_heartbeat()
+        assert os.read(master, 64).endswith(mcu.encode_message(mcu.Heartbeat(), HEARTBEAT_SEQ))
+        comcu.port.close()
+        with pytest.raises(OSError):
+            open_comcu("/dev/no-such-serial-port")
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -1,8 +1,10 @@
 """Pi side of the co-MCU link: CoMcu speaks protocol/mcu.py over any pyserial-like port.
 
-The port needs ``write(bytes)``, ``read(size) -> bytes`` (returning fewer bytes, or none, when
-its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at 250000 baud 8N1 on the Pi, or
-device.sim.comcu_emulator.SteppedMcuPort for the firmware running in simavr.
+The port needs ``write(bytes) -> int`` (the bytes it took), ``read(size) -> bytes`` (returning
+fewer bytes, or none, when its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at
+250000 baud 8N1 on the Pi (``open_comcu``), or device.sim.comcu_emulator.SteppedMcuPort for the
+firmware running in simavr. Every frame is one write; one the port took only part of is a lost
+link (OSError).
 
 Every command waits for its reply (matched by sequence number), except the heartbeat:
 ``send_heartbeat`` only writes it, and its ACK, read with the next command or ``edges()``, sets
@@ -65,6 +67,22 @@ class PingResult:
         return self.host_recv_ns - self.host_send_ns
 
 
+def open_comcu(path: str, clock_ns: Callable[[], int] = time.monotonic_ns) -> CoMcu:
+    """A CoMcu on the serial device ``path`` (the Pi's UART, or the simulated co-MCU's pty); OSError
+    if it cannot be opened. Its writes do not block (pyserial ``write_timeout=0``: one write(2),
+    without the select(2) after it with which a blocking pyserial write waits until the kernel
+    has taken every byte): frames of at most 36 bytes, ~1 kB/s in all (67 heartbeats a second),
+    never fill the kernel's transmit buffer of a UART that drains 25 kB/s (a page:
+    UART_XMIT_SIZE, include/linux/serial_core.h); if it is full, the UART is stuck, and CoMcu
+    reports the write the port took only part of as a lost link."""
+    import serial
+
+    try:
+        return CoMcu(serial.Serial(path, BAUDRATE, timeout=0.05, write_timeout=0), clock_ns=clock_ns)
+    except serial.SerialException as exc:
+        raise OSError(str(exc)) from exc
+
+
 class CoMcu:
     """Commands to the laser co-MCU; one instance per port, not thread-safe."""
 
@@ -123,7 +141,7 @@ class CoMcu:
         Info.heartbeat_timeout_ms).  Only written: one 12-byte write, no round trip.  Its ACK,
         read with the next command or ``edges()``, updates ``heartbeat_state`` and
         ``heartbeat_acks``."""
-        self.port.write(self._heartbeat_wire)
+        self._write(self._heartbeat_wire)
         self.heartbeats_sent += 1
 
     def edges(self) -> list[mcu.Edge]:
@@ -141,7 +159,7 @@ class CoMcu:
     def _request(self, msg, reply_cls):
         self._seq = self._seq % (HEARTBEAT_SEQ - 1) + 1  # 1..0xFFFE: 0 is the MCU's unsolicited traffic
         # A leading delimiter ends any partial frame line noise left in the MCU's receiver.
-        self.port.write(b"\x00" + mcu.encode_message(msg, self._seq))
+        self._write(b"\x00" + mcu.encode_message(msg, self._seq))
         for _ in range(self._max_skipped):
             frame = self._read_frame()
             if frame.seq == self._seq and frame.msg_type in _REPLY_TYPES:
@@ -154,6 +172,11 @@ class CoMcu:
                 return reply
             self._keep_unsolicited(frame)
         raise CoMcuError(f"no reply to {type(msg).__name__} among {self._max_skipped} frames")
+
+    def _write(self, wire: bytes) -> None:
+        n = self.port.write(wire)
+        if n != len(wire):
+            raise OSError(f"the co-MCU's port took {n} of a frame's {len(wire)} bytes (its transmit buffer is full)")
 
     def _keep_unsolicited(self, frame) -> None:
         try:

@@ -17,6 +17,7 @@ can land) and so the pulse, which must fit the firmware's compiled-in eye-safety
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass
@@ -25,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from device.config import SensorConfig, load_config, load_preset, with_operating_point
-from device.laser.comcu import BAUDRATE, CoMcu
+from device.laser.comcu import open_comcu
 from device.scan.pipeline import ScanPipeline
 from device.scan.source import SensorSource
 from protocol import messages as m
@@ -202,8 +203,6 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
                   "camera-stall": lambda: setattr(camera, "stall_until_ns", hw.now_ns() + 1_000_000_000)}
         degraded = False  # the simulated Pi has the trigger line's edges (hw.gpio_edges)
     else:
-        import serial
-
         from device.camera.picamera2_camera import Picamera2Camera, camera_stack_problem
 
         problem = camera_stack_problem()  # a camera that can never start is a stop, not a retry
@@ -211,12 +210,6 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
             raise RuntimeError(f"no camera: {problem}; or use --simulate to run the simulated sensor here")
         camera = Picamera2Camera(exposure_us=op.exposure_us, frame_duration_us=frame_duration_s * 1e6,
                                  analogue_gain=op.analog_gain, window=cfg.window)
-
-        def open_comcu():
-            try:
-                return CoMcu(serial.Serial(setup.comcu, BAUDRATE, timeout=0.05))
-            except serial.SerialException as exc:
-                raise OSError(str(exc)) from exc
 
         edges = _open_gpio_edges(setup.gpio_edge or cfg.gpio_edge)
         if edges is not None:
@@ -227,7 +220,8 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
                         "gpio_edge); the laser is synchronised by co-MCU pings alone, with wider guards (HEALTH error "
                         "SYNC_DEGRADED)")
             degraded = True
-        laser = SyncedLaser(open_comcu, sync, gpio_edges=None if edges is None else edges.read,
+        laser = SyncedLaser(functools.partial(open_comcu, setup.comcu), sync,
+                            gpio_edges=None if edges is None else edges.read,
                             envelope_refusal=envelope_refusal(cfg))
         clock = time.monotonic
         faults, hw = {}, None

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from device.laser.comcu import BAUDRATE, CoMcu
+from device.laser.comcu import open_comcu
 from device.laser.synced import HEARTBEAT_S
 from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, SteppedMcuPort, build_emulator
 from protocol.ports import open_raw_pty
@@ -201,12 +201,7 @@ class SimulatedHardware:
     def open_comcu(self):
         """A CoMcu on the co-MCU's UART (the pty, through pyserial as on a Pi) with the simulated
         clock: what SyncedLaser opens."""
-        import serial
-
-        try:
-            return CoMcu(serial.Serial(self.tty_path, BAUDRATE, timeout=0.05), clock_ns=self.now_ns)
-        except serial.SerialException as exc:
-            raise OSError(str(exc)) from exc
+        return open_comcu(self.tty_path, clock_ns=self.now_ns)
 
     # the laser pin
     def _collect(self) -> None:
