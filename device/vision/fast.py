@@ -23,21 +23,24 @@ Per frame pair (or triple):
    are not a line; the closing of the residue itself would bridge to the line). A line found
    there is kept only if it stands ``moving_noise_ratio`` times above the noise level (step 1) of
    the columns within ``moving_noise_columns`` (16; a moved feature leaves its residue where it
-   was), above ``moving_change_ratio`` times the narrow part of what changed between the two
-   neighbours on its own rows (a moved edge's residue lies on the rows it crossed, a single
-   bright band), ``lit_ridge_fraction`` of its smoothed peak above the lit frame's own rows
+   was), ``lit_ridge_fraction`` of its smoothed peak above the lit frame's own rows
    ``half_width`` above and below it (the laser adds a ridge to the lit frame whatever the
    background did; a band of residue where an edge of the unlit frames moved against the lit
-   one's is not a ridge there), is no wider than ``moving_max_spread_px``, has dark flanks
+   one's is not a ridge there) and ``texture_ridge_ratio`` times the ridges of the unlit frames
+   within ``moving_reach_columns`` and ``half_width`` rows (a narrow ridge of the texture itself,
+   a bright stripe's corner above a moved edge, is in them too, where the background moved it),
+   is no wider than ``moving_max_spread_px``, has dark flanks
    ``flank_rows`` above and below (moved texture is a band, aliased periodic texture a plateau,
    the laser a narrow line), and what is left after these checks is part of a run of
    ``moving_min_run`` continuous columns (a moved edge's residue passes in fragments); otherwise
    it is REJECTED (NaN), never a guess. And any column whose noise level in the residue (before
    the trend is taken out) exceeds ``blind_noise`` cannot claim "no return" (+inf: free space to a
-   robot): REJECTED. A still scene's output differs from the one-neighbour pipeline only by
-   the lower noise of the mean background (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
+   robot): REJECTED. A still scene's output differs from the one-neighbour pipeline by the
+   lower noise of the mean background, and where sensor noise alone makes a column count as
+   moved (16-32 columns a frame on a 90 % wall at a 40 ms exposure) by these checks there
+   (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
    without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
-   uses the nearer unlit frame alone.
+   needs the return to brighten the lit frame against both neighbours.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -105,6 +108,7 @@ This module keeps the order of the steps, the tracking and the parameters.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -157,8 +161,9 @@ class FastParams:
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
     flank_rows: int = 6  # and this many rows above and below it
     flank_fraction: float = 0.5  # be darker than this x its peak (a moved texture is a wide band), or it is REJECTED
-    moving_change_ratio: float = 1.0  # ... and exceed this x the change between the unlit neighbours on its own rows
     lit_ridge_fraction: float = 0.7  # ... and stand this x its smoothed peak above the lit frame's own rows half_width above and below it
+    texture_ridge_ratio: float = 1.0  # ... and stand as a ridge above this x the ridges of the unlit frames
+    moving_reach_columns: int = 64  # ... within this many columns (as far as the background may move)
     moving_min_run: int = 5  # ... and, after these checks, be part of a run of this many continuous columns
     trend_rows: int = 11  # the moved background's trend along each column is taken over this many rows (taller than a line)
 
@@ -176,12 +181,15 @@ class FastParams:
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
         if math.isfinite(self.max_range_sigma) and self.smooth_half == 0:
             raise ValueError("max_range_sigma needs the line fit (smooth_half > 0): the range gate propagates its sigma")
-        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moving_change_ratio >= 0):
-            raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moving_change_ratio >= 0, got "
-                             f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moving_change_ratio}")
-        if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1 or self.lit_ridge_fraction < 0:
-            raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line), moving_min_run >= 1 and "
-                             f"lit_ridge_fraction >= 0, got {self.trend_rows}, {self.moving_min_run}, {self.lit_ridge_fraction}")
+        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0):
+            raise ValueError(f"need moved_block_level > 0 and moved_block_ratio >= 0, got "
+                             f"{self.moved_block_level}, {self.moved_block_ratio}")
+        if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1:
+            raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line) and moving_min_run >= 1, got "
+                             f"{self.trend_rows}, {self.moving_min_run}")
+        if min(self.lit_ridge_fraction, self.texture_ridge_ratio, self.moving_reach_columns) < 0:
+            raise ValueError(f"need lit_ridge_fraction, texture_ridge_ratio and moving_reach_columns >= 0, got "
+                             f"{self.lit_ridge_fraction}, {self.texture_ridge_ratio}, {self.moving_reach_columns}")
         if self.flank_rows < self.half_width:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
@@ -270,8 +278,10 @@ class FastPipeline:
         p = self.params
         moved = neighbours = None
         noise_background = residue_noise = None
+        unlits = (lum_unlit,)
         if other_unlit is not None:  # step 0
-            other = luminance(other_unlit, "other unlit", shape)[self.top : self.top + self.rows]
+            unlits = (lum_unlit, luminance(other_unlit, "other unlit", shape))
+            other = unlits[1][self.top : self.top + self.rows]
             neighbours = (background, other)
             # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
             # a texture that moved stays), then their mean |difference| per 8 columns
@@ -321,8 +331,11 @@ class FastPipeline:
         if self.near_bottom > self.near_top and cols.size:
             # every other row: a line is at least two rows high
             c0, c1 = int(cols[0]), int(cols[-1]) + 1
+            # with both unlit neighbours the return must brighten the lit frame against each (a
+            # moved edge brightens it against one and darkens it against the other)
             la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
-            ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
+            # (lit - the brighter of them, saturating, is the lesser of the two differences)
+            ua = functools.reduce(cv2.max, [u[self.near_top : self.near_bottom : 2, c0:c1] for u in unlits])
             mask = self.near_mask[:, c0:c1]
             near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
@@ -452,33 +465,35 @@ class FastPipeline:
         # what changed between the two unlit neighbours on the line's own rows: a moving edge
         # leaves a residue there that a line must stand above (under forward motion a
         # horizontal edge moves across the rows, and its residue is a single bright band)
-        before, after = neighbours
+        before = neighbours[0]
         rb = clamp(r - self._pad + t0, 0, before.shape[0] - 1)  # the lines' band rows
-        line_rows = clamp(rb[None, :] + np.arange(-h, h + 1)[:, None], 0, before.shape[0] - 1)
-        at = line_rows * before.shape[1] + cols[None, :]
-        # (its part narrower than a moved band of the lit frame's residue can be: the change
-        # between the neighbours spans twice the rows a moved edge crossed by the lit frame's time),
-        # on the 5 x 3 smoothed images as detection sees them, over the rows these checks read
-        lo = max(int(rb.min()) - h - p.trend_rows - 1, 0)
-        hi = min(int(rb.max()) + h + p.trend_rows + 2, before.shape[0])
-        delta = cv2.blur(cv2.subtract(before[lo:hi], after[lo:hi], dtype=cv2.CV_16S), (5, 3))
-        change = np.abs(_stands_out(delta, line_rows - lo, cols, p.trend_rows)).max(axis=0)
+        # on the 5 x 3 smoothed images as detection sees them, over the rows the checks read
+        lo = max(int(rb.min()) - 2 * h - 2, 0)
+        hi = min(int(rb.max()) + 2 * h + 3, before.shape[0])
+        core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, before.shape[0] - 1)  # the line's middle rows
+        at = (core - lo) * before.shape[1] + cols[None, :]  # ... in the window of rows lo..hi
         # the laser adds a narrow ridge to the lit frame itself, whatever the background did: a
         # band of residue where an edge of the unlit frames moved against the lit one's is not one
-        core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, before.shape[0] - 1)
         blurred = cv2.blur(lit[lo:hi], (5, 3)).astype(np.int16)
-        ridge = _stands_out(blurred, core - lo, cols, h)
+        ridge = _ridges(blurred, h).ravel().take(at)
         lit_ridge = ridge.max(axis=0)
         sm = self._sm_buf  # the smoothed difference of the last search (its band rows t0..)
         smoothed_peak = sm.ravel().take(clamp(core - t0, 0, sm.shape[0] - 1) * sm.shape[1] + cols[None, :]).max(axis=0)
         # a saturated line's difference counts as full scale (step 1), but the laser lifts the lit
         # frame at most to 255: it can stand only as far above the rows beside it as that leaves
-        room = 255 - blurred.ravel().take((core - lo) * blurred.shape[1] + cols[None, :]) + ridge
+        room = 255 - blurred.ravel().take(at) + ridge
         smoothed_peak = np.minimum(smoothed_peak, room.max(axis=0))
+        # a narrow ridge of the texture itself (the bright corner of a stripe above a moved edge)
+        # is in the unlit neighbours too, where the background moved it: the line must outshine
+        # their ridges within moving_reach_columns and half_width rows
+        ridges = cv2.max(*(_ridges(cv2.blur(x[lo:hi], (5, 3)).astype(np.int16), h) for x in neighbours))
+        reach = cv2.dilate(ridges, np.ones((2 * h + 1, 2 * p.moving_reach_columns + 1), np.uint8))
+        texture_ridge = reach.ravel().take(at).max(axis=0)
         shape = np.zeros(status.size, bool)
         shape[cols] = ((peak[cols] < p.moving_noise_ratio * around[cols]) | (flank >= p.flank_fraction * peak[cols])
-                       | ~(spread <= p.moving_max_spread_px) | (peak[cols] < p.moving_change_ratio * change)
-                       | (lit_ridge < p.lit_ridge_fraction * smoothed_peak) | (lit_ridge <= 0))
+                       | ~(spread <= p.moving_max_spread_px)
+                       | (lit_ridge < p.lit_ridge_fraction * smoothed_peak) | (lit_ridge <= 0)
+                       | (lit_ridge < p.texture_ridge_ratio * texture_ridge))
         status = np.where(shape | blind, STATUS_U8[ColumnStatus.REJECTED], status)
         # what these checks leave of a moved edge's residue are fragments: in moved columns a
         # line is one only as part of moving_min_run continuous columns
@@ -507,16 +522,12 @@ class FastPipeline:
         return status
 
 
-def _stands_out(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, k: int) -> np.ndarray:
-    """How far ``image`` (int16) at (``rows``, ``cols``) stands out of both the pixels ``k`` rows
-    above and below it, with its sign: above both (> 0), below both (< 0), 0 between them (an
-    edge, not a line or a band)."""
-    n, W = image.shape
-    flat = image.ravel()
-    at = flat.take(rows * W + cols)
-    above = flat.take(clamp(rows - k, 0, n - 1) * W + cols)
-    below = flat.take(clamp(rows + k, 0, n - 1) * W + cols)
-    return np.maximum(at - np.maximum(above, below), 0) + np.minimum(at - np.minimum(above, below), 0)
+def _ridges(image: np.ndarray, k: int) -> np.ndarray:
+    """How far each pixel of ``image`` (int16) stands above both the pixels ``k`` rows above and
+    below it (0 where it does not, and in the first and last ``k`` rows), as uint8."""
+    out = np.zeros(image.shape, np.int16)
+    out[k:-k] = np.minimum(image[k:-k] - image[: -2 * k], image[k:-k] - image[2 * k :])
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
 def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarray, trend_rows: int):
@@ -524,9 +535,10 @@ def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarra
     ``lit - background`` a moved texture leaves varies slowly along a column except at its
     horizontal edges, while the line is a few rows high. So the residue's trend along the column
     (its opening over ``trend_rows`` rows: the largest envelope from below of what is at least
-    that tall) joins the background the line is measured against, and the residue's closing
+    that tall) joins the background the line is measured against, and the closing of that trend
     joins the one the noise level is measured against (narrow dark dips, the counterpart of
-    narrow bright ridges that are not a line). Returns (background for the line, for the noise)."""
+    narrow bright ridges that are not a line; the closing of the residue itself would bridge
+    from the line to the texture beside it). Returns (background for the line, for the noise)."""
     import cv2
 
     residue = cv2.blur(cv2.subtract(lit, background, dtype=cv2.CV_16S), (5, 3))
