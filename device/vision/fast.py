@@ -40,7 +40,9 @@ Per frame pair (or triple):
    moved (16-32 columns a frame on a 90 % wall at a 40 ms exposure) by these checks there
    (BENCHMARKS.md "Motion"); ``process(lit, unlit)``
    without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
-   needs the return to brighten the lit frame against both neighbours.
+   needs the return to brighten the lit frame against both neighbours, and in a moved column against
+   the brightest of them within ``moving_reach_columns`` (a bright stripe of a periodic texture that
+   aliases with the frame step is in the lit frame, and in neither neighbour at that column).
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -341,8 +343,19 @@ class FastPipeline:
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
             # stricter than in range (twice the noise ratio): a false "too close" stops a robot
             close = np.zeros(W, bool)
-            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+            strong = np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+            close[c0:c1] = near >= strong
             close &= empty
+            if moved is not None and np.any(close & moved):
+                # where the background moved, a periodic texture can alias with the frame step (a
+                # bright stripe in the lit frame, dark ones in both neighbours); it is bright in
+                # them within the distance the background moves, the laser's return is not
+                reach = p.moving_reach_columns
+                a0, a1 = max(c0 - reach, 0), min(c1 + reach, W)
+                wide = functools.reduce(cv2.max, [u[self.near_top : self.near_bottom : 2, a0:a1] for u in unlits])
+                brightest = cv2.dilate(wide, np.ones((1, 2 * reach + 1), np.uint8))[:, c0 - a0 : c1 - a0]
+                above_all = cv2.bitwise_and(cv2.subtract(la, brightest), mask).max(axis=0)
+                close[c0:c1] &= ~moved[c0:c1] | (above_all >= strong)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
