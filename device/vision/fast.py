@@ -110,7 +110,6 @@ This module keeps the order of the steps, the tracking and the parameters.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -280,10 +279,9 @@ class FastPipeline:
         p = self.params
         moved = neighbours = None
         noise_background = residue_noise = None
-        unlits = (lum_unlit,)
         if other_unlit is not None:  # step 0
-            unlits = (lum_unlit, luminance(other_unlit, "other unlit", shape))
-            other = unlits[1][self.top : self.top + self.rows]
+            lum_other = luminance(other_unlit, "other unlit", shape)
+            other = lum_other[self.top : self.top + self.rows]
             neighbours = (background, other)
             # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
             # a texture that moved stays), then their mean |difference| per 8 columns
@@ -333,11 +331,14 @@ class FastPipeline:
         if self.near_bottom > self.near_top and cols.size:
             # every other row: a line is at least two rows high
             c0, c1 = int(cols[0]), int(cols[-1]) + 1
-            # with both unlit neighbours the return must brighten the lit frame against each (a
-            # moved edge brightens it against one and darkens it against the other)
             la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
-            # (lit - the brighter of them, saturating, is the lesser of the two differences)
-            ua = functools.reduce(cv2.max, [u[self.near_top : self.near_bottom : 2, c0:c1] for u in unlits])
+            ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
+            if moved is not None and moved[c0:c1].any():
+                # where the background moved the return must brighten the lit frame against both
+                # neighbours (a moved edge brightens it against one and darkens it against the
+                # other); lit - the brighter of them, saturating, is the lesser of the differences
+                both = cv2.max(ua, lum_other[self.near_top : self.near_bottom : 2, c0:c1])
+                ua = np.where(moved[c0:c1], both, ua)
             mask = self.near_mask[:, c0:c1]
             near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
@@ -352,7 +353,7 @@ class FastPipeline:
                 # them within the distance the background moves, the laser's return is not
                 reach = p.moving_reach_columns
                 a0, a1 = max(c0 - reach, 0), min(c1 + reach, W)
-                wide = functools.reduce(cv2.max, [u[self.near_top : self.near_bottom : 2, a0:a1] for u in unlits])
+                wide = cv2.max(*(u[self.near_top : self.near_bottom : 2, a0:a1] for u in (lum_unlit, lum_other)))
                 brightest = cv2.dilate(wide, np.ones((1, 2 * reach + 1), np.uint8))[:, c0 - a0 : c1 - a0]
                 above_all = cv2.bitwise_and(cv2.subtract(la, brightest), mask).max(axis=0)
                 close[c0:c1] &= ~moved[c0:c1] | (above_all >= strong)
