@@ -1,12 +1,41 @@
-"""The simulated Pi's co-MCU (device/sim/hardware.py): the heartbeats reach the firmware."""
+"""The simulated Pi's clock thread (device/sim/hardware.py): which UART frames it counts as
+requests and answers, and how often it steps the emulator."""
 
 from __future__ import annotations
+
+import time
 
 import pytest
 
 from device.laser.comcu import HEARTBEAT_SEQ
-from device.sim.hardware import SimulatedHardware
+from device.sim.hardware import SimulatedHardware, answers_a_request, ended_frames
 from protocol import mcu
+
+
+def wire(msg, seq: int) -> bytes:
+    return mcu.encode_message(msg, seq)
+
+
+def test_a_request_is_a_frame_not_a_delimiter():
+    """The Pi writes a delimiter before every frame (CoMcu): two zero bytes, one request."""
+    partial = bytearray()
+    ping = wire(mcu.Ping(), 7)
+    assert ended_frames(partial, b"\x00" + ping) == [ping[:-1]]
+    assert ended_frames(partial, b"\x00") == [] and partial == b""
+    # a frame split across two reads counts once, when its delimiter arrives
+    hb = b"\x00" + wire(mcu.Heartbeat(), HEARTBEAT_SEQ)
+    assert ended_frames(partial, hb[:5]) == []
+    assert ended_frames(partial, hb[5:] + b"\x00" + ping[:3]) == [hb[1:-1]]
+    assert ended_frames(partial, ping[3:]) == [ping[:-1]] and partial == b""
+
+
+def test_edge_reports_and_boot_announcements_answer_no_request():
+    info = mcu.Info(1, 1, 50, 17_400, 100_000, 2_000_000, 40_000)
+    answers = [wire(mcu.Ack(mcu.Heartbeat.MSG_TYPE, 2), HEARTBEAT_SEQ), wire(mcu.Pong(1, 2), 9),
+               wire(info, 3), wire(mcu.Nack(0, 1, 0), 0), b"\x05garbled"]
+    unsolicited = [wire(mcu.Edge(4, 100, 200, 0), 0), wire(info, 0)]
+    assert all(answers_a_request(f.rstrip(b"\x00")) for f in answers)
+    assert not any(answers_a_request(f[:-1]) for f in unsolicited)
 
 
 @pytest.fixture
@@ -16,10 +45,74 @@ def hardware():
     hw.close()
 
 
+def counted_steps(hw: SimulatedHardware) -> list[int]:
+    """Cycles of every emulator step from now on."""
+    steps: list[int] = []
+    run = hw.mcu.run_cycles
+
+    def counting(cycles: int) -> None:
+        steps.append(cycles)
+        run(cycles)
+
+    hw.mcu.run_cycles = counting
+    return steps
+
+
+def test_answered_requests_leave_the_clock_stepping_in_whole_quanta(hardware):
+    """Once every request is answered, the clock advances at most one step per ``min_step_s`` of
+    simulated time (each step is a round trip to the emulator's process; stepping whenever the
+    wall clock moved on was ~30 000 a second), and stops at ``limit_ns``: the answer window is over."""
+    comcu = hardware.open_comcu()
+    try:
+        for _ in range(3):
+            comcu.ping()
+            comcu.send_heartbeat()
+        assert hardware.wait_until(hardware.now_ns() + 10_000_000, 2.0)
+        comcu.edges()
+        assert comcu.heartbeat_acks == 3
+        steps = counted_steps(hardware)
+        t0 = hardware.now_ns()
+        time.sleep(0.3)
+        ran_ns = hardware.now_ns() - t0
+        assert ran_ns > 0.1e9
+        assert len(steps) <= ran_ns / hardware.min_step_ns + 1, (len(steps), ran_ns)
+        # held at a limit: it stops there, not up to the answer window past it
+        hardware.limit_ns = hardware.now_ns() + 3_000_000
+        assert hardware.wait_until(hardware.limit_ns, 2.0)
+        time.sleep(0.1)
+        # within what simavr runs at once: a whole instruction (at most 4 cycles: CALL, RET, RETI)
+        # plus an interrupt's entry (4 cycles), ATmega328P datasheet, Instruction Set Summary and
+        # 'Interrupt Response Time' (it once ran 2 cycles past)
+        assert 0 <= hardware.now_ns() - hardware.limit_ns <= 8 * 1e9 / hardware.cpu_hz + 1
+        # a request while held is answered (the answer window lets the MCU's time run on)
+        assert comcu.ping().mcu_ticks > 0 and hardware.now_ns() > hardware.limit_ns
+    finally:
+        comcu.port.close()
+
+
+def test_a_waiter_is_woken_when_its_time_has_come_not_at_every_step(hardware):
+    """wait_until's callers (the simulated camera waiting for its next frame, the ticker thread
+    waiting for its tick) are notified once the clock reaches the time one of them waits for,
+    not at each of the ~50 steps before it."""
+    notified: list[int] = []
+    notify_all = hardware._advanced.notify_all
+
+    def counting() -> None:
+        notified.append(hardware.now_ns())
+        notify_all()
+
+    hardware._advanced.notify_all = counting
+    target = hardware.now_ns() + 50_000_000
+    assert hardware.wait_until(target, 2.0)
+    assert hardware.now_ns() >= target
+    ticks = 50_000_000 // hardware.tick_ns + 1  # the ticker's
+    assert 1 <= len(notified) <= ticks + 2 and notified[-1] >= target, notified
+
+
 def test_heartbeats_reach_the_firmware_at_their_interval_far_inside_its_timeout(hardware):
-    """The simulated heartbeat thread (the tickers) writes every tick_s of simulated time through
-    the pty (CoMcu's non-blocking writes); the firmware (timeout: its INFO's heartbeat_timeout_ms,
-    50 ms) sees them ~15 ms apart, never near 50."""
+    """The simulated heartbeat thread (the tickers) writes every tick_s of simulated time; the
+    clock's quanta delay a heartbeat's arrival at the MCU by at most a step, so the firmware
+    (timeout: its INFO's heartbeat_timeout_ms, 50 ms) sees them ~15 ms apart, never near 50."""
     comcu = hardware.open_comcu()
     arrived: list[int] = []  # simulated ns at which a heartbeat's bytes entered the MCU's UART
     write = hardware.mcu.write

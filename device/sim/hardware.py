@@ -26,7 +26,29 @@ import numpy as np
 from device.laser.comcu import open_comcu
 from device.laser.synced import HEARTBEAT_S
 from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, SteppedMcuPort, build_emulator
+from protocol import mcu
+from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 from protocol.ports import open_raw_pty
+
+
+def ended_frames(partial: bytearray, data: bytes) -> list[bytes]:
+    """The frames (COBS-encoded, without their delimiter) that ``data`` ends after the unfinished
+    frame in ``partial``, which then holds the new unfinished rest. Empty frames are none: the Pi
+    writes a delimiter before every frame (device.laser.comcu), which the MCU does not answer."""
+    partial += data
+    *frames, rest = partial.split(b"\x00")
+    partial[:] = rest
+    return [bytes(f) for f in frames if f]
+
+
+def answers_a_request(encoded: bytes) -> bool:
+    """Whether a frame from the MCU answers a request (each request gets one answer, a garbled
+    one a NACK): all but its unsolicited EDGE reports and boot announcements (INFO of sequence 0)."""
+    try:
+        frame = decode_frame(encoded, max_payload=MAX_PAYLOAD_MCU)
+    except FrameError:
+        return True
+    return not (frame.msg_type == mcu.Edge.MSG_TYPE or (frame.msg_type == mcu.Info.MSG_TYPE and frame.seq == 0))
 
 
 class SimulatedHardware:
@@ -50,6 +72,10 @@ class SimulatedHardware:
     The co-MCU's UART is a pty (``tty_path``), opened by CoMcu through pyserial exactly as the
     real one's UART is on a Pi (``open_comcu``); the clock thread moves its bytes to and from the
     emulator at every step (at most ``step_s`` of simulated time, and at once when the Pi writes).
+    Each step is a round trip to the emulator's process, so while the Pi waits for no answer the
+    clock advances in steps of at least ``min_step_s`` (the Pi's clock reads the same value
+    meanwhile, as the MCU's: bytes it writes enter the MCU at that time); while it waits for one,
+    in steps as small as the wall clock allows, as fast as the MCU answers.
     The laser pin's edges (CPU cycles, exact) become the laser's on-windows that light the
     rendered rows (``windows``, a device.sim.pulses.PulseSource) and, plus a simulated kernel
     latency (3 us + exponential, mean ``gpio_latency_s``), the GPIO edge events of the trigger
@@ -57,7 +83,8 @@ class SimulatedHardware:
     """
 
     def __init__(self, *, seed: int = 0, gpio_latency_s: float = 20e-6, tick_s: float = HEARTBEAT_S,
-                 history_s: float = 2.0, step_s: float = 0.002, answer_window_s: float = 0.05, elf: Path | None = None):
+                 history_s: float = 2.0, step_s: float = 0.002, min_step_s: float = 0.001, answer_window_s: float = 0.05,
+                 elf: Path | None = None):
         if not HARNESS.exists() or (elf is None and not ELF.exists()):
             build_emulator()  # the harness and the production ELF (the Makefile's envelope)
         elf = ELF if elf is None else Path(elf)
@@ -66,12 +93,15 @@ class SimulatedHardware:
                                     "<the envelope's variables>")
         self.harness, self.elf, self.cpu_hz = HARNESS, elf, CPU_HZ
         self.gpio_latency_s = gpio_latency_s
-        self.tick_ns, self.step_ns = int(tick_s * 1e9), int(step_s * 1e9)
+        if not 0 < min_step_s <= step_s:
+            raise ValueError(f"min_step_s must be in (0, step_s = {step_s}], got {min_step_s}")
+        self.tick_ns, self.step_ns, self.min_step_ns = int(tick_s * 1e9), int(step_s * 1e9), int(min_step_s * 1e9)
         self.answer_window_ns = int(answer_window_s * 1e9)
         self.tickers: list = []
         self._rng = np.random.default_rng([seed, 0x6910])
         self._lock = threading.RLock()  # the emulator: one command at a time
         self._advanced = threading.Condition(self._lock)
+        self._awaited_ns: list[int] = []  # the simulated times wait_until's callers wait for
         self._windows: collections.deque[tuple[int, int]] = collections.deque(maxlen=int(64 * history_s))
         self._gpio: collections.deque[tuple[int, bool]] = collections.deque(maxlen=1024)
         self._rise: int | None = None
@@ -82,7 +112,8 @@ class SimulatedHardware:
         self.clock_cpu_s = self.ticker_wait_cpu_s = self.gpio_cpu_s = 0.0
         self.limit_ns: int | None = None  # the clock does not pass this (the camera's consumer lags)
         self._answer_until_ns = 0  # requests are in flight: the MCU's time may pass limit_ns until then
-        self._requests_in_flight = 0  # frames (0x00 delimiters) the Pi sent that the MCU has not answered
+        self._requests_in_flight = 0  # frames the Pi sent that the MCU has not answered
+        self._partial_from_pi, self._partial_from_mcu = bytearray(), bytearray()  # unfinished frames on the UART
         self.resets = -1
         # the UART: the Pi's end is the pty's slave (raw, like a serial port), the MCU's the master
         self._master, self._slave, self.tty_path = open_raw_pty()
@@ -115,18 +146,21 @@ class SimulatedHardware:
                 self._lag_ns += target - now - self.step_ns
                 target = now + self.step_ns
             limit = self.limit_ns
-            if limit is not None:
-                target = min(target, max(limit, self._answer_until_ns))
-            if now >= target:
+            end = target if limit is None else min(target, max(limit, self._answer_until_ns))
+            # each step is a round trip to the emulator's process: at least min_step_ns of simulated
+            # time, unless the Pi waits for an answer or the step reaches the limit
+            quantum = 0 if self._requests_in_flight or end < target else self.min_step_ns
+            if end - now <= quantum:
                 # wait for the wall clock, or at once for bytes from the Pi
-                select.select([self._master], [], [], min(0.002, (now - target) * 1e-9 + 0.0005))
+                select.select([self._master], [], [], min(0.002, max((now - end + quantum) * 1e-9, 0.0005)))
                 continue
-            step_end = min(target, now + self.step_ns)
+            step_end = min(end, now + self.step_ns)
             with self._lock:
                 self.mcu.run_cycles(max(1, (step_end - now) * self.cpu_hz // 1_000_000_000))
                 self._collect()
                 self._mcu_to_pi()
-                self._advanced.notify_all()
+                if self._awaited_ns and self.now_ns() >= min(self._awaited_ns):
+                    self._advanced.notify_all()  # not at every step: a waiter wakes when its time has come
 
     def _pi_to_mcu(self) -> None:
         """Bytes the Pi wrote to its end of the UART go into the MCU's receiver now."""
@@ -137,8 +171,10 @@ class SimulatedHardware:
         if data:
             with self._lock:
                 self.mcu.write(data)
-                self._requests_in_flight += data.count(0)
-                self._answer_until_ns = self.now_ns() + self.answer_window_ns
+                requests = len(ended_frames(self._partial_from_pi, data))
+                if requests:
+                    self._requests_in_flight += requests
+                    self._answer_until_ns = self.now_ns() + self.answer_window_ns
 
     def _mcu_to_pi(self) -> None:
         """What the MCU sent goes to the Pi's end of the UART (kept while the pty is full)."""
@@ -146,8 +182,8 @@ class SimulatedHardware:
         if n:
             out = self.mcu.read(n)
             self._pending_to_pi += out
-            # every request frame gets one answer frame
-            self._requests_in_flight = max(0, self._requests_in_flight - out.count(0))
+            answers = sum(map(answers_a_request, ended_frames(self._partial_from_mcu, out)))
+            self._requests_in_flight = max(0, self._requests_in_flight - answers)
             if not self._requests_in_flight:
                 self._answer_until_ns = 0
         if self._pending_to_pi:
@@ -157,15 +193,14 @@ class SimulatedHardware:
                 pass
 
     def _run_tickers(self) -> None:
-        # simulated time never runs ahead of the wall clock, so sleeping the simulated interval
-        # is never too long (waiting on the clock's condition instead would wake at every step)
+        # woken by the clock thread when simulated time reaches the tick (wait_until), not by
+        # sleeping the interval in wall time: the clock lags the wall clock by up to a step, and
+        # polling for it would wake several times a tick
         next_tick = self.now_ns() + self.tick_ns
         work_s = 0.0
         while not self._stop.is_set():
             self.ticker_wait_cpu_s = time.thread_time() - work_s
-            left_ns = next_tick - self.now_ns()
-            if left_ns > 0:
-                self._stop.wait(left_ns * 1e-9)
+            if not self.wait_until(next_tick, 0.1):
                 continue
             next_tick += self.tick_ns
             started = time.thread_time()
@@ -177,11 +212,15 @@ class SimulatedHardware:
         """Block until simulated time reaches ``t_ns`` (True) or ``timeout_s`` of wall time passed."""
         deadline = time.monotonic() + timeout_s
         with self._advanced:
-            while self.now_ns() < t_ns:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._advanced.wait(min(left, 0.01))
+            self._awaited_ns.append(t_ns)
+            try:
+                while self.now_ns() < t_ns:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return False
+                    self._advanced.wait(left)  # the clock thread notifies when t_ns has come
+            finally:
+                self._awaited_ns.remove(t_ns)
         return True
 
     # the co-MCU
@@ -194,6 +233,8 @@ class SimulatedHardware:
             self.mcu = SteppedMcuPort(self.harness, self.elf, timeout=0.05)
             self._t_base_ns = now - self.mcu.cycle * 1_000_000_000 // self.cpu_hz
             self._rise = None
+            self._requests_in_flight, self._answer_until_ns = 0, 0  # the old MCU answers none of them
+            self._partial_from_mcu.clear()
             self.resets += 1
         if old is not None:
             old.close()

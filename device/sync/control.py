@@ -334,35 +334,50 @@ class SyncController:
         if est.n_samples >= 16 and abs(est.drift_ppm) > cfg.max_drift_ppm:
             return self._error(frame, f"MCU clock drift {est.drift_ppm:+.0f} ppm is beyond the +-{cfg.max_drift_ppm:.0f} ppm "
                                       "the controller accepts (wrong MCU clock or a failing oscillator)")
-        sig = self._placement_sigma(est, frame.sequence + 2)
-        guard = max(cfg.min_guard_s, cfg.guard_sigmas * sig)
+        guard = self._guard(est, frame.sequence + 2)
         if guard > cfg.max_guard_s:
-            return self._fail_acquire(frame, f"timing uncertainty {sig * 1e6:.0f} us needs a guard above the "
-                                             f"{cfg.max_guard_s * 1e6:.0f} us limit")
+            return self._fail_acquire(frame, f"timing uncertainty {guard / cfg.guard_sigmas * 1e6:.0f} us needs a guard "
+                                             f"above the {cfg.max_guard_s * 1e6:.0f} us limit")
         if self.state is SyncState.ERROR:
             self.state = SyncState.ACQUIRING
-        status = self._verify(frame, est)
-        if self.train is not None and self._needs_new_width(guard):
+        # this frame's pulse decides the lock before the train is re-placed (_needs_new_width)
+        label = self._update_lock(frame, self._verify(frame, est))
+        if self.train is not None and self._needs_new_width(frame, est, guard):
             self.train = None
         if self.train is None:
-            self._start_train(frame, est, guard * cfg.guard_headroom)
+            self._start_train(frame, est)
         else:
             self._trim(frame, est)
-        return self._update_lock(frame, status)
+        return label
 
     def _placement_sigma(self, est: ClockEstimate, seq: int) -> float:
         t_ns = self.camera.predict_ns(seq)
         tick = float(est.pi_to_mcu_tick(t_ns))
         return math.hypot(float(est.sigma_s(tick)), self.camera.sigma_s(seq))
 
-    def _needs_new_width(self, guard: float) -> bool:
-        """Widen at once when the uncertainty grew past the guard; narrow when it fell (rate-limited)."""
+    def _guard(self, est: ClockEstimate, seq: int) -> float:
+        """The guard that placing frame ``seq``'s pulse with ``est`` needs."""
+        return max(self.cfg.min_guard_s, self.cfg.guard_sigmas * self._placement_sigma(est, seq))
+
+    def _needs_new_width(self, frame: FrameInfo, est: ClockEstimate, guard: float) -> bool:
+        """Widen at once when the uncertainty grew past the guard; narrow when it fell: at once
+        when it fell by much and the new train would cost no scan (while acquiring, or locked with
+        no lit frame before the first one it reaches: e.g. at 20 scans/s the command latency puts
+        that beyond the next lit frame), otherwise at most every ``narrow_interval_s``."""
         g = self.train.guard_s
         if guard > g:
             return True
         recent = self._now_ns - self.train.scheduled_ns < self.cfg.narrow_interval_s * 1e9
         need = guard * self.cfg.guard_headroom
-        return need < 0.4 * g or (not recent and need < 0.75 * g)
+        if need < 0.4 * g and (self.state is not SyncState.LOCKED or not self._scans_lost(frame, est)):
+            return True
+        return not recent and need < 0.75 * g
+
+    def _scans_lost(self, frame: FrameInfo, est: ClockEstimate) -> bool:
+        """Whether a new train now would leave a lit frame without a verified pulse (the train
+        before it is stopped at once: firmware_pwm SCHEDULE needs a STOP first)."""
+        first = self._new_train(frame, est)[0]
+        return any(self.cfg.lit(s) for s in range(frame.sequence + 1, first))
 
     def _window_ns(self, seq: int, frame: FrameInfo) -> tuple[float, float]:
         """ROI exposure window of frame ``seq`` (Pi ns) on the camera line.
@@ -378,18 +393,40 @@ class SyncController:
                                    self.cfg.row_max + off)
         return float(s), float(e)
 
-    def _start_train(self, frame: FrameInfo, est: ClockEstimate, guard: float) -> None:
+    def _first_reachable(self, frame: FrameInfo, est: ClockEstimate, guard: float) -> tuple[int, float, float, float]:
+        """The first frame after ``frame`` that a train scheduled now can light with ``guard``:
+        (its sequence, the MCU tick where its pulse must begin, its ROI window in Pi ns)."""
         cfg = self.cfg
-        period_s = self.camera.period_s
-        check_separation(period_s, frame.exposure_s, frame.line_time_s, cfg.row_min, cfg.row_max, guard)
         earliest = self._now_ns + (cfg.cmd_latency_max_s + 1e-3) * 1e9
         seq = frame.sequence + 1
         while True:
             ws, we = self._window_ns(seq, frame)
             start = float(est.pi_to_mcu_tick(ws - guard * 1e9))  # MCU tick where the pulse must begin
             if ws - guard * 1e9 > earliest and start >= cfg.first_rise_min_tick:
-                break
+                return seq, start, ws, we
             seq += 1
+
+    def _new_train(self, frame: FrameInfo, est: ClockEstimate) -> tuple[int, float, float, float, float]:
+        """Where a train scheduled now begins: ``_first_reachable`` and its guard. The guard covers
+        the frames until the train's own first lit pulse has fed the clock map (that frame + 2, as
+        ``on_frame`` looks ahead): the map gets no new edges before, and with few pairs its
+        uncertainty grows by tens of percent a frame meanwhile; sized for the next frames only,
+        the train would be widened again before its first pulse, and each new train costs the lit
+        frames before it."""
+        cfg = self.cfg
+        seq = frame.sequence + 1
+        while True:  # the guard depends on the first frame the train reaches, and that on the guard
+            first_lit = next(s for s in range(seq, seq + len(cfg.pattern)) if cfg.lit(s))
+            guard = min(self._guard(est, first_lit + 2) * cfg.guard_headroom, cfg.max_guard_s)
+            seq, start, ws, we = self._first_reachable(frame, est, guard)
+            if first_lit >= seq:
+                return seq, start, ws, we, guard
+
+    def _start_train(self, frame: FrameInfo, est: ClockEstimate) -> None:
+        cfg = self.cfg
+        period_s = self.camera.period_s
+        seq, start, ws, we, guard = self._new_train(frame, est)
+        check_separation(period_s, frame.exposure_s, frame.line_time_s, cfg.row_min, cfg.row_max, guard)
         d = TRIM_DEADBAND_TICKS  # aimed d early, trimmed only beyond +-d: starts in [t0 - d, t0 + d]
         t0 = math.floor(start) - d
         t1 = math.ceil(float(est.pi_to_mcu_tick(we + guard * 1e9))) + d
