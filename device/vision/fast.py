@@ -277,7 +277,7 @@ class FastPipeline:
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
         p = self.params
-        moved = neighbours = None
+        moved = neighbours = lum_other = None
         noise_background = residue_noise = None
         if other_unlit is not None:  # step 0
             lum_other = luminance(other_unlit, "other unlit", shape)
@@ -333,30 +333,15 @@ class FastPipeline:
             c0, c1 = int(cols[0]), int(cols[-1]) + 1
             la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
             ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
-            if moved is not None and moved[c0:c1].any():
-                # where the background moved the return must brighten the lit frame against both
-                # neighbours (a moved edge brightens it against one and darkens it against the
-                # other); lit - the brighter of them, saturating, is the lesser of the differences
-                both = cv2.max(ua, lum_other[self.near_top : self.near_bottom : 2, c0:c1])
-                ua = np.where(moved[c0:c1], both, ua)
             mask = self.near_mask[:, c0:c1]
             near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
             near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
             # stricter than in range (twice the noise ratio): a false "too close" stops a robot
             close = np.zeros(W, bool)
-            strong = np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
-            close[c0:c1] = near >= strong
+            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
             close &= empty
             if moved is not None and np.any(close & moved):
-                # where the background moved, a periodic texture can alias with the frame step (a
-                # bright stripe in the lit frame, dark ones in both neighbours); it is bright in
-                # them within the distance the background moves, the laser's return is not
-                reach = p.moving_reach_columns
-                a0, a1 = max(c0 - reach, 0), min(c1 + reach, W)
-                wide = cv2.max(*(u[self.near_top : self.near_bottom : 2, a0:a1] for u in (lum_unlit, lum_other)))
-                brightest = cv2.dilate(wide, np.ones((1, 2 * reach + 1), np.uint8))[:, c0 - a0 : c1 - a0]
-                above_all = cv2.bitwise_and(cv2.subtract(la, brightest), mask).max(axis=0)
-                close[c0:c1] &= ~moved[c0:c1] | (above_all >= strong)
+                close &= ~moved | self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
@@ -368,6 +353,31 @@ class FastPipeline:
         row = np.where(found, row, np.nan)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
                       self.config.post_calibration)
+
+    def _near_above_moved_background(self, lit: np.ndarray, unlit: np.ndarray, other: np.ndarray,
+                                     candidates: np.ndarray) -> np.ndarray:
+        """Step 7 where the background moved: which of the ``candidates`` (columns) keep a return
+        in the near rows that brightens the lit frame against both unlit neighbours (a moved edge
+        brightens it against one and darkens it against the other) and stands above the brightest
+        of them within ``moving_reach_columns`` (a bright stripe of a periodic texture that aliases
+        with the frame step is in the lit frame, dark in both neighbours at that column, and
+        bright in them where the motion took it; the laser's return is in neither). Every other
+        column: False. Only the candidates' columns are read (rarely any)."""
+        import cv2
+
+        p, W = self.params, self.cols.size
+        k = np.nonzero(candidates)[0]
+        k0, k1 = int(k[0]), int(k[-1]) + 1
+        a0, a1 = max(k0 - p.moving_reach_columns, 0), min(k1 + p.moving_reach_columns, W)
+        rows = slice(self.near_top, self.near_bottom, 2)
+        la, mask = lit[rows, k0:k1], self.near_mask[:, k0:k1]
+        noise = cv2.bitwise_and(cv2.subtract(cv2.max(unlit[rows, k0:k1], other[rows, k0:k1]), la), mask).max(axis=0)
+        around = cv2.dilate(cv2.max(unlit[rows, a0:a1], other[rows, a0:a1]),
+                            np.ones((1, 2 * p.moving_reach_columns + 1), np.uint8))[:, k0 - a0 : k1 - a0]
+        above = cv2.bitwise_and(cv2.subtract(la, around), mask).max(axis=0)
+        out = np.zeros(W, bool)
+        out[k0:k1] = above >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * noise)
+        return out
 
     def _tracking_band(self) -> tuple[int, int] | None:
         """Rows [t0, t1) of the band (whole blocks) to search this frame: the previous frame's
