@@ -50,7 +50,7 @@ LN2 = math.log(2.0)
 #: they hold fewer than REFIT_FROM, then at every REFIT_EVERY-th: the line moves little per point
 #: then, and its sigma grows with the extrapolation meanwhile, so nothing is claimed that was not
 #: fitted.
-REFIT_EVERY, REFIT_FROM = 4, 64
+REFIT_EVERY, REFIT_FROM = 8, 64
 
 
 def refit_due(points: int, since_fit: int) -> bool:
