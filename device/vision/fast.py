@@ -42,7 +42,9 @@ Per frame pair (or triple):
    without ``other_unlit`` is the pipeline as before, bit for bit. The too-close check (step 7)
    needs the return to brighten the lit frame against both neighbours, and in a moved column against
    the brightest of them within ``moving_reach_columns`` (a bright stripe of a periodic texture that
-   aliases with the frame step is in the lit frame, and in neither neighbour at that column).
+   aliases with the frame step is in the lit frame, and in neither neighbour at that column); within
+   that distance of the image's edge, where the texture may have come in from outside it, such a
+   return is REJECTED.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -341,7 +343,13 @@ class FastPipeline:
             close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
             close &= empty
             if moved is not None and np.any(close & moved):
-                close &= ~moved | self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved)
+                above = self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved)
+                # within moving_reach_columns of the image's edge the texture may have come in from
+                # outside it, where the neighbours are not seen: such a return cannot be trusted
+                unseen = np.zeros(W, bool)
+                unseen[: p.moving_reach_columns] = unseen[W - p.moving_reach_columns :] = True
+                status[close & moved & above & unseen] = STATUS_U8[ColumnStatus.REJECTED]
+                close &= ~moved | (above & ~unseen)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
