@@ -19,10 +19,10 @@ off the truth) as a share of the columns with a true return; false returns (a va
 there is none); false "too close" (-inf, an obstacle nearer than the region of interest, where
 the truth has none that near: it stops a robot as a false return does); valid share of the
 columns with a true return; "blind" columns (+inf, "nothing there", where there is a surface);
-the range error's sigma (%, valid columns without the gross errors). Speed beside it: CPU time per lit frame of each variant on the still office scene and on
-the office turning at 90 deg/s, both in 3x light (median of ``--repeats`` calls, one thread, the
-variants interleaved call by call), and its ratio
-to ``fast one-unlit``. And the static
+the range error's sigma (%, valid columns without the gross errors). Speed beside it: CPU time
+per lit frame of each variant on the still office scene and on the office turning at 90 deg/s,
+both in 3x light (median of ``--repeats`` calls, one thread, the variants interleaved call by
+call), and its ratio to ``fast one-unlit``. And the static
 accuracy as ``laserpi bench pipeline`` measures it (fast-com, 90 % walls at 2 m and 3 m, the
 simulator's 40 ms exposure), with one unlit frame and with both neighbours, on the same frames.
 """
@@ -284,8 +284,8 @@ def _print(result: dict, frames: int) -> None:
         for name in VARIANTS:
             s = p[name]
             print(f"{p['point'] if name == VARIANTS[0] else '':<22} {name:<15} {f(s['gross_fraction'] * 100, '8.2f')} "
-                  f"{s['false_returns']:>6d} {s['false_too_close']:>6d} {f(s['valid_fraction'] * 100, '8.1f')} {f(s['blind_fraction'] * 100, '8.1f')} "
-                  f"{f(s['sigma_pct'], '8.2f')}")
+                  f"{s['false_returns']:>6d} {s['false_too_close']:>6d} {f(s['valid_fraction'] * 100, '8.1f')} "
+                  f"{f(s['blind_fraction'] * 100, '8.1f')} {f(s['sigma_pct'], '8.2f')}")
     ms, moving = result["ms_per_lit_frame"], result["ms_per_moving_lit_frame"]
     print("CPU per lit frame (still office scene): " + ", ".join(f"{n} {ms[n]:.3f} ms" for n in VARIANTS)
           + f"; fast / fast one-unlit = {result['ratio_vs_one_unlit']:.2f}")

@@ -34,7 +34,9 @@ from protocol.ports import open_raw_pty
 def ended_frames(partial: bytearray, data: bytes) -> list[bytes]:
     """The frames (COBS-encoded, without their delimiter) that ``data`` ends after the unfinished
     frame in ``partial``, which then holds the new unfinished rest. Empty frames are none: the Pi
-    writes a delimiter before every frame (device.laser.comcu), which the MCU does not answer."""
+    writes a delimiter before every frame (device.laser.comcu), which the MCU does not answer.
+    Not protocol.stream.StreamDecoder: that drops a garbled frame, and the MCU answers one (NACK),
+    so the count of requests in flight must keep it."""
     partial += data
     *frames, rest = partial.split(b"\x00")
     partial[:] = rest

@@ -278,6 +278,7 @@ class FastPipeline:
         shape = (self.config.height, self.config.width)
         lum_lit, lum_unlit = luminance(lit, "lit", shape), luminance(unlit, "unlit", shape)
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
+        lit_band = lum_lit[self.top : self.top + self.rows]
         p = self.params
         moved = neighbours = lum_other = None
         noise_background = residue_noise = None
@@ -303,9 +304,8 @@ class FastPipeline:
                 # a line hidden in what the moved background left cannot be told from no line:
                 # "no return" is judged on that residue's noise (blind_noise)
                 residue_noise = np.empty(W)
-                self._kernel.noise_level(lum_lit[self.top : self.top + self.rows], background, residue_noise)
-                background, noise_background = _moved_backgrounds(lum_lit[self.top : self.top + self.rows], background,
-                                                                  moved, p.trend_rows)
+                self._kernel.noise_level(lit_band, background, residue_noise)
+                background, noise_background = _moved_backgrounds(lit_band, background, moved, p.trend_rows)
         band = self._tracking_band()
         if band is None:
             found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, 0, self.rows)
@@ -354,7 +354,7 @@ class FastPipeline:
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise, moved,
-                                     neighbours, lum_lit[self.top : self.top + self.rows], t0)
+                                     neighbours, lit_band, t0)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -463,10 +463,11 @@ class FastPipeline:
                    residue_noise: np.ndarray, moved: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray],
                    lit: np.ndarray, t0: int) -> np.ndarray:
         """Step 0's rejections. In a column whose background moved: a line that does not stand
-        far enough above what the background left there and around it (``moving_noise_columns``)
-        and what changed between the neighbours on its rows, does not have a line's shape (wider
-        than a line, as bright ``flank_rows`` above or below it: a band of moved texture; no ridge
-        in the lit frame itself), or is left in a fragment shorter than ``moving_min_run``.
+        far enough above what the background left there and around it (``moving_noise_columns``),
+        does not have a line's shape (wider than a line, as bright ``flank_rows`` above or below
+        it: a band of moved texture; no ridge in the lit frame itself, or none above the unlit
+        frames' ridges within ``moving_reach_columns``), or is left in a fragment shorter than
+        ``moving_min_run``.
         Anywhere: "no return" where the noise of the residue (``residue_noise``) could hide a line."""
         import cv2
 
@@ -494,19 +495,16 @@ class FastPipeline:
         # columns around, ``moving_noise_columns`` each side
         k = 2 * p.moving_noise_columns + 1
         around = cv2.dilate(noise.astype(np.float32)[None, :], np.ones((1, k), np.uint8))[0]
-        # what changed between the two unlit neighbours on the line's own rows: a moving edge
-        # leaves a residue there that a line must stand above (under forward motion a
-        # horizontal edge moves across the rows, and its residue is a single bright band)
-        before = neighbours[0]
-        rb = clamp(r - self._pad + t0, 0, before.shape[0] - 1)  # the lines' band rows
+        n, W = lit.shape
+        rb = clamp(r - self._pad + t0, 0, n - 1)  # the lines' band rows
         # on the 5 x 3 smoothed images as detection sees them, over the rows the checks read
-        lo = max(int(rb.min()) - 2 * h - 2, 0)
-        hi = min(int(rb.max()) + 2 * h + 3, before.shape[0])
-        core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, before.shape[0] - 1)  # the line's middle rows
-        at = (core - lo) * before.shape[1] + cols[None, :]  # ... in the window of rows lo..hi
+        lo, hi = max(int(rb.min()) - 2 * h - 2, 0), min(int(rb.max()) + 2 * h + 3, n)
+        smoothed = lambda x: cv2.blur(x[lo:hi], (5, 3)).astype(np.int16)  # noqa: E731
+        core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, n - 1)  # the line's middle rows
+        at = (core - lo) * W + cols[None, :]  # ... in the window of rows lo..hi
         # the laser adds a narrow ridge to the lit frame itself, whatever the background did: a
         # band of residue where an edge of the unlit frames moved against the lit one's is not one
-        blurred = cv2.blur(lit[lo:hi], (5, 3)).astype(np.int16)
+        blurred = smoothed(lit)
         ridge = _ridges(blurred, h).ravel().take(at)
         lit_ridge = ridge.max(axis=0)
         sm = self._sm_buf  # the smoothed difference of the last search (its band rows t0..)
@@ -518,7 +516,7 @@ class FastPipeline:
         # a narrow ridge of the texture itself (the bright corner of a stripe above a moved edge)
         # is in the unlit neighbours too, where the background moved it: the line must outshine
         # their ridges within moving_reach_columns and half_width rows
-        ridges = cv2.max(*(_ridges(cv2.blur(x[lo:hi], (5, 3)).astype(np.int16), h) for x in neighbours))
+        ridges = cv2.max(*(_ridges(smoothed(x), h) for x in neighbours))
         reach = cv2.dilate(ridges, np.ones((2 * h + 1, 2 * p.moving_reach_columns + 1), np.uint8))
         texture_ridge = reach.ravel().take(at).max(axis=0)
         shape = np.zeros(status.size, bool)
