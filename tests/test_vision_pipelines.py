@@ -144,6 +144,34 @@ def test_too_close_is_minus_inf():
     assert np.all(m.status[np.isneginf(m.range)] == ColumnStatus.TOO_CLOSE)
 
 
+def test_too_close_in_separate_spans_of_columns():
+    """Step 7 reads the near rows of the columns without a return only, in spans (runs closer
+    than NEAR_SPAN_JOIN joined): near objects apart and close together are each "too close",
+    and neither the wall between them nor the gap joined into a span is."""
+    from device.vision.fast import NEAR_SPAN_JOIN, _spans
+
+    cfg = dataclasses.replace(CFG, range=RangeLimits(0.5, 4.0))
+    z = np.full(cfg.width, 2.0)
+    near = [(100, 160), (160 + NEAR_SPAN_JOIN // 2, 250 + NEAR_SPAN_JOIN // 2), (900, 960)]
+    for a, b in near:
+        z[a:b] = 0.3
+    lit, unlit = frame_pair(cfg, row_for_depth(cfg, z), seed=12)
+    m = make_pipeline("fast-com", cfg).process(lit, unlit)
+    for a, b in near:
+        assert np.mean(m.status[a + 3 : b - 3] == ColumnStatus.TOO_CLOSE) > 0.95, (a, b)
+    wall = np.ones(cfg.width, bool)
+    for a, b in near:
+        wall[a - 3 : b + 3] = False
+    assert not np.any(m.status[wall] == ColumnStatus.TOO_CLOSE)
+    assert np.mean(m.valid[wall]) > 0.95
+    # the spans themselves: runs nearer than the join become one span, farther ones stay apart
+    mask = np.zeros(300, bool)
+    mask[0:10] = mask[50:60] = mask[200:210] = mask[260:262] = mask[299] = True
+    np.testing.assert_array_equal(_spans(mask, 64), [[0, 60], [200, 300]])
+    np.testing.assert_array_equal(_spans(mask, 40), [[0, 10], [50, 60], [200, 210], [260, 300]])
+    assert _spans(np.zeros(5, bool), 64).shape == (0, 2) and _spans(np.ones(5, bool), 64).tolist() == [[0, 5]]
+
+
 def test_partly_lit_frame_gives_nan_not_ranges(wall2m, pipes):
     rows, rng = wall2m
     lit, unlit = frame_pair(CFG, rows, seed=11)

@@ -131,6 +131,10 @@ SATURATED_LINE_MIN = 24
 #: Largest centre-of-mass half width: the rows within half_width + 1 of the first candidate span
 #: at most two 16-row blocks, which the second candidate's search leaves out (columns/columns.c).
 MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2
+#: Step 7 reads the near rows of the columns without a return only, in spans: runs of them fewer
+#: than this many columns apart are read as one (a call per run would cost more than the columns
+#: between them; a span over the whole image, as before, read 1664 columns for 70).
+NEAR_SPAN_JOIN = 64
 _NO_PEAKS = ColumnPeaks(*(np.empty(0, t) for t in (np.float64, np.float64, np.intp, bool, bool, np.float64)))
 
 
@@ -329,18 +333,18 @@ class FastPipeline:
         # too close: only columns in runs of >= min_run without a return can become a run of
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
         empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
-        cols = np.nonzero(empty)[0]
-        if self.near_bottom > self.near_top and cols.size:
-            # every other row: a line is at least two rows high
-            c0, c1 = int(cols[0]), int(cols[-1]) + 1
-            la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
-            ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
-            mask = self.near_mask[:, c0:c1]
-            near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
-            near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
-            # stricter than in range (twice the noise ratio): a false "too close" stops a robot
+        spans = _spans(empty, NEAR_SPAN_JOIN) if self.near_bottom > self.near_top else []
+        if len(spans):
             close = np.zeros(W, bool)
-            close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+            for c0, c1 in spans:  # only these columns are read (a wall's dim ends: ~70 of 1664 columns)
+                # every other row: a line is at least two rows high
+                la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
+                ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
+                mask = self.near_mask[:, c0:c1]
+                near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
+                near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
+                # stricter than in range (twice the noise ratio): a false "too close" stops a robot
+                close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
             close &= empty
             if moved is not None and np.any(close & moved):
                 above = self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved)
@@ -585,6 +589,17 @@ def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarra
     if still.any():  # the columns that did not move keep the mean of the neighbours
         line_bg[:, still] = noise_bg[:, still] = background[:, still]
     return line_bg, noise_bg
+
+
+def _spans(mask: np.ndarray, join: int) -> np.ndarray:
+    """[start, end) of the runs of True in a 1-D ``mask``, runs less than ``join`` apart joined
+    into one span (with the False elements between them), shape (spans, 2)."""
+    runs = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False])).astype(np.int8))).reshape(-1, 2)
+    if len(runs) < 2:
+        return runs
+    apart = np.flatnonzero(runs[1:, 0] - runs[:-1, 1] >= join)
+    return np.stack([np.concatenate(([runs[0, 0]], runs[apart + 1, 0])),
+                     np.concatenate((runs[apart, 1], [runs[-1, 1]]))], axis=1)
 
 
 def _run_length(mask: np.ndarray) -> np.ndarray:
