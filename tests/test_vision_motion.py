@@ -311,6 +311,22 @@ def test_too_close_needs_the_return_against_both_neighbours():
         assert score([(meas, p.truth)], MIN_M)["false_too_close"] == np.sum(close & ~truly)
 
 
+def test_a_line_nearer_than_the_range_in_a_moved_column_is_rejected_not_too_close():
+    # 0.5 m/s towards the office in 3x light: in one column a moved edge's residue at the near
+    # edge of the region of interest (40 rows from the laser's line, the wall at 2.55 m) passed
+    # every check on a moved background, and triangulated nearer than the range: "too close"
+    # (-inf), a false obstacle. A line there is REJECTED instead; the near rows of columns
+    # without a line still tell "too close" (the test above)
+    from device.vision.measurements import ColumnStatus
+
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=0.5, ambient_scale=3), 3, 0)
+    device, _ = _device_and_without({})
+    measured = [(_process("fast", device, p), p.truth) for p in pairs]
+    assert score(measured, MIN_M)["false_too_close"] == 0
+    meas = measured[1][0]
+    assert meas.status[79] == ColumnStatus.REJECTED and np.isnan(meas.range[79])
+
+
 def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close():
     # 90 deg/s in 10x light: a bright stripe in the lit frame's near rows where both neighbours
     # show dark ones (the periodic texture aliases with the 50 ms frame step) brightens the lit

@@ -118,6 +118,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import SensorConfig
+from ..model.triangulation import RangeStatus
 from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .kernel import columns_kernel
@@ -363,8 +364,17 @@ class FastPipeline:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
-        return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, self.geometry.triangulate(row),
-                      self.config.post_calibration)
+        tri = self.geometry.triangulate(row)
+        if moved is not None:
+            # a line in a moved column that triangulates nearer than the range lies at the region of
+            # interest's near edge, where a moved edge's residue passes for one as well: it is no
+            # "too close" (step 7 judges the near rows of columns without a line), it is REJECTED
+            nearer = moved & found & (tri.status == RangeStatus.TOO_CLOSE)
+            if nearer.any():
+                status[nearer] = STATUS_U8[ColumnStatus.REJECTED]
+                found &= ~nearer
+                row[nearer] = np.nan
+        return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
     def _near_above_moved_background(self, lit: np.ndarray, unlit: np.ndarray, other: np.ndarray,
                                      candidates: np.ndarray) -> np.ndarray:
