@@ -85,7 +85,8 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     from device.service.assembly import PIPELINE
     from device.vision.fast import FastPipeline
 
-    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 0)
+    # (seed 2: on seed 0's frames the column-mean test alone has caught them since moved_level 0.9)
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2)
     op = CFG.operating_point
     device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
@@ -309,6 +310,19 @@ def test_too_close_needs_the_return_against_both_neighbours():
         close = meas.status == ColumnStatus.TOO_CLOSE
         assert np.sum(close & truly) >= 0.95 * truly.sum() and np.sum(close & ~truly) <= 5
         assert score([(meas, p.truth)], MIN_M)["false_too_close"] == np.sum(close & ~truly)
+
+
+def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
+    # the person crossing while the robot turns at 45 deg/s (seed 1): where nothing is in the
+    # laser's plane, the lit frame stands ~2.3 levels above the mean of its unlit neighbours (a
+    # moved smooth background, not linear in time), and the one-sided noise level does not see
+    # that; its 8-column block changed by 0.95 levels between the neighbours. Counted as moved
+    # (moved_level 0.9), its residue's trend is taken out; at 1.0 a faint phantom at 0.96 m stays
+    pairs = sequence(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1)
+    device, before = _device_and_without({"moved_level": 1.0})
+    assert device.params.moved_level < 0.95
+    assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["false_returns"] == 0
+    assert score([(_process("fast", before, p), p.truth) for p in pairs], MIN_M)["false_returns"] >= 3
 
 
 def test_a_line_nearer_than_the_range_in_a_moved_column_is_rejected_not_too_close():

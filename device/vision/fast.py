@@ -161,7 +161,7 @@ class FastParams:
     track_lost_run: int = 10  # with tracking: this many adjacent columns losing their line force a full search
     # with both unlit neighbours (step 0): background that moved or flickered
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
-    moved_level: float = 1.0  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
+    moved_level: float = 0.9  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
     moved_block_level: float = 3.0  # ... or one of its blocks by this much (levels)
     moved_block_ratio: float = 5.0  # ... and this x the frame's median block change
     moving_noise_ratio: float = 1.5  # a line must exceed this x the largest noise of the columns
