@@ -384,22 +384,22 @@ class FastPipeline:
         of them within ``moving_reach_columns`` (a bright stripe of a periodic texture that aliases
         with the frame step is in the lit frame, dark in both neighbours at that column, and
         bright in them where the motion took it; the laser's return is in neither). Every other
-        column: False. Only the candidates' columns are read (rarely any)."""
+        column: False. Only the candidates' columns (in spans, as step 7 reads them) and
+        ``moving_reach_columns`` around them are read (rarely any)."""
         import cv2
 
         p, W = self.params, self.cols.size
-        k = np.nonzero(candidates)[0]
-        k0, k1 = int(k[0]), int(k[-1]) + 1
-        a0, a1 = max(k0 - p.moving_reach_columns, 0), min(k1 + p.moving_reach_columns, W)
         rows = slice(self.near_top, self.near_bottom, 2)
-        la, mask = lit[rows, k0:k1], self.near_mask[:, k0:k1]
-        noise = cv2.bitwise_and(cv2.subtract(cv2.max(unlit[rows, k0:k1], other[rows, k0:k1]), la), mask).max(axis=0)
-        around = cv2.dilate(cv2.max(unlit[rows, a0:a1], other[rows, a0:a1]),
-                            np.ones((1, 2 * p.moving_reach_columns + 1), np.uint8))[:, k0 - a0 : k1 - a0]
-        above = cv2.bitwise_and(cv2.subtract(la, around), mask).max(axis=0)
+        reach = np.ones((1, 2 * p.moving_reach_columns + 1), np.uint8)
         out = np.zeros(W, bool)
-        out[k0:k1] = above >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * noise)
-        return out
+        for k0, k1 in _spans(candidates, NEAR_SPAN_JOIN):
+            a0, a1 = max(k0 - p.moving_reach_columns, 0), min(k1 + p.moving_reach_columns, W)
+            la, mask = lit[rows, k0:k1], self.near_mask[:, k0:k1]
+            noise = cv2.bitwise_and(cv2.subtract(cv2.max(unlit[rows, k0:k1], other[rows, k0:k1]), la), mask).max(axis=0)
+            around = cv2.dilate(cv2.max(unlit[rows, a0:a1], other[rows, a0:a1]), reach)[:, k0 - a0 : k1 - a0]
+            above = cv2.bitwise_and(cv2.subtract(la, around), mask).max(axis=0)
+            out[k0:k1] = above >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * noise)
+        return out & candidates
 
     def _tracking_band(self) -> tuple[int, int] | None:
         """Rows [t0, t1) of the band (whole blocks) to search this frame: the previous frame's
