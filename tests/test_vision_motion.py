@@ -9,6 +9,7 @@ import pytest
 from device.bench.motion import _pipelines, _process, score, sequence
 from device.cli import main
 from device.config import load_preset
+from device.sim.render import RenderOptions
 from device.sim.scene import get_scene, with_motion
 from device.vision.evaluation import FramePair, run_pipeline, simulated_pairs
 from device.vision.measurements import ColumnStatus
@@ -16,6 +17,11 @@ from device.vision.pipelines import make_pipeline
 
 CFG = load_preset("thesis-calibrated")
 MIN_M = CFG.operating_point.min_m
+#: The renderer's moving background on a 4 px grid, bilinearly interpolated (its default before
+#: issue 16's 1 px frames, device/sim/render.py step 9): the grid is fixed to the sensor, so a
+#: texture's sharp edge changes its shape as it moves, a change of the background between the
+#: frames that no motion explains. Some checks on a moved background have their cases there only.
+COARSE = RenderOptions(motion_step=4)
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +91,9 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     from device.service.assembly import PIPELINE
     from device.vision.fast import FastPipeline
 
-    # (seed 2: on seed 0's frames the column-mean test alone has caught them since moved_level 0.9)
-    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2)
+    # (seed 2 of the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows them;
+    # on seed 0's coarse frames the column-mean test alone has caught them since moved_level 0.9)
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2, COARSE)
     op = CFG.operating_point
     device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
@@ -126,7 +133,7 @@ def test_turning_in_bright_light_keeps_much_of_the_wall():
 @pytest.mark.parametrize("off,point", [
     ({"lit_ridge_fraction": 0.0}, dict(yaw_rate_deg_s=90, ambient_scale=3, seed=0)),
     ({"moving_min_run": 1}, dict(yaw_rate_deg_s=14, ambient_scale=3, seed=0)),
-    ({"texture_ridge_ratio": 0.0}, dict(yaw_rate_deg_s=14, ambient_scale=3, seed=1)),
+    ({"texture_ridge_ratio": 0.0}, dict(yaw_rate_deg_s=90, ambient_scale=3, seed=2)),
 ])
 def test_each_check_on_a_moved_background_is_needed(off, point):
     # without each, lines that are not the laser's get through on these frames (more than 0.1 %
@@ -318,7 +325,8 @@ def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
     # moved smooth background, not linear in time), and the one-sided noise level does not see
     # that; its 8-column block changed by 0.95 levels between the neighbours. Counted as moved
     # (moved_level 0.9), its residue's trend is taken out; at 1.0 a faint phantom at 0.96 m stays
-    pairs = sequence(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1)
+    # (the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows such a pedestal)
+    pairs = sequence(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1, COARSE)
     device, before = _device_and_without({"moved_level": 1.0})
     assert device.params.moved_level < 0.95
     assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["false_returns"] == 0
@@ -333,7 +341,8 @@ def test_a_line_nearer_than_the_range_in_a_moved_column_is_rejected_not_too_clos
     # without a line still tell "too close" (the test above)
     from device.vision.measurements import ColumnStatus
 
-    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=0.5, ambient_scale=3), 3, 0)
+    # (the renderer's coarse frames, COARSE, where a moved edge leaves that residue)
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=0.5, ambient_scale=3), 3, 0, COARSE)
     device, _ = _device_and_without({})
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
     assert score(measured, MIN_M)["false_too_close"] == 0

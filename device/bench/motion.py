@@ -68,14 +68,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
 
 
-def sequence(cfg, scene, lit_frames: int, seed: int):
-    """(lit, unlit after, unlit before, truth) of ``lit_frames`` lit frames at the operating point."""
+def sequence(cfg, scene, lit_frames: int, seed: int, options=None):
+    """(lit, unlit after, unlit before, truth) of ``lit_frames`` lit frames at the operating point
+    (``options``: the renderer's RenderOptions, default its defaults)."""
     from ..vision.evaluation import simulated_pairs
 
     op = cfg.operating_point
     pulse_us = op.exposure_us + (cfg.height - 1) * cfg.window.mode.line_time_ns * 1e-3  # every row's whole exposure
-    return simulated_pairs(cfg, scene, lit_frames, seed, exposure_us=op.exposure_us, analog_gain=op.analog_gain,
-                           pulse_us=pulse_us, neighbours=True)
+    return simulated_pairs(cfg, scene, lit_frames, seed, options=options, exposure_us=op.exposure_us,
+                           analog_gain=op.analog_gain, pulse_us=pulse_us, neighbours=True)
 
 
 def _pipelines(cfg):

@@ -60,7 +60,12 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    every row is cast from where the sensor was at that row's own time (the rolling shutter: each
    row sees the scene where it was then; translation gives depth-dependent parallax), against
    the objects where they were (a block of rows per object position: an object moves < 2 mm
-   in that time); a ray every ``motion_step`` pixels, bilinearly interpolated. The laser: the
+   in that time); a ray every ``motion_step`` pixels (default every pixel, as a sensor samples
+   it: a coarser grid, bilinearly interpolated, is fixed to the sensor while the texture moves
+   over it, so a texture's sharp edge changes its shape from frame to frame. No background model
+   removes that residue: with the unlit neighbours turned to the lit frame it left 13-39 columns
+   > 5 % off per point of `laserpi bench motion` at 4 px, 10-20 at 2 px, 0-4 at 1 px,
+   BENCHMARKS.md "Motion"). The laser: the
    time the pulse lights the frame is cut into slices likewise; in each the laser curve is cast
    from the sensor's pose then, with its own speckle (speckle decorrelates as the spot moves over
    the surface), and lights each row for that row's overlap with the slice. The truth of a column
@@ -140,7 +145,7 @@ class RenderOptions:
     noise_table: bool = True  # draw noise from a cached table (fast) instead of per frame
     isp_denoise: float = 0.0  # ISP spatial denoise: blend towards a 3x3 Gaussian, 0 (off) .. 1
     isp_sharpen: float = 0.0  # ISP sharpening: unsharp-mask amount (5x5 Gaussian), 0 (off) .. 2
-    motion_step: int = 4  # moving scenes: background rays every N pixels, per frame
+    motion_step: int = 1  # moving scenes: background rays every N pixels, per frame (step 9)
     motion_blur_px: float = 4.0  # moving scenes: the image moves at most this far between two time slices ...
     max_time_slices: int = 12  # ... with at most this many slices per exposure (and per pulse)
 
