@@ -12,7 +12,8 @@ Per frame pair (or triple):
    whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
    neighbours differ (their 8-column x 4-row block means, every other row: the mean |difference|
    above ``moved_level``, or one block's above ``moved_block_level`` and ``moved_block_ratio``
-   times the frame's median block difference, i.e. its sensor noise: an edge a few rows high
+   times the median block difference sensor noise makes (measured within one unlit frame, where
+   motion does not inflate it): an edge a few rows high
    that moved, as a horizontal edge crosses the rows when the robot drives forward; sensor noise
    alone stays below) moved. In a moved column the residue a moved texture leaves in
    ``lit - mean`` varies slowly along the column, except at its horizontal edges, while the laser
@@ -163,7 +164,7 @@ class FastParams:
     blind_noise: float = 4.0  # a column noisier than this (8-bit levels) cannot report "no return": REJECTED
     moved_level: float = 0.9  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
     moved_block_level: float = 3.0  # ... or one of its blocks by this much (levels)
-    moved_block_ratio: float = 5.0  # ... and this x the frame's median block change
+    moved_block_ratio: float = 5.0  # ... and this x the median block change sensor noise makes
     moving_noise_ratio: float = 1.5  # a line must exceed this x the largest noise of the columns
     moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
@@ -300,9 +301,16 @@ class FastPipeline:
             # a change over the whole band, or a local one (an edge a few rows high that moved:
             # under forward motion a horizontal edge crosses the rows, its residue a bright
             # band): a block changed by moved_block_level, and by moved_block_ratio x the
-            # frame's median block change (its sensor noise, higher on a bright scene)
+            # median change sensor noise alone makes between such blocks (higher on a bright
+            # scene). That is measured within one frame, between blocks of the rows 2 apart
+            # (each 8 columns x 4 rows, as above, of a texture that hardly changes over 2 rows):
+            # the median change between the neighbours' blocks is the same on a still scene,
+            # but motion inflates it (at 90 deg/s in 1x light an edge crossing the rows of a
+            # few blocks went unseen: a phantom line)
             local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
-            block_level = max(p.moved_block_level, p.moved_block_ratio * float(np.median(diff)))
+            within = cv2.absdiff(*(cv2.resize(background[k : 8 * n : 4], (-(-W // 8), n), interpolation=cv2.INTER_AREA)
+                                   for k in (0, 2)))
+            block_level = max(p.moved_block_level, p.moved_block_ratio * float(np.median(within)))
             moved = np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
             if moved.any():
