@@ -133,9 +133,10 @@ SATURATED_LINE_MIN = 24
 #: Largest centre-of-mass half width: the rows within half_width + 1 of the first candidate span
 #: at most two 16-row blocks, which the second candidate's search leaves out (columns/columns.c).
 MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2
-#: Step 7 reads the near rows of the columns without a return only, in spans: runs of them fewer
-#: than this many columns apart are read as one (a call per run would cost more than the columns
-#: between them; a span over the whole image, as before, read 1664 columns for 70).
+#: Step 7 reads the near rows of the columns without a return only, in spans, and step 0 the
+#: moved columns' band: runs fewer than this many columns apart are read as one (a call per run
+#: would cost more than the columns between them; a span over the whole image, as before, read
+#: 1664 columns for 70).
 NEAR_SPAN_JOIN = 64
 _NO_PEAKS = ColumnPeaks(*(np.empty(0, t) for t in (np.float64, np.float64, np.intp, bool, bool, np.float64)))
 
@@ -519,11 +520,14 @@ class FastPipeline:
         around = cv2.dilate(noise.astype(np.float32)[None, :], np.ones((1, k), np.uint8))[0]
         n, W = lit.shape
         rb = clamp(r - self._pad + t0, 0, n - 1)  # the lines' band rows
-        # on the 5 x 3 smoothed images as detection sees them, over the rows the checks read
+        # on the 5 x 3 smoothed images as detection sees them, over the rows the checks read and
+        # the columns they need (the lines' +- moving_reach_columns, +- 2 for the smoothing: a
+        # still scene's few moved columns are not worth the whole band)
         lo, hi = max(int(rb.min()) - 2 * h - 2, 0), min(int(rb.max()) + 2 * h + 3, n)
-        smoothed = lambda x: cv2.blur(x[lo:hi], (5, 3)).astype(np.int16)  # noqa: E731
+        c0, c1 = max(int(cols.min()) - p.moving_reach_columns - 2, 0), min(int(cols.max()) + p.moving_reach_columns + 3, W)
+        smoothed = lambda x: cv2.blur(x[lo:hi, c0:c1], (5, 3)).astype(np.int16)  # noqa: E731
         core = clamp(rb[None, :] + np.arange(-1, 2)[:, None], 0, n - 1)  # the line's middle rows
-        at = (core - lo) * W + cols[None, :]  # ... in the window of rows lo..hi
+        at = (core - lo) * (c1 - c0) + (cols - c0)[None, :]  # ... in the window of rows lo..hi, columns c0..c1
         # the laser adds a narrow ridge to the lit frame itself, whatever the background did: a
         # band of residue where an edge of the unlit frames moved against the lit one's is not one
         blurred = smoothed(lit)
@@ -593,19 +597,25 @@ def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarra
     from the line to the texture beside it). Returns (background for the line, for the noise)."""
     import cv2
 
-    residue = cv2.blur(cv2.subtract(lit, background, dtype=cv2.CV_16S), (5, 3))
-    # the band's ends continue flat (trend_rows rows, as far as an opening and a closing look):
-    # a residue that rises towards them is not a ridge there
-    n = residue.shape[0]
-    residue = cv2.copyMakeBorder(residue, trend_rows, trend_rows, 0, 0, cv2.BORDER_REPLICATE)
+    n, W = background.shape
+    line_bg, noise_bg = background.copy(), background.copy()  # the columns that did not move keep the mean
     se = np.ones((trend_rows, 1), np.uint8)
-    below = cv2.morphologyEx(residue, cv2.MORPH_OPEN, se)
-    above = cv2.morphologyEx(below, cv2.MORPH_CLOSE, se)[trend_rows : trend_rows + n]
-    below = below[trend_rows : trend_rows + n]
-    line_bg, noise_bg = cv2.add(background, below, dtype=cv2.CV_8U), cv2.add(background, above, dtype=cv2.CV_8U)
-    still = ~moved
-    if still.any():  # the columns that did not move keep the mean of the neighbours
-        line_bg[:, still] = noise_bg[:, still] = background[:, still]
+    # only the moved columns' spans are read, each with the 2 columns either side the smoothing
+    # needs (the opening and the closing work down each column)
+    for k0, k1 in _spans(moved, NEAR_SPAN_JOIN):
+        a0, a1 = max(k0 - 2, 0), min(k1 + 2, W)
+        residue = cv2.blur(cv2.subtract(lit[:, a0:a1], background[:, a0:a1], dtype=cv2.CV_16S), (5, 3))
+        # the band's ends continue flat (trend_rows rows, as far as an opening and a closing
+        # look): a residue that rises towards them is not a ridge there
+        residue = cv2.copyMakeBorder(residue, trend_rows, trend_rows, 0, 0, cv2.BORDER_REPLICATE)
+        below = cv2.morphologyEx(residue, cv2.MORPH_OPEN, se)
+        above = cv2.morphologyEx(below, cv2.MORPH_CLOSE, se)[trend_rows : trend_rows + n, k0 - a0 : k1 - a0]
+        below = below[trend_rows : trend_rows + n, k0 - a0 : k1 - a0]
+        span = background[:, k0:k1]
+        line_bg[:, k0:k1], noise_bg[:, k0:k1] = cv2.add(span, below, dtype=cv2.CV_8U), cv2.add(span, above, dtype=cv2.CV_8U)
+        still = ~moved[k0:k1]
+        if still.any():  # inside a span too, the columns that did not move keep the mean
+            line_bg[:, k0:k1][:, still] = noise_bg[:, k0:k1][:, still] = span[:, still]
     return line_bg, noise_bg
 
 
