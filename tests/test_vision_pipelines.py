@@ -146,13 +146,13 @@ def test_too_close_is_minus_inf():
 
 def test_too_close_in_separate_spans_of_columns():
     """Step 7 reads the near rows of the columns without a return only, in spans (runs closer
-    than NEAR_SPAN_JOIN joined): near objects apart and close together are each "too close",
+    than SPAN_JOIN joined): near objects apart and close together are each "too close",
     and neither the wall between them nor the gap joined into a span is."""
-    from device.vision.fast import NEAR_SPAN_JOIN, _spans
+    from device.vision.fast import SPAN_JOIN, _spans
 
     cfg = dataclasses.replace(CFG, range=RangeLimits(0.5, 4.0))
     z = np.full(cfg.width, 2.0)
-    near = [(100, 160), (160 + NEAR_SPAN_JOIN // 2, 250 + NEAR_SPAN_JOIN // 2), (900, 960)]
+    near = [(100, 160), (160 + SPAN_JOIN // 2, 250 + SPAN_JOIN // 2), (900, 960)]
     for a, b in near:
         z[a:b] = 0.3
     lit, unlit = frame_pair(cfg, row_for_depth(cfg, z), seed=12)

@@ -137,7 +137,7 @@ MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2
 #: moved columns' band: runs fewer than this many columns apart are read as one (a call per run
 #: would cost more than the columns between them; a span over the whole image, as before, read
 #: 1664 columns for 70).
-NEAR_SPAN_JOIN = 64
+SPAN_JOIN = 64
 _NO_PEAKS = ColumnPeaks(*(np.empty(0, t) for t in (np.float64, np.float64, np.intp, bool, bool, np.float64)))
 
 
@@ -296,23 +296,24 @@ class FastPipeline:
             # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
             # a texture that moved stays), then their mean |difference| per 8 columns
             W, n = background.shape[1], self.rows // 8
-            small = [cv2.resize(x[: 8 * n : 2], (-(-W // 8), n), interpolation=cv2.INTER_AREA) for x in (background, other)]
-            diff = cv2.absdiff(*small)
+            blocks = lambda rows: cv2.resize(rows, (-(-W // 8), n), interpolation=cv2.INTER_AREA)  # noqa: E731
+            diff = cv2.absdiff(blocks(background[: 8 * n : 2]), blocks(other[: 8 * n : 2]))
             change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
             # a change over the whole band, or a local one (an edge a few rows high that moved:
             # under forward motion a horizontal edge crosses the rows, its residue a bright
             # band): a block changed by moved_block_level, and by moved_block_ratio x the
             # median change sensor noise alone makes between such blocks (higher on a bright
-            # scene). That is measured within one frame, between blocks of the rows 2 apart
-            # (each 8 columns x 4 rows, as above, of a texture that hardly changes over 2 rows):
-            # the median change between the neighbours' blocks is the same on a still scene,
-            # but motion inflates it (at 90 deg/s in 1x light an edge crossing the rows of a
-            # few blocks went unseen: a phantom line)
+            # scene). That is measured within one frame, between the blocks of every 4th row and
+            # of the rows 2 below them, of a texture that hardly changes over 2 rows: motion
+            # inflates the median change between the neighbours' blocks (at 90 deg/s in 1x light
+            # an edge crossing the rows of a few blocks went unseen: a phantom line). These
+            # blocks are 8 columns x 2 rows, so their noise is sqrt(2) that of the 8 x 4 above;
+            # rounded to whole levels, the two medians came out equal on still 90 % walls (1),
+            # where this term sets the bar
             local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
             block_level = p.moved_block_level
             if local.max() >= block_level:  # else no block reaches the bar, whatever the noise
-                within = cv2.absdiff(*(cv2.resize(background[k : 8 * n : 4], (-(-W // 8), n),
-                                                  interpolation=cv2.INTER_AREA) for k in (0, 2)))
+                within = cv2.absdiff(blocks(background[0 : 8 * n : 4]), blocks(background[2 : 8 * n : 4]))
                 block_level = max(block_level, p.moved_block_ratio * float(np.median(within)))
             moved = np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
@@ -345,7 +346,7 @@ class FastPipeline:
         # too close: only columns in runs of >= min_run without a return can become a run of
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
         empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
-        spans = _spans(empty, NEAR_SPAN_JOIN) if self.near_bottom > self.near_top else []
+        spans = _spans(empty, SPAN_JOIN) if self.near_bottom > self.near_top else []
         if len(spans):
             close = np.zeros(W, bool)
             for c0, c1 in spans:  # only these columns are read (a wall's dim ends: ~70 of 1664 columns)
@@ -403,7 +404,7 @@ class FastPipeline:
         rows = slice(self.near_top, self.near_bottom, 2)
         reach = np.ones((1, 2 * p.moving_reach_columns + 1), np.uint8)
         out = np.zeros(W, bool)
-        for k0, k1 in _spans(candidates, NEAR_SPAN_JOIN):
+        for k0, k1 in _spans(candidates, SPAN_JOIN):
             a0, a1 = max(k0 - p.moving_reach_columns, 0), min(k1 + p.moving_reach_columns, W)
             la, mask = lit[rows, k0:k1], self.near_mask[:, k0:k1]
             noise = cv2.bitwise_and(cv2.subtract(cv2.max(unlit[rows, k0:k1], other[rows, k0:k1]), la), mask).max(axis=0)
@@ -604,7 +605,7 @@ def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarra
     se = np.ones((trend_rows, 1), np.uint8)
     # only the moved columns' spans are read, each with the 2 columns either side the smoothing
     # needs (the opening and the closing work down each column)
-    for k0, k1 in _spans(moved, NEAR_SPAN_JOIN):
+    for k0, k1 in _spans(moved, SPAN_JOIN):
         a0, a1 = max(k0 - 2, 0), min(k1 + 2, W)
         residue = cv2.blur(cv2.subtract(lit[:, a0:a1], background[:, a0:a1], dtype=cv2.CV_16S), (5, 3))
         # the band's ends continue flat (trend_rows rows, as far as an opening and a closing
