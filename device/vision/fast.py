@@ -46,6 +46,19 @@ Per frame pair (or triple):
    aliases with the frame step is in the lit frame, and in neither neighbour at that column); within
    that distance of the image's edge, where the texture may have come in from outside it, such a
    return is REJECTED.
+
+   When the robot turns, a quarter (``turn_share``) of the columns or more moved: each unlit
+   neighbour is then turned to the lit frame first (device/vision/yaw.py: a yaw is a shift of
+   the azimuth, found against the lit frame and read back through the lens model, up to
+   ``max_turn_deg``), and kept where a turn explains the change and leaves fewer than half of
+   those columns moved. The frame is then judged as a still one, the columns that count as moved
+   since the turn as above: a column only one neighbour saw (the image's side the turn brought
+   in) against that one, and counted as moved; one neither saw is REJECTED. A line in a column
+   still since the turn must stand ``turn_agree_ratio`` times above where the two turned
+   neighbours still disagree along it (a sharp edge that one's resampling put a fraction of a
+   row from the other's), and, every column having moved, be part of a run of
+   ``moving_min_run``. The near rows of step 7 are not turned: there the neighbours count as
+   they moved.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -113,17 +126,20 @@ This module keeps the order of the steps, the tracking and the parameters.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import SensorConfig
+from ..model.scan_frame import scan_frame
 from ..model.triangulation import RangeStatus
 from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
+from .yaw import register, yaw_grid
 
 #: Rows per block of the candidate search (``COLUMNS_BLOCK_ROWS`` in columns/columns.h, which
 #: also fixes the detection blur at 5 columns x 3 rows).
@@ -176,6 +192,9 @@ class FastParams:
     moving_reach_columns: int = 64  # ... within this many columns (as far as the background may move)
     moving_min_run: int = 5  # ... and, after these checks, be part of a run of this many continuous columns
     trend_rows: int = 11  # the moved background's trend along each column is taken over this many rows (taller than a line)
+    turn_share: float = 0.25  # when at least this share of the columns moved, the neighbours are turned to the lit frame (inf: never)
+    max_turn_deg: float = 20.0  # ... by at most this much each
+    turn_agree_ratio: float = 3.0  # ... and a line where they still disagree must stand this x above that
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -194,6 +213,9 @@ class FastParams:
         if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0):
             raise ValueError(f"need moved_block_level > 0 and moved_block_ratio >= 0, got "
                              f"{self.moved_block_level}, {self.moved_block_ratio}")
+        if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.turn_agree_ratio >= 0):
+            raise ValueError(f"need turn_share > 0 (inf: never turn), 0 < max_turn_deg <= 45 and turn_agree_ratio >= 0, got "
+                             f"{self.turn_share}, {self.max_turn_deg}, {self.turn_agree_ratio}")
         if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1:
             raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line) and moving_min_run >= 1, got "
                              f"{self.trend_rows}, {self.moving_min_run}")
@@ -287,40 +309,22 @@ class FastPipeline:
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
         lit_band = lum_lit[self.top : self.top + self.rows]
         p = self.params
-        moved = neighbours = lum_other = None
+        moved = moved_raw = neighbours = lum_other = brought_in = None
         noise_background = residue_noise = None
         if other_unlit is not None:  # step 0
             lum_other = luminance(other_unlit, "other unlit", shape)
             other = lum_other[self.top : self.top + self.rows]
+            grid = self._yaw_grid if math.isfinite(p.turn_share) else None  # built at the first call with both
+            moved = moved_raw = self._moved(background, other, background)
+            if grid is not None and moved.mean() >= p.turn_share:
+                background, other, moved, brought_in = self._turned(grid, lum_lit, lum_unlit, lum_other, background,
+                                                                    other, moved)
             neighbours = (background, other)
-            # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
-            # a texture that moved stays), then their mean |difference| per 8 columns
-            W, n = background.shape[1], self.rows // 8
-            blocks = lambda rows: cv2.resize(rows, (-(-W // 8), n), interpolation=cv2.INTER_AREA)  # noqa: E731
-            diff = cv2.absdiff(blocks(background[: 8 * n : 2]), blocks(other[: 8 * n : 2]))
-            change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
-            # a change over the whole band, or a local one (an edge a few rows high that moved:
-            # under forward motion a horizontal edge crosses the rows, its residue a bright
-            # band): a block changed by moved_block_level, and by moved_block_ratio x the
-            # median change sensor noise alone makes between such blocks (higher on a bright
-            # scene). That is measured within one frame, between the blocks of every 4th row and
-            # of the rows 2 below them, of a texture that hardly changes over 2 rows: motion
-            # inflates the median change between the neighbours' blocks (at 90 deg/s in 1x light
-            # an edge crossing the rows of a few blocks went unseen: a phantom line). These
-            # blocks are 8 columns x 2 rows, so their noise is sqrt(2) that of the 8 x 4 above;
-            # rounded to whole levels, the two medians came out equal on still 90 % walls (1),
-            # where this term sets the bar
-            local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
-            block_level = p.moved_block_level
-            if local.max() >= block_level:  # else no block reaches the bar, whatever the noise
-                within = cv2.absdiff(blocks(background[0 : 8 * n : 4]), blocks(background[2 : 8 * n : 4]))
-                block_level = max(block_level, p.moved_block_ratio * float(np.median(within)))
-            moved = np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
             background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
             if moved.any():
                 # a line hidden in what the moved background left cannot be told from no line:
                 # "no return" is judged on that residue's noise (blind_noise)
-                residue_noise = np.empty(W)
+                residue_noise = np.empty(background.shape[1])
                 self._kernel.noise_level(lit_band, background, residue_noise)
                 background, noise_background = _moved_backgrounds(lit_band, background, moved, p.trend_rows)
         band = self._tracking_band()
@@ -359,34 +363,125 @@ class FastPipeline:
                 # stricter than in range (twice the noise ratio): a false "too close" stops a robot
                 close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
             close &= empty
-            if moved is not None and np.any(close & moved):
-                above = self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved)
+            # the near rows are outside the band and not turned: there the neighbours moved as they are
+            if moved_raw is not None and np.any(close & moved_raw):
+                above = self._near_above_moved_background(lum_lit, lum_unlit, lum_other, close & moved_raw)
                 # within moving_reach_columns of the image's edge the texture may have come in from
                 # outside it, where the neighbours are not seen: such a return cannot be trusted
                 unseen = np.zeros(W, bool)
                 unseen[: p.moving_reach_columns] = unseen[W - p.moving_reach_columns :] = True
-                status[close & moved & above & unseen] = STATUS_U8[ColumnStatus.REJECTED]
-                close &= ~moved | (above & ~unseen)
+                status[close & moved_raw & above & unseen] = STATUS_U8[ColumnStatus.REJECTED]
+                close &= ~moved_raw | (above & ~unseen)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
         if moved is not None:
-            status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise, moved,
-                                     neighbours, lit_band, t0)
+            status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
+                                     moved, neighbours, lit_band, t0)
+        if brought_in is not None:
+            status = self._turned_untrusted(status, row, peak, moved, brought_in, neighbours)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         tri = self.geometry.triangulate(row)
-        if moved is not None:
+        if moved_raw is not None:
             # a line in a moved column that triangulates nearer than the range lies at the region of
             # interest's near edge, where a moved edge's residue passes for one as well: it is no
             # "too close" (step 7 judges the near rows of columns without a line), it is REJECTED
-            nearer = moved & found & (tri.status == RangeStatus.TOO_CLOSE)
+            nearer = moved_raw & found & (tri.status == RangeStatus.TOO_CLOSE)
             if nearer.any():
                 status[nearer] = STATUS_U8[ColumnStatus.REJECTED]
                 found &= ~nearer
                 row[nearer] = np.nan
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
+
+    def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
+        """Step 0: the columns where the neighbours' bands ``a`` and ``b`` differ (moved);
+        ``unlit``: the unlit frame's own band, whose sensor noise sets the bar for one block."""
+        import cv2
+
+        p = self.params
+        # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
+        # a texture that moved stays), then their mean |difference| per 8 columns
+        W, n = a.shape[1], self.rows // 8
+        blocks = lambda rows: cv2.resize(rows, (-(-W // 8), n), interpolation=cv2.INTER_AREA)  # noqa: E731
+        diff = cv2.absdiff(blocks(a[: 8 * n : 2]), blocks(b[: 8 * n : 2]))
+        change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
+        # a change over the whole band, or a local one (an edge a few rows high that moved:
+        # under forward motion a horizontal edge crosses the rows, its residue a bright
+        # band): a block changed by moved_block_level, and by moved_block_ratio x the
+        # median change sensor noise alone makes between such blocks (higher on a bright
+        # scene). That is measured within one frame, between the blocks of every 4th row and
+        # of the rows 2 below them, of a texture that hardly changes over 2 rows: motion
+        # inflates the median change between the neighbours' blocks (at 90 deg/s in 1x light
+        # an edge crossing the rows of a few blocks went unseen: a phantom line). These
+        # blocks are 8 columns x 2 rows, so their noise is sqrt(2) that of the 8 x 4 above;
+        # rounded to whole levels, the two medians came out equal on still 90 % walls (1),
+        # where this term sets the bar
+        local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
+        block_level = p.moved_block_level
+        if local.max() >= block_level:  # else no block reaches the bar, whatever the noise
+            within = cv2.absdiff(blocks(unlit[0 : 8 * n : 4]), blocks(unlit[2 : 8 * n : 4]))
+            block_level = max(block_level, p.moved_block_ratio * float(np.median(within)))
+        return np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
+
+    def _turned(self, grid, lum_lit: np.ndarray, lum_unlit: np.ndarray, lum_other: np.ndarray, background: np.ndarray,
+                other: np.ndarray, moved: np.ndarray):
+        """Step 0 when ``turn_share`` of the columns moved: the neighbours read into the lit frame's
+        band under the turn that matches each (device/vision/yaw.py), where a turn explains how
+        they differ and leaves fewer than half of the ``moved`` columns moved; else the bands as
+        they were. Columns a neighbour did not see (the turn brought them in from outside the
+        image) keep the raw bands and count as moved. Returns (band of the unlit frame, band of
+        the other, moved, the columns brought in, or None where the bands were not turned)."""
+        regs = register(grid, lum_lit, (lum_unlit, lum_other))
+        if regs is None:
+            return background, other, moved, None
+        a, b = regs[0].band, regs[1].band
+        only_a, only_b = regs[0].seen & ~regs[1].seen, regs[1].seen & ~regs[0].seen
+        b[:, only_a] = a[:, only_a]
+        a[:, only_b] = b[:, only_b]
+        brought_in = ~(regs[0].seen | regs[1].seen)
+        for turned, raw in ((a, background), (b, other)):
+            turned[:, brought_in] = raw[:, brought_in]
+        turned_moved = self._moved(a, b, background) | brought_in | only_a | only_b
+        if turned_moved.sum() >= 0.5 * moved.sum():
+            return background, other, moved, None
+        return a, b, turned_moved, brought_in
+
+    def _turned_untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
+                          brought_in: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Step 0's rejections in a frame whose neighbours were turned to it (:meth:`_turned`): a
+        line in a column the turn ``brought_in`` (the image's side, which a neighbour did not
+        see); a line in a column still since the turn that does not stand ``turn_agree_ratio``
+        times above where the turned neighbours still disagree along it (smoothed as detection
+        sees it, over its rows +- half_width: a sharp edge that one neighbour's resampling put a
+        fraction of a row from the other's); and what these leave outside a run of
+        ``moving_min_run`` continuous columns: every column of a turned frame moved, and what a
+        resampled edge leaves passes in fragments, as a moved edge's residue does (_untrusted)."""
+        import cv2
+
+        p = self.params
+        ok = status == STATUS_U8[ColumnStatus.OK]
+        bad = ok & brought_in
+        cols = np.nonzero(ok & ~moved)[0]
+        if cols.size:
+            d = cv2.blur(cv2.absdiff(*neighbours), (5, 3))
+            h, n = p.half_width, d.shape[0]
+            r = np.rint(row[cols]).astype(np.intp) - self.top
+            rows = clamp(r[None, :] + np.arange(-h, h + 1)[:, None], 0, n - 1)
+            disagree = d.ravel().take(rows * d.shape[1] + cols[None, :]).max(axis=0)
+            bad[cols] |= peak[cols] < p.turn_agree_ratio * disagree
+        ok &= ~bad
+        bad |= ok & (_run_length(ok) < p.moving_min_run)
+        return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
+
+    @functools.cached_property
+    def _yaw_grid(self):
+        """The (elevation, azimuth) grid of the band (device/vision/yaw.py), built at the first
+        frame with both neighbours (~0.1 s here; not at the first turn, which would stall a scan)."""
+        c = self.config
+        return yaw_grid(c.camera, scan_frame(c.plane), c.width, c.height, self.top, self.rows,
+                        math.radians(self.params.max_turn_deg))
 
     def _near_above_moved_background(self, lit: np.ndarray, unlit: np.ndarray, other: np.ndarray,
                                      candidates: np.ndarray) -> np.ndarray:

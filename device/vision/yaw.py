@@ -1,0 +1,241 @@
+"""The unlit neighbours turned to the lit frame's yaw (issue 16, fast pipeline step 0).
+
+When the robot turns, the scene moves across the image between the unlit frame before the lit
+one and the one after it, and their mean is not the lit frame's background: a textured wall
+leaves its texture in the difference. A pure rotation about the scan frame's z axis (the robot's
+yaw) moves every ray's azimuth by the same angle and keeps its elevation, whatever the depth:
+in a grid of (elevation, azimuth) cells a turn is a shift along the azimuth (thesis eq. 3.1-3.4
+for the lens, device/model/scan_frame.py for the scan frame). So each neighbour is resampled on
+that grid (every SEARCH_ROW_STEP-th row of cells), the shift that matches it to the lit frame is
+found there (the best normalised correlation on block means COARSE times coarser, then at full
+resolution near it, to a fraction of a cell by the peak's parabola; the laser line is a few rows
+of the lit frame and moves nothing), and the neighbour is read back into the lit frame's pixels
+through the lens model, shifted by it: the map is composed on every COMPOSE_STEP-th row and
+column of the band and spread to the others by linear interpolation (the displacement a turn
+makes changes slowly across the image). Each neighbour gets its own shift, so a yaw rate that
+changes between the frames is followed.
+
+What a rotation does not explain stays: the parallax of driving forward, something moving in
+the scene, a texture coming in from outside the image (:attr:`Registered.seen` says which
+columns have their whole band inside the neighbour). Where the neighbours, turned, still differ
+by most of what they differed (MAX_TURN_RESIDUE: driving straight), no turn is returned at all;
+step 0 judges the registered neighbours as it judges the raw ones.
+
+The rolling shutter: the three frames read their rows at the same times after their starts, so
+the yaw between a lit row and its neighbour's row is the same for every row (a constant yaw rate
+over the 100 ms); the row a ray lands on moves by a fraction of a row, not by the readout.
+
+What it costs (BENCHMARKS.md "Motion"): ~4 ms per lit frame here for both neighbours (the
+three grid reads and the searches ~1.3 ms, each read-back ~1.2 ms), only when step 0 finds
+``turn_share`` of the columns moved. The grid is built once per pipeline (~0.1 s here).
+
+Pure arrays and OpenCV, no I/O: the grid is built from the configuration's lens and laser plane.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model.camera import CameraModel, pixel_grid, project_points, undistort_robust
+from ..model.scan_frame import ScanFrame
+
+#: Coarse search: the grids are reduced this many times along both axes first.
+COARSE = 4
+#: The fine search looks this many cells either side of the coarse shift.
+FINE_REACH = COARSE
+#: A neighbour shifted by less than this (cells) is read as it is: a turn that small moves
+#: nothing by a pixel, and driving straight (a shift of ~0: parallax is no turn) costs no resampling.
+MIN_SHIFT = 0.5
+#: The turn found must leave at most this share of how the two neighbours differ (register).
+MAX_TURN_RESIDUE = 0.7
+#: Elevation rows of the grid the search reads: every this-many-th (the turn shifts along the
+#: azimuth only; the rows between add little to the match and cost their share).
+SEARCH_ROW_STEP = 4
+#: The band's map into a neighbour is composed on every this-many-th row and spread to the
+#: others by linear interpolation (the displacement a turn makes changes slowly along a column).
+COMPOSE_STEP = 5
+
+
+@dataclass(frozen=True)
+class YawGrid:
+    """An (elevation, azimuth) grid over a band of image rows, and the maps a turn needs.
+
+    ``search_map``: (n_search, n_azimuth, 2) float32 image (x, y) of every SEARCH_ROW_STEP-th
+    elevation row's cells, where the shift is searched; ``to_image``: (n_elevation, n_azimuth, 2)
+    float32 image (x, y) of every cell's ray; both NaN where a ray is not in the image. ``top``:
+    the band's first image row; ``max_shift``: the largest shift searched, in cells; ``cell_rad``:
+    the azimuth step. ``compose_pixels``: (n_rows, n_columns, 2) float32 pixels (x, y) of every
+    COMPOSE_STEP-th row and column of the band, where ``cv2.resize`` samples an image
+    COMPOSE_STEP times coarser, so that its linear interpolation spreads what is composed there
+    to every pixel, and ``compose_cells`` their (azimuth, elevation) cells, NaN where a pixel
+    has no ray; ``compose_bracket``: (2, width) the composed columns either side of each image
+    column; ``band_pixels``: (rows, width, 2) float32 pixels (x, y) of the band."""
+
+    search_map: np.ndarray
+    to_image: np.ndarray
+    top: int
+    rows: int
+    max_shift: int
+    cell_rad: float
+    compose_cells: np.ndarray
+    compose_pixels: np.ndarray
+    compose_bracket: np.ndarray
+    band_pixels: np.ndarray
+
+
+@dataclass(frozen=True)
+class Registered:
+    """A neighbour read into the lit frame's band: ``band`` (rows, width) uint8; ``seen`` (width,)
+    bool, the columns whose every composed band pixel came from inside the neighbour;
+    ``shift_rad`` the yaw found between it and the lit frame (azimuth of the neighbour's content
+    minus the lit frame's)."""
+
+    band: np.ndarray
+    seen: np.ndarray
+    shift_rad: float
+
+
+def yaw_grid(camera: CameraModel, frame: ScanFrame, width: int, height: int, top: int, rows: int,
+             max_yaw_rad: float) -> YawGrid:
+    """The grid for image rows [top, top + rows) of a ``width`` x ``height`` image, searched up to
+    ``max_yaw_rad`` of turn between a neighbour and the lit frame. Cells are as wide as a pixel at
+    the image centre (1 / fx rad; fy for the elevation)."""
+    if not (0 <= top and rows >= COMPOSE_STEP and top + rows <= height and width >= COMPOSE_STEP):
+        raise ValueError(f"band rows [{top}, {top + rows}) not inside an image {height} rows high, or fewer than "
+                         f"{COMPOSE_STEP} rows")
+    if not max_yaw_rad > 0:
+        raise ValueError(f"max_yaw_rad must be positive, got {max_yaw_rad}")
+    k = camera.intrinsics
+    # the band's rays span the azimuths and elevations of its border's: the lens model maps
+    # pixels to rays one to one and smoothly, so neither angle has an extreme inside the band
+    x, y = np.arange(width, dtype=float), np.arange(top, top + rows, dtype=float)
+    border = np.concatenate([np.stack([x, np.full(width, y[0])], 1), np.stack([x, np.full(width, y[-1])], 1),
+                             np.stack([np.zeros(rows), y], 1), np.stack([np.full(rows, width - 1.0), y], 1)])
+    azimuth, elevation, ok = _directions(border, camera, frame)
+    if not ok.any():
+        raise ValueError("no pixel of the band has a ray (lens model)")
+    step_az, step_el = 1.0 / k.fx, 1.0 / k.fy
+    az0, az1 = float(azimuth[ok].min()), float(azimuth[ok].max())
+    el0, el1 = float(elevation[ok].min()), float(elevation[ok].max())
+    n_az = int(math.ceil((az1 - az0) / step_az)) + 1
+    n_el = int(math.ceil((el1 - el0) / step_el)) + 1
+    # azimuth falls from the image's left to its right (REP 103: y to the left): cell j's azimuth
+    # is az1 - j step, so that cells run the way the image's columns do
+    a = az1 - np.arange(n_az) * step_az
+    e = el0 + np.arange(n_el) * step_el
+    ca, sa = np.cos(a)[None, :], np.sin(a)[None, :]
+    ce, se = np.cos(e)[:, None], np.sin(e)[:, None]
+    rays = np.stack([ce * ca, ce * sa, np.broadcast_to(se, (n_el, n_az))], axis=-1) @ frame.rotation
+    with np.errstate(invalid="ignore"):
+        xy = project_points(rays.reshape(-1, 3), camera).reshape(n_el, n_az, 2)
+        inside = (rays[..., 2] > 0) & np.all(np.isfinite(xy), axis=-1)
+        inside &= (xy[..., 0] >= 0) & (xy[..., 0] <= width - 1) & (xy[..., 1] >= 0) & (xy[..., 1] <= height - 1)
+    to_image = np.where(inside[..., None], xy, np.nan).astype(np.float32)
+    # the pixels cv2.resize samples when it enlarges (n_rows, n_columns) COMPOSE_STEP times to the band
+    n_rows, n_columns = rows // COMPOSE_STEP, width // COMPOSE_STEP
+    column = (np.arange(n_columns) + 0.5) * (width / n_columns) - 0.5
+    compose = np.stack(np.meshgrid(column, top + (np.arange(n_rows) + 0.5) * (rows / n_rows) - 0.5), axis=-1)
+    az, el, valid = _directions(compose.reshape(-1, 2), camera, frame)
+    cells = np.stack([(az1 - az) / step_az, (el - el0) / step_el], axis=-1)
+    cells = np.where(valid[:, None], cells, np.nan).reshape(n_rows, n_columns, 2).astype(np.float32)
+    below = np.clip(np.searchsorted(column, np.arange(width), side="right") - 1, 0, n_columns - 1)
+    bracket = np.stack([below, np.minimum(below + 1, n_columns - 1)])
+    return YawGrid(np.ascontiguousarray(to_image[::SEARCH_ROW_STEP]), to_image, top, rows,
+                   max(int(math.ceil(max_yaw_rad / step_az)), FINE_REACH + 1), step_az, cells,
+                   compose.astype(np.float32), bracket, np.stack(np.meshgrid(x, y), axis=-1).astype(np.float32))
+
+
+def _directions(pixels: np.ndarray, camera: CameraModel, frame: ScanFrame):
+    """(azimuth, elevation, valid) in the scan frame of the rays of ``pixels`` (N, 2)."""
+    un = undistort_robust(pixels, camera, tol_px=1e-3)
+    d_scan = np.concatenate([un.xy, np.ones_like(un.xy[:, :1])], axis=1) @ frame.rotation.T
+    return (np.arctan2(d_scan[:, 1], d_scan[:, 0]), np.arctan2(d_scan[:, 2], np.hypot(d_scan[:, 0], d_scan[:, 1])),
+            un.valid)
+
+
+def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | None:
+    """Each of ``neighbours`` (whole uint8 images) read into the band of ``lit`` under the turn
+    that matches it best (a copy of its own band where that is under MIN_SHIFT cells); None where
+    no turn can be told (no texture: a flat or dark scene) or a turn does not explain how the
+    neighbours differ: turned, they still differ by more than MAX_TURN_RESIDUE of what they did
+    (driving straight: the parallax spreads the scene out from the middle, which a best shift
+    matches only a little: on the frames of ``laserpi bench motion``, seeds 0-4, 0.80-0.85 of
+    the difference stays at 0.5-1 m/s, 0.07-0.18 turning at 14-180 deg/s, 0.15-0.28 with a
+    person crossing too, 0.38-0.47 turning at 180 deg/s and driving at 1 m/s in 10x light)."""
+    import cv2
+
+    on = lambda x: cv2.remap(x, grid.search_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(np.float32)  # noqa: E731
+    a, *grids = (on(x) for x in (lit, *neighbours))
+    h, w = a.shape[0] // COARSE, a.shape[1] // COARSE
+    small_a, *smalls = (cv2.resize(x[: h * COARSE, : w * COARSE], (w, h), interpolation=cv2.INTER_AREA)
+                        for x in (a, *grids))
+    shifts = [_shift(a, b, small_a, small_b, grid.max_shift) for b, small_b in zip(grids, smalls)]
+    if any(s is None for s in shifts) or _residue(smalls, [s / COARSE for s in shifts]) > MAX_TURN_RESIDUE:
+        return None
+    out = []
+    for neighbour, shift in zip(neighbours, shifts):
+        if abs(shift) < MIN_SHIFT:
+            out.append(Registered(neighbour[grid.top : grid.top + grid.rows].copy(), np.ones(neighbour.shape[1], bool),
+                                  shift * grid.cell_rad))
+            continue
+        # where each band pixel's ray lies in the neighbour: composed on every COMPOSE_STEP-th
+        # row and column, and its displacement, which changes slowly, spread to the others
+        m = grid.compose_cells.copy()
+        m[..., 0] += shift
+        source = cv2.remap(grid.to_image, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=math.nan)
+        seen = np.all(np.isfinite(source[..., 0]), axis=0)[grid.compose_bracket].all(axis=0)
+        rows, width = grid.band_pixels.shape[:2]
+        moved = cv2.resize(source - grid.compose_pixels, (width, rows), interpolation=cv2.INTER_LINEAR)
+        band = cv2.remap(neighbour, cv2.add(moved, grid.band_pixels), None, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT)
+        out.append(Registered(band, seen, shift * grid.cell_rad))
+    return out
+
+
+def _residue(grids, shifts) -> float:
+    """The mean |difference| of two neighbours' grids (COARSE times reduced), each shifted by its
+    turn (``shifts``, in their cells), as a share of it unshifted (over the cells both have,
+    turned and not)."""
+    import cv2
+
+    b0, b1 = grids
+    h, w = b0.shape
+    turned = [cv2.warpAffine(b, np.float32([[1, 0, s], [0, 1, 0]]), (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=math.nan) for b, s in zip(grids, shifts)]
+    ok = np.isfinite(turned[0]) & np.isfinite(turned[1]) & (b0 > 0) & (b1 > 0)  # 0: a cell outside the image
+    raw = float(np.mean(np.abs(b0 - b1)[ok])) if ok.any() else 0.0
+    return float(np.mean(np.abs(turned[0] - turned[1])[ok])) / raw if raw > 0 else math.inf
+
+
+def _shift(a: np.ndarray, b: np.ndarray, small_a: np.ndarray, small_b: np.ndarray, max_shift: int) -> float | None:
+    """The shift s (cells, to a fraction of one) with b[:, j + s] ~ a[:, j]: the best normalised
+    correlation of ``a``'s middle (``max_shift`` cells in from each side) along ``b``, on their
+    grids reduced COARSE times (block means ``small_a``, ``small_b``), then at full resolution
+    within FINE_REACH cells of it, the peak's parabola; None where the correlation has no peak (a
+    flat grid)."""
+    import cv2
+
+    n, c = a.shape[1], small_a.shape[1]
+    m = min(max_shift, (n - 1) // 4)
+    if m <= FINE_REACH or small_a.shape[0] < 1:
+        return None
+    mc = m // COARSE
+    coarse = cv2.matchTemplate(small_b, small_a[:, mc : c - mc], cv2.TM_CCOEFF_NORMED)[0]
+    if not np.all(np.isfinite(coarse)) or np.ptp(coarse) <= 0:
+        return None
+    k0 = int(np.clip((int(np.argmax(coarse)) - mc) * COARSE, -(m - FINE_REACH - 1), m - FINE_REACH - 1))
+    template = a[:, m : n - m]
+    fine = cv2.matchTemplate(b[:, m + k0 - FINE_REACH - 1 : n - m + k0 + FINE_REACH + 1], template, cv2.TM_CCOEFF_NORMED)[0]
+    if not np.all(np.isfinite(fine)):
+        return None
+    i = int(np.argmax(fine))
+    if i == 0 or i == fine.size - 1:  # at the edge of the fine window: the coarse peak was not this one
+        return None
+    y0, y1, y2 = (float(v) for v in fine[i - 1 : i + 2])
+    curvature = y0 - 2 * y1 + y2
+    frac = 0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0
+    return k0 - FINE_REACH - 1 + i + frac
