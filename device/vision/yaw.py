@@ -21,9 +21,14 @@ columns have their whole band inside the neighbour). Where the neighbours, turne
 by most of what they differed (MAX_TURN_RESIDUE: driving straight), no turn is returned at all;
 step 0 judges the registered neighbours as it judges the raw ones.
 
-The rolling shutter: the three frames read their rows at the same times after their starts, so
-the yaw between a lit row and its neighbour's row is the same for every row (a constant yaw rate
-over the 100 ms); the row a ray lands on moves by a fraction of a row, not by the readout.
+The rolling shutter: the three frames read their rows at the same times after their starts (the
+line time is the mode's line length over its pixel rate, and frames follow at the frame length:
+device/camera/modes.py, from the kernel's driver raspberrypi/linux drivers/media/i2c/imx219.c,
+which no frame of a running mode changes), so the yaw between a lit row and its neighbour's row
+is the same for every row at a constant yaw rate over the 100 ms; the row a ray lands on moves
+by a fraction of a row, not by the readout. A yaw rate that changes leaves the rows' turns
+unequal: by the acceleration x the readout between them x the 50 ms between the frames; over
+the band at the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
 
 What it costs (BENCHMARKS.md "Motion"): ~4 ms per lit frame here for both neighbours (the
 three grid reads and the searches ~1.3 ms, each read-back ~1.2 ms), only when step 0 finds
