@@ -247,7 +247,8 @@ def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
     assert "--out and --truth go with --recording" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("bad", [{"moved_block_level": 0.0}, {"moved_block_ratio": -1.0}])
+@pytest.mark.parametrize("bad", [{"moved_block_level": 0.0}, {"moved_block_ratio": -1.0}, {"turn_share": 0.0},
+                                 {"max_turn_deg": 0.0}, {"max_turn_deg": 60.0}, {"turn_agree_ratio": -1.0}])
 def test_step_0_refuses_motion_thresholds_that_mean_nothing(bad):
     from device.vision.fast import FastParams
 

@@ -53,7 +53,8 @@ Per frame pair (or triple):
    ``max_turn_deg``), and kept where a turn explains the change and leaves fewer than half of
    those columns moved. The frame is then judged as a still one, the columns that count as moved
    since the turn as above: a column only one neighbour saw (the image's side the turn brought
-   in) against that one, and counted as moved; one neither saw is REJECTED. A line in a column
+   in) against that one, and counted as moved; one neither saw is REJECTED (a line or "no
+   return" there). A line in a column
    still since the turn must stand ``turn_agree_ratio`` times above where the two turned
    neighbours still disagree along it (a sharp edge that one's resampling put a fraction of a
    row from the other's), and, every column having moved, be part of a run of
@@ -193,7 +194,7 @@ class FastParams:
     moving_min_run: int = 5  # ... and, after these checks, be part of a run of this many continuous columns
     trend_rows: int = 11  # the moved background's trend along each column is taken over this many rows (taller than a line)
     turn_share: float = 0.25  # when at least this share of the columns moved, the neighbours are turned to the lit frame (inf: never)
-    max_turn_deg: float = 20.0  # ... by at most this much each
+    max_turn_deg: float = 20.0  # ... by at most this much each (and at most what the lens allows: device/vision/yaw.py)
     turn_agree_ratio: float = 3.0  # ... and a line where they still disagree must stand this x above that
 
     def __post_init__(self) -> None:
@@ -451,8 +452,8 @@ class FastPipeline:
     def _turned_untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
                           brought_in: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """Step 0's rejections in a frame whose neighbours were turned to it (:meth:`_turned`): a
-        line in a column the turn ``brought_in`` (the image's side, which a neighbour did not
-        see); a line in a column still since the turn that does not stand ``turn_agree_ratio``
+        line or "no return" in a column the turn ``brought_in`` (which neither neighbour saw); a
+        line in a column still since the turn that does not stand ``turn_agree_ratio``
         times above where the turned neighbours still disagree along it (smoothed as detection
         sees it, over its rows +- half_width: a sharp edge that one neighbour's resampling put a
         fraction of a row from the other's); and what these leave outside a run of
@@ -462,7 +463,8 @@ class FastPipeline:
 
         p = self.params
         ok = status == STATUS_U8[ColumnStatus.OK]
-        bad = ok & brought_in
+        # no neighbour saw what the lit frame shows there: neither a line nor "nothing there"
+        bad = (ok | (status == STATUS_U8[ColumnStatus.NO_RETURN])) & brought_in
         cols = np.nonzero(ok & ~moved)[0]
         if cols.size:
             d = cv2.blur(cv2.absdiff(*neighbours), (5, 3))

@@ -15,9 +15,15 @@ column of the band and spread to the others by linear interpolation (the displac
 makes changes slowly across the image). Each neighbour gets its own shift, so a yaw rate that
 changes between the frames is followed.
 
-What a rotation does not explain stays: the parallax of driving forward, something moving in
-the scene, a texture coming in from outside the image (:attr:`Registered.seen` says which
-columns have their whole band inside the neighbour). Where the neighbours, turned, still differ
+What a rotation about the camera does not explain stays: the parallax of driving forward,
+something moving in the scene, a texture coming in from outside the image
+(:attr:`Registered.seen` says which columns have their whole band inside the neighbour). Two
+such parallaxes come with every turn of a real robot: it turns about its own axis, so a sensor
+mounted d ahead of it also moves sideways by d x the turn (at d = 0.1 m and 90 deg/s, 8 mm per
+50 ms: ~2 px at 2.5 m, ~5 px at 1 m); and the scan frame's z axis is the robot's yaw axis only
+if the laser plane is level. The simulator turns the sensor about its own vertical axis, so
+neither is in ``laserpi bench motion``; on a robot, near objects would keep a residue and count
+as moved there. Where the neighbours, turned, still differ
 by most of what they differed (MAX_TURN_RESIDUE: driving straight), no turn is returned at all;
 step 0 judges the registered neighbours as it judges the raw ones.
 
@@ -30,9 +36,10 @@ by a fraction of a row, not by the readout. A yaw rate that changes leaves the r
 unequal: by the acceleration x the readout between them x the 50 ms between the frames; over
 the band at the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
 
-What it costs (BENCHMARKS.md "Motion"): ~4 ms per lit frame here for both neighbours (the
-three grid reads and the searches ~1.3 ms, each read-back ~1.2 ms), only when step 0 finds
-``turn_share`` of the columns moved. The grid is built once per pipeline (~0.1 s here).
+What it costs (BENCHMARKS.md "Motion"): ~5 ms per turning lit frame here in the pipeline for
+both neighbours (the three grid reads and the searches ~2 ms, each read-back ~1.3 ms), ~1.4 ms
+where no turn is found (driving), only when step 0 finds ``turn_share`` of the columns moved.
+The grid is built once per pipeline (~0.1 s here).
 
 Pure arrays and OpenCV, no I/O: the grid is built from the configuration's lens and laser plane.
 """
@@ -56,6 +63,13 @@ FINE_REACH = COARSE
 MIN_SHIFT = 0.5
 #: The turn found must leave at most this share of how the two neighbours differ (register).
 MAX_TURN_RESIDUE = 0.7
+#: ... and each neighbour's grid must correlate with the lit frame's at least this well at its
+#: best coarse shift (0.86-0.998 over the frames of ``laserpi bench motion``; a turn beyond the
+#: searched range gave ~0.5 at a wrong shift).
+MIN_PEAK = 0.7
+#: Where a map has no pixel (NaN: a ray outside the image), this coordinate instead: cv2.remap
+#: reads its border value there on every platform (a NaN coordinate's conversion is undefined).
+OUTSIDE = -1e4
 #: Elevation rows of the grid the search reads: every this-many-th (the turn shifts along the
 #: azimuth only; the rows between add little to the match and cost their share).
 SEARCH_ROW_STEP = 4
@@ -69,15 +83,17 @@ class YawGrid:
     """An (elevation, azimuth) grid over a band of image rows, and the maps a turn needs.
 
     ``search_map``: (n_search, n_azimuth, 2) float32 image (x, y) of every SEARCH_ROW_STEP-th
-    elevation row's cells, where the shift is searched; ``to_image``: (n_elevation, n_azimuth, 2)
-    float32 image (x, y) of every cell's ray; both NaN where a ray is not in the image. ``top``:
-    the band's first image row; ``max_shift``: the largest shift searched, in cells; ``cell_rad``:
-    the azimuth step. ``compose_pixels``: (n_rows, n_columns, 2) float32 pixels (x, y) of every
+    elevation row's cells, where the shift is searched (OUTSIDE where a ray is not in the
+    image); ``to_image``: (n_elevation, n_azimuth, 2) float32 image (x, y) of every cell's ray,
+    NaN where it is not in the image. ``top``: the band's first image row; ``max_shift``: the
+    largest shift searched, in cells (``max_yaw_rad``, or a quarter of the grid's width where
+    that is less: the lens's widest searchable turn); ``cell_rad``: the azimuth step. ``compose_pixels``: (n_rows, n_columns, 2) float32 pixels (x, y) of every
     COMPOSE_STEP-th row and column of the band, where ``cv2.resize`` samples an image
     COMPOSE_STEP times coarser, so that its linear interpolation spreads what is composed there
     to every pixel, and ``compose_cells`` their (azimuth, elevation) cells, NaN where a pixel
     has no ray; ``compose_bracket``: (2, width) the composed columns either side of each image
-    column; ``band_pixels``: (rows, width, 2) float32 pixels (x, y) of the band."""
+    column (the nearest one twice beyond the first and the last); ``band_pixels``: (rows,
+    width, 2) float32 pixels (x, y) of the band; ``image_size``: the image's (width, height)."""
 
     search_map: np.ndarray
     to_image: np.ndarray
@@ -89,14 +105,16 @@ class YawGrid:
     compose_pixels: np.ndarray
     compose_bracket: np.ndarray
     band_pixels: np.ndarray
+    image_size: tuple[int, int]
 
 
 @dataclass(frozen=True)
 class Registered:
     """A neighbour read into the lit frame's band: ``band`` (rows, width) uint8; ``seen`` (width,)
-    bool, the columns whose every composed band pixel came from inside the neighbour;
-    ``shift_rad`` the yaw found between it and the lit frame (azimuth of the neighbour's content
-    minus the lit frame's)."""
+    bool, the columns whose every band pixel came from inside the neighbour; ``shift_rad`` the
+    yaw found between them: the neighbour's minus the lit frame's (REP 103: positive when the
+    sensor turned left from the lit frame to the neighbour, so that a direction of the lit frame
+    lies that much further right, at an azimuth that much smaller, in the neighbour)."""
 
     band: np.ndarray
     seen: np.ndarray
@@ -147,10 +165,15 @@ def yaw_grid(camera: CameraModel, frame: ScanFrame, width: int, height: int, top
     cells = np.stack([(az1 - az) / step_az, (el - el0) / step_el], axis=-1)
     cells = np.where(valid[:, None], cells, np.nan).reshape(n_rows, n_columns, 2).astype(np.float32)
     below = np.clip(np.searchsorted(column, np.arange(width), side="right") - 1, 0, n_columns - 1)
-    bracket = np.stack([below, np.minimum(below + 1, n_columns - 1)])
-    return YawGrid(np.ascontiguousarray(to_image[::SEARCH_ROW_STEP]), to_image, top, rows,
-                   max(int(math.ceil(max_yaw_rad / step_az)), FINE_REACH + 1), step_az, cells,
-                   compose.astype(np.float32), bracket, np.stack(np.meshgrid(x, y), axis=-1).astype(np.float32))
+    bracket = np.stack([below, np.where(np.arange(width) < column[0], 0, np.minimum(below + 1, n_columns - 1))])
+    search = np.ascontiguousarray(to_image[::SEARCH_ROW_STEP])
+    search[~np.isfinite(search)] = OUTSIDE
+    # the search slides the middle half of the grid's width along it at most
+    max_shift = min(int(math.ceil(max_yaw_rad / step_az)), (n_az - 1) // 4)
+    if max_shift <= FINE_REACH + 1 or len(search) < COARSE:
+        raise ValueError(f"the band's grid ({len(search)} x {n_az} cells) is too small to search a turn in")
+    return YawGrid(search, to_image, top, rows, max_shift, step_az, cells, compose.astype(np.float32), bracket,
+                   np.stack(np.meshgrid(x, y), axis=-1).astype(np.float32), (width, height))
 
 
 def _directions(pixels: np.ndarray, camera: CameraModel, frame: ScanFrame):
@@ -167,18 +190,22 @@ def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | N
     no turn can be told (no texture: a flat or dark scene) or a turn does not explain how the
     neighbours differ: turned, they still differ by more than MAX_TURN_RESIDUE of what they did
     (driving straight: the parallax spreads the scene out from the middle, which a best shift
-    matches only a little: on the frames of ``laserpi bench motion``, seeds 0-4, 0.80-0.85 of
-    the difference stays at 0.5-1 m/s, 0.07-0.18 turning at 14-180 deg/s, 0.15-0.28 with a
-    person crossing too, 0.38-0.47 turning at 180 deg/s and driving at 1 m/s in 10x light)."""
+    matches only a little: on the frames of ``laserpi bench motion``, seeds 0-4, 0.81-0.89 of
+    the difference stays at 0.5-1 m/s, 0.05-0.18 turning at 14-180 deg/s, 0.14-0.25 with a
+    person crossing too, 0.36-0.42 turning at 180 deg/s and driving at 1 m/s in 10x light).
+    That test is made on the coarse shifts, before the fine search."""
     import cv2
 
     on = lambda x: cv2.remap(x, grid.search_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(np.float32)  # noqa: E731
     a, *grids = (on(x) for x in (lit, *neighbours))
-    h, w = a.shape[0] // COARSE, a.shape[1] // COARSE
+    h, w = a.shape[0] // COARSE, a.shape[1] // COARSE  # >= 1: yaw_grid refuses a smaller grid
     small_a, *smalls = (cv2.resize(x[: h * COARSE, : w * COARSE], (w, h), interpolation=cv2.INTER_AREA)
                         for x in (a, *grids))
-    shifts = [_shift(a, b, small_a, small_b, grid.max_shift) for b, small_b in zip(grids, smalls)]
-    if any(s is None for s in shifts) or _residue(smalls, [s / COARSE for s in shifts]) > MAX_TURN_RESIDUE:
+    coarse = [_coarse_shift(small_a, small_b, grid.max_shift // COARSE) for small_b in smalls]
+    if any(s is None for s in coarse) or _residue(smalls, coarse) > MAX_TURN_RESIDUE:
+        return None
+    shifts = [_fine_shift(a, b, round(s * COARSE), grid.max_shift) for b, s in zip(grids, coarse)]
+    if any(s is None for s in shifts):
         return None
     out = []
     for neighbour, shift in zip(neighbours, shifts):
@@ -190,57 +217,91 @@ def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | N
         # row and column, and its displacement, which changes slowly, spread to the others
         m = grid.compose_cells.copy()
         m[..., 0] += shift
+        cv2.patchNaNs(m, OUTSIDE)
         source = cv2.remap(grid.to_image, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=math.nan)
-        seen = np.all(np.isfinite(source[..., 0]), axis=0)[grid.compose_bracket].all(axis=0)
+        cv2.patchNaNs(source, OUTSIDE)  # and what it spreads to reads outside too
         rows, width = grid.band_pixels.shape[:2]
-        moved = cv2.resize(source - grid.compose_pixels, (width, rows), interpolation=cv2.INTER_LINEAR)
-        band = cv2.remap(neighbour, cv2.add(moved, grid.band_pixels), None, cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT)
+        at = cv2.add(cv2.resize(source - grid.compose_pixels, (width, rows), interpolation=cv2.INTER_LINEAR),
+                     grid.band_pixels)
+        seen = _seen(grid, source, at)
+        band = cv2.remap(neighbour, at, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         out.append(Registered(band, seen, shift * grid.cell_rad))
     return out
 
 
+def _seen(grid: YawGrid, source: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(width,) the columns whose every band pixel's place ``at`` (rows, width, 2) lies inside the
+    neighbour. Between composed rows and columns a place is bilinear in the pixel's row and
+    column (the spread displacement and the pixel's own coordinates), so it is inside a cell of
+    them where their composed places (``source``) are; where the spreading holds the
+    displacement (the band's first and last rows and columns up to the first composed one) it is
+    bilinear too, with corners on the band's first or last row or column: those are tested."""
+    import cv2
+
+    lo, hi = (0.0, 0.0), (grid.image_size[0] - 1.0, grid.image_size[1] - 1.0)
+    composed = cv2.reduce(cv2.inRange(source, lo, hi), 0, cv2.REDUCE_MIN)[0] > 0
+    seen = composed[grid.compose_bracket].all(axis=0)
+    seen &= cv2.reduce(cv2.inRange(np.ascontiguousarray(at[[0, -1]]), lo, hi), 0, cv2.REDUCE_MIN)[0] > 0
+    for edge in (slice(0, 1), slice(at.shape[1] - 1, at.shape[1])):
+        seen[edge] &= cv2.inRange(np.ascontiguousarray(at[:, edge]), lo, hi).min() > 0
+    return seen
+
+
 def _residue(grids, shifts) -> float:
     """The mean |difference| of two neighbours' grids (COARSE times reduced), each shifted by its
-    turn (``shifts``, in their cells), as a share of it unshifted (over the cells both have,
-    turned and not)."""
+    turn (``shifts``, in their cells), as a share of it unshifted."""
     import cv2
 
     b0, b1 = grids
     h, w = b0.shape
     turned = [cv2.warpAffine(b, np.float32([[1, 0, s], [0, 1, 0]]), (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                              borderMode=cv2.BORDER_CONSTANT, borderValue=math.nan) for b, s in zip(grids, shifts)]
-    ok = np.isfinite(turned[0]) & np.isfinite(turned[1]) & (b0 > 0) & (b1 > 0)  # 0: a cell outside the image
+    # over the cells inside the image in both, turned and not (0: a cell outside the image, as
+    # the search grid reads it; a black pixel counts as one, which only narrows the cells compared)
+    ok = np.isfinite(turned[0]) & np.isfinite(turned[1]) & (b0 > 0) & (b1 > 0) & (turned[0] > 0) & (turned[1] > 0)
     raw = float(np.mean(np.abs(b0 - b1)[ok])) if ok.any() else 0.0
     return float(np.mean(np.abs(turned[0] - turned[1])[ok])) / raw if raw > 0 else math.inf
 
 
-def _shift(a: np.ndarray, b: np.ndarray, small_a: np.ndarray, small_b: np.ndarray, max_shift: int) -> float | None:
-    """The shift s (cells, to a fraction of one) with b[:, j + s] ~ a[:, j]: the best normalised
-    correlation of ``a``'s middle (``max_shift`` cells in from each side) along ``b``, on their
-    grids reduced COARSE times (block means ``small_a``, ``small_b``), then at full resolution
-    within FINE_REACH cells of it, the peak's parabola; None where the correlation has no peak (a
-    flat grid)."""
+def _coarse_shift(small_a: np.ndarray, small_b: np.ndarray, reach: int) -> float | None:
+    """The shift s (cells of these grids, to a fraction of one) with small_b[:, j + s] ~
+    small_a[:, j]: the best normalised correlation of ``small_a``'s middle (``reach`` cells in from
+    each side) along ``small_b``, the peak's parabola; None where it has no peak (a flat grid), a
+    weak one (under MIN_PEAK) or one at the end of the searched range (it may lie beyond)."""
     import cv2
 
-    n, c = a.shape[1], small_a.shape[1]
-    m = min(max_shift, (n - 1) // 4)
-    if m <= FINE_REACH or small_a.shape[0] < 1:
+    c = small_a.shape[1]
+    score = cv2.matchTemplate(small_b, small_a[:, reach : c - reach], cv2.TM_CCOEFF_NORMED)[0]
+    if not np.all(np.isfinite(score)) or np.ptp(score) <= 0:
         return None
-    mc = m // COARSE
-    coarse = cv2.matchTemplate(small_b, small_a[:, mc : c - mc], cv2.TM_CCOEFF_NORMED)[0]
-    if not np.all(np.isfinite(coarse)) or np.ptp(coarse) <= 0:
+    best = int(np.argmax(score))
+    if score[best] < MIN_PEAK or not 0 < best < score.size - 1:
         return None
-    k0 = int(np.clip((int(np.argmax(coarse)) - mc) * COARSE, -(m - FINE_REACH - 1), m - FINE_REACH - 1))
-    template = a[:, m : n - m]
-    fine = cv2.matchTemplate(b[:, m + k0 - FINE_REACH - 1 : n - m + k0 + FINE_REACH + 1], template, cv2.TM_CCOEFF_NORMED)[0]
+    return best - reach + _parabola(score[best - 1 : best + 2])
+
+
+def _fine_shift(a: np.ndarray, b: np.ndarray, k0: int, max_shift: int) -> float | None:
+    """The shift s (cells, to a fraction of one) with b[:, j + s] ~ a[:, j] within FINE_REACH
+    cells of ``k0`` (the coarse one): the best normalised correlation of ``a``'s middle
+    (``max_shift`` cells in from each side) along ``b``, the peak's parabola; None where the best
+    is at the window's edge (the coarse peak was not this one)."""
+    import cv2
+
+    n, m = a.shape[1], max_shift
+    k0 = int(np.clip(k0, -(m - FINE_REACH - 1), m - FINE_REACH - 1))
+    fine = cv2.matchTemplate(b[:, m + k0 - FINE_REACH - 1 : n - m + k0 + FINE_REACH + 1], a[:, m : n - m],
+                             cv2.TM_CCOEFF_NORMED)[0]
     if not np.all(np.isfinite(fine)):
         return None
     i = int(np.argmax(fine))
-    if i == 0 or i == fine.size - 1:  # at the edge of the fine window: the coarse peak was not this one
+    if i == 0 or i == fine.size - 1:
         return None
-    y0, y1, y2 = (float(v) for v in fine[i - 1 : i + 2])
+    return k0 - FINE_REACH - 1 + i + _parabola(fine[i - 1 : i + 2])
+
+
+def _parabola(y: np.ndarray) -> float:
+    """Where the parabola through three samples (at -1, 0, 1) peaks, 0 where it has no maximum."""
+    y0, y1, y2 = (float(v) for v in y)
     curvature = y0 - 2 * y1 + y2
-    frac = 0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0
-    return k0 - FINE_REACH - 1 + i + frac
+    return 0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0
