@@ -36,8 +36,8 @@ by a fraction of a row, not by the readout. A yaw rate that changes leaves the r
 unequal: by the acceleration x the readout between them x the 50 ms between the frames; over
 the band at the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
 
-What it costs (BENCHMARKS.md "Motion"): ~5 ms per turning lit frame here in the pipeline for
-both neighbours (the three grid reads and the searches ~2 ms, each read-back ~1.3 ms), ~1.4 ms
+What it costs (BENCHMARKS.md "Motion"): ~4-5 ms per turning lit frame here in the pipeline for
+both neighbours (the three grid reads and the searches ~2 ms, each read-back ~1.2 ms), ~1 ms
 where no turn is found (driving), only when step 0 finds ``turn_share`` of the columns moved.
 The grid is built once per pipeline (~0.1 s here).
 
