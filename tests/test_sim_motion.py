@@ -40,6 +40,24 @@ def test_the_trajectory_is_the_integral_of_yaw_rate_and_speed():
     assert (yaw0[0], x0[0], y0[0]) == (0.0, 1.0, 0.0)
 
 
+def test_a_sensor_ahead_of_the_robots_axis_moves_sideways_when_it_turns():
+    # 0.1 m ahead of the axis, turning on the spot: on a circle of 0.1 m about the axis (which
+    # starts 0.1 m behind the sensor), facing out of it, at 0.1 m x the yaw rate
+    d, w = 0.1, math.radians(90)
+    t = np.linspace(0, 2.0, 201)
+    yaw, x, y = sensor_pose(Motion(w, 0.0, d), t)
+    np.testing.assert_allclose(np.hypot(x + d, y), d, atol=1e-12)
+    np.testing.assert_allclose(np.arctan2(y, x + d), np.angle(np.exp(1j * yaw)), atol=1e-9)
+    speed = np.hypot(np.diff(x), np.diff(y)) / np.diff(t)
+    np.testing.assert_allclose(speed, d * w, rtol=1e-3)
+    # driving too: the axis follows the unicycle, the sensor d ahead of it along the heading
+    m = Motion(w, 0.7, d)
+    yaw, x, y = sensor_pose(m, t)
+    _, ax, ay = sensor_pose(Motion(w, 0.7), t)
+    np.testing.assert_allclose(x, ax - d + d * np.cos(yaw), atol=1e-12)
+    np.testing.assert_allclose(y, ay + d * np.sin(yaw), atol=1e-12)
+
+
 def test_a_turning_sensor_sees_the_wall_turned_the_other_way_at_the_pulse_time():
     rate = math.radians(90)
     scene = with_motion(wall_scene(2.0), yaw_rate_deg_s=90)
@@ -151,11 +169,11 @@ def test_a_moving_background_moves_between_frames_and_a_still_one_does_not():
 
 def test_scene_files_take_motion_flicker_and_texture_contrast():
     doc = {"ambient_scale": 3.0, "flicker_hz": 120.0, "flicker_depth": 0.2,
-           "motion": {"yaw_rate_deg_s": 90.0, "speed_m_s": 0.5},
+           "motion": {"yaw_rate_deg_s": 90.0, "speed_m_s": 0.5, "sensor_ahead_m": 0.1},
            "wall": [{"from": [2, -1], "to": [2, 1], "swing_deg_s": 30.0, "texture_depth": 0.9}],
            "cylinder": [{"center": [1, 0], "radius": 0.2, "velocity": [0.0, 1.2]}]}
     s = scene_from_dict(doc)
-    assert s.motion == Motion(math.radians(90), 0.5) and s.flicker == Flicker(120.0, 0.2) and s.ambient_scale == 3.0
+    assert s.motion == Motion(math.radians(90), 0.5, 0.1) and s.flicker == Flicker(120.0, 0.2) and s.ambient_scale == 3.0
     assert s.walls[0].swing_rad_s == pytest.approx(math.radians(30)) and s.walls[0].material.texture_depth == 0.9
     assert s.cylinders[0].velocity == (0.0, 1.2) and not s.still
     assert get_scene("office").still and not get_scene("person").still and not get_scene("door").still
@@ -165,3 +183,6 @@ def test_scene_files_take_motion_flicker_and_texture_contrast():
             scene_from_dict(bad)
     with pytest.raises(SceneError, match="flicker depth"):
         with_motion(s, flicker_depth=2.0)
+    with pytest.raises(SceneError, match="sensor_ahead_m"):
+        with_motion(s, sensor_ahead_m=math.inf)
+    assert with_motion(s, sensor_ahead_m=0.2).motion == Motion(math.radians(90), 0.5, 0.2)

@@ -5,7 +5,8 @@ Every sweep point renders one simulated sequence (device/sim/render.py step 9): 
 device's operating point (the configuration's [operating_point]: exposure, gain, depth range;
 20 frames/s, every other frame lit by a pulse covering every row's exposure, as
 device/service/assembly.py places it), the sensor turning and driving at the point's yaw rate and
-speed, in the point's ambient light (x the default indoor) with or without 100 Hz flicker
+speed (mounted on the robot's turning axis, or 0.1 m ahead of it where the point says so: a turn
+then also moves it sideways), in the point's ambient light (x the default indoor) with or without 100 Hz flicker
 (depth 0.3). Each lit frame is processed
 
 - ``reference``: the thesis pipeline, lit minus the unlit frame after it;
@@ -38,22 +39,25 @@ import math
 import platform
 import time
 
-#: (label, scene, yaw deg/s, speed m/s, ambient x indoor, flicker depth)
+#: (label, scene, yaw deg/s, speed m/s, ambient x indoor, flicker depth, sensor ahead of the
+#: robot's turning axis m)
 SWEEP = (
-    ("still", "office", 0, 0.0, 3, 0.0),
-    ("yaw 14", "office", 14, 0.0, 3, 0.0),
-    ("yaw 45", "office", 45, 0.0, 3, 0.0),
-    ("yaw 90", "office", 90, 0.0, 3, 0.0),
-    ("yaw 180", "office", 180, 0.0, 3, 0.0),
-    ("speed 0.5", "office", 0, 0.5, 3, 0.0),
-    ("speed 1.0", "office", 0, 1.0, 3, 0.0),
-    ("yaw 90, 1x", "office", 90, 0.0, 1, 0.0),
-    ("yaw 90, 10x", "office", 90, 0.0, 10, 0.0),
-    ("yaw 180, 1 m/s, 10x", "office", 180, 1.0, 10, 0.0),
-    ("flicker", "office", 0, 0.0, 3, 0.3),
-    ("flicker, yaw 90", "office", 90, 0.0, 3, 0.3),
-    ("person", "person", 0, 0.0, 3, 0.0),
-    ("person, yaw 45", "person", 45, 0.0, 3, 0.0),
+    ("still", "office", 0, 0.0, 3, 0.0, 0.0),
+    ("yaw 14", "office", 14, 0.0, 3, 0.0, 0.0),
+    ("yaw 45", "office", 45, 0.0, 3, 0.0, 0.0),
+    ("yaw 90", "office", 90, 0.0, 3, 0.0, 0.0),
+    ("yaw 180", "office", 180, 0.0, 3, 0.0, 0.0),
+    ("yaw 90, 0.1 m ahead", "office", 90, 0.0, 3, 0.0, 0.1),
+    ("speed 0.5", "office", 0, 0.5, 3, 0.0, 0.0),
+    ("speed 1.0", "office", 0, 1.0, 3, 0.0, 0.0),
+    ("yaw 90, 1x", "office", 90, 0.0, 1, 0.0, 0.0),
+    ("yaw 90, 10x", "office", 90, 0.0, 10, 0.0, 0.0),
+    ("yaw 180, 1 m/s, 10x", "office", 180, 1.0, 10, 0.0, 0.0),
+    ("flicker", "office", 0, 0.0, 3, 0.3, 0.0),
+    ("flicker, yaw 90", "office", 90, 0.0, 3, 0.3, 0.0),
+    ("person", "person", 0, 0.0, 3, 0.0, 0.0),
+    ("person, yaw 45", "person", 45, 0.0, 3, 0.0, 0.0),
+    ("person, yaw 45, 0.1 m ahead", "person", 45, 0.0, 3, 0.0, 0.1),
 )
 VARIANTS = ("reference", "fast one-unlit", "fast no turn", "fast")
 #: the variants that take both unlit neighbours
@@ -155,16 +159,16 @@ def measure(args) -> dict:
         raise ValueError(f"unknown sweep point(s) {', '.join(sorted(unknown))}; choose from {', '.join(s[0] for s in SWEEP)}")
     points = []
     timed = {}
-    for label, scene_name, yaw, speed, ambient, flicker in SWEEP:
+    for label, scene_name, yaw, speed, ambient, flicker, ahead in SWEEP:
         if wanted is not None and label not in wanted:
             continue
         scene = with_motion(get_scene(scene_name), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient,
-                            flicker_hz=FLICKER_HZ, flicker_depth=flicker)
+                            flicker_hz=FLICKER_HZ, flicker_depth=flicker, sensor_ahead_m=ahead)
         pairs = sequence(cfg, scene, args.frames, args.seed)
         if label in TIMED:
             timed[label] = pairs[0]
         row = {"point": label, "scene": scene_name, "yaw_deg_s": yaw, "speed_m_s": speed, "ambient_x": ambient,
-               "flicker_depth": flicker}
+               "flicker_depth": flicker, "sensor_ahead_m": ahead}
         for name, pipe in _pipelines(cfg).items():
             row[name] = score([(_process(name, pipe, p), p.truth) for p in pairs], cfg.operating_point.min_m)
         points.append(row)

@@ -51,6 +51,8 @@ def add_motion_arguments(parser: argparse.ArgumentParser) -> None:
     each replaces the scene's own value."""
     parser.add_argument("--yaw-rate-deg-s", type=finite_float, help="the sensor turns at this rate (counter-clockwise)")
     parser.add_argument("--speed-m-s", type=finite_float, help="the sensor moves forward at this speed")
+    parser.add_argument("--sensor-ahead-m", type=finite_float,
+                        help="the sensor is mounted this far ahead of the robot's turning axis (a turn also moves it sideways)")
     parser.add_argument("--ambient-scale", type=nonnegative_float, help="ambient light x this (1: the scene's own)")
     parser.add_argument("--flicker-hz", type=positive_float, help="ambient flicker frequency (100 or 120: twice the mains)")
     parser.add_argument("--flicker-depth", type=nonnegative_float, help="ambient flicker modulation depth, 0..1")
@@ -61,4 +63,4 @@ def scene_with_motion(scene, args: argparse.Namespace):
     from device.sim.scene import with_motion
 
     return with_motion(scene, args.yaw_rate_deg_s, args.speed_m_s, args.ambient_scale, args.flicker_hz,
-                       args.flicker_depth)
+                       args.flicker_depth, args.sensor_ahead_m)

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         "sensor": dataclasses.asdict(sensor), "noise_model": "Gaussian shot (var = N_e) + read noise, 10-bit ADC, linear 8-bit Y",
         "lit": [f.lit for f in frames], "seq": [f.seq for f in frames], "simulated": True,
         "motion": {"yaw_rate_deg_s": math.degrees(scene.motion.yaw_rate_rad_s), "speed_m_s": scene.motion.speed_m_s,
-                   "objects_move": scene.objects_move},
+                   "sensor_ahead_m": scene.motion.sensor_ahead_m, "objects_move": scene.objects_move},
         "ambient_scale": scene.ambient_scale, "flicker": dataclasses.asdict(scene.flicker),
     }
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))

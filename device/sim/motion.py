@@ -4,12 +4,14 @@ Time ``t`` is seconds after the scene's time zero (the simulated camera's first 
 scene (device/sim/scene.py) is given in the sensor's scan frame at t = 0; later the sensor has
 turned and moved:
 
-- **The sensor** follows a unicycle trajectory (a differential-drive robot): yaw rate w and
-  forward speed v constant, so at time t it has turned by w t about the scan frame's z axis and
-  stands at ``(v sin(w t) / w, v (1 - cos(w t)) / w)`` (``(v t, 0)`` for w = 0). It turns about
-  the laser's origin: a sensor mounted off the robot's axis also translates when the robot turns,
-  which a forward speed models (translation gives depth-dependent parallax; a pure turn about
-  the camera's optical centre would shift the image by a homography, independent of depth).
+- **The sensor** rides a robot on a unicycle trajectory (a differential-drive robot): yaw rate w
+  and forward speed v constant, so at time t the robot has turned by w t about its vertical axis
+  (the scan frame's z) and that axis has moved by ``(v sin(w t) / w, v (1 - cos(w t)) / w)``
+  (``(v t, 0)`` for w = 0). The sensor is mounted ``sensor_ahead_m`` = d ahead of the axis, so
+  it stands at the axis + d (cos w t, sin w t), starting at the scene's origin: a turn also
+  moves it sideways, by d w per second (translation gives depth-dependent parallax; a pure turn
+  about the camera's optical centre, d = 0, shifts the image by a homography, independent of
+  depth).
 - **Objects**: a box or cylinder moves with its ``velocity``; a wall with ``swing_rad_s`` (a door)
   turns about its ``start`` (the hinge). Their texture moves with them.
 - **Flicker**: ambient irradiance x (1 + depth sin(2 pi f t)); lamps on the mains flicker at twice
@@ -30,11 +32,11 @@ from .scene import Flicker, Motion, Scene
 def sensor_pose(motion: Motion, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(yaw rad, x m, y m) of the sensor's scan frame at times ``t_s`` in the scene's frame."""
     t = np.asarray(t_s, dtype=np.float64)
-    w, v = motion.yaw_rate_rad_s, motion.speed_m_s
+    w, v, d = motion.yaw_rate_rad_s, motion.speed_m_s, motion.sensor_ahead_m
     a = w * t
     # sin(a) / w = t sinc(a / pi); (1 - cos a) / w = 2 sin^2(a / 2) / w = (w t^2 / 2) sinc(a / 2 pi)^2
-    x = v * t * np.sinc(a / math.pi)
-    y = v * (w * t * t / 2) * np.sinc(a / (2 * math.pi)) ** 2
+    x = v * t * np.sinc(a / math.pi) + d * (np.cos(a) - 1)
+    y = v * (w * t * t / 2) * np.sinc(a / (2 * math.pi)) ** 2 + d * np.sin(a)
     return a, x, y
 
 
@@ -78,7 +80,7 @@ def image_speed_px_s(scene: Scene, fx_px: float, nearest_m: float = 0.5) -> floa
     """An upper bound of how fast the image moves (px/s): the turn, the forward motion seen at
     ``nearest_m``, and the fastest object at that distance; sets how finely the renderer samples
     an exposure in time."""
-    speed = abs(scene.motion.speed_m_s)
+    speed = abs(scene.motion.speed_m_s) + abs(scene.motion.yaw_rate_rad_s * scene.motion.sensor_ahead_m)
     for o in (*scene.boxes, *scene.cylinders):
         speed += math.hypot(*o.velocity)
     for w in scene.walls:

@@ -36,8 +36,9 @@ time zero, which the simulated camera puts at its first frame's exposure)::
     flicker_hz = 100.0          # the ambient light's flicker (twice the mains frequency) ...
     flicker_depth = 0.3         # ... and its modulation depth: irradiance x (1 + depth sin 2 pi f t)
     [motion]                    # the sensor on a robot: a constant yaw rate and forward speed
-    yaw_rate_deg_s = 90.0       # counter-clockwise (REP 103), about the scan frame's z axis
+    yaw_rate_deg_s = 90.0       # counter-clockwise (REP 103), about the robot's vertical axis
     speed_m_s = 0.5             # along the sensor's x axis (forward)
+    sensor_ahead_m = 0.1        # the sensor is mounted this far ahead of that axis (default 0)
     [[cylinder]]                # a person crossing: a moving box or cylinder
     center = [1.5, -1.0]
     radius = 0.2
@@ -131,10 +132,13 @@ class Floor:
 
 @dataclass(frozen=True)
 class Motion:
-    """The sensor's motion: a constant yaw rate (rad/s, counter-clockwise) and forward speed (m/s)."""
+    """The sensor's motion: the robot's constant yaw rate (rad/s, counter-clockwise) and forward
+    speed (m/s), the sensor mounted ``sensor_ahead_m`` ahead of the robot's turning axis (along
+    its x axis: a turn then also moves it sideways)."""
 
     yaw_rate_rad_s: float = 0.0
     speed_m_s: float = 0.0
+    sensor_ahead_m: float = 0.0
 
     @property
     def still(self) -> bool:
@@ -293,7 +297,8 @@ def _parse(doc: dict[str, Any], source: str) -> Scene:
         if not isinstance(t, dict):
             raise SceneError("[motion] must be a table")
         t = dict(t)
-        motion = Motion(math.radians(_num(t, "[motion]", "yaw_rate_deg_s", 0.0)), _num(t, "[motion]", "speed_m_s", 0.0))
+        motion = Motion(math.radians(_num(t, "[motion]", "yaw_rate_deg_s", 0.0)), _num(t, "[motion]", "speed_m_s", 0.0),
+                        _num(t, "[motion]", "sensor_ahead_m", 0.0))
         _done(t, "[motion]")
     scale = _num(doc, "top level", "ambient_scale", 1.0, lo=0.0)
     flicker = Flicker(_num(doc, "top level", "flicker_hz", 100.0, lo=0.0, lo_open=True),
@@ -342,13 +347,17 @@ def wall_scene(distance_m: float = 2.0, angle_deg: float = 0.0, reflectivity: fl
 
 def with_motion(scene: Scene, yaw_rate_deg_s: float | None = None, speed_m_s: float | None = None,
                 ambient_scale: float | None = None, flicker_hz: float | None = None,
-                flicker_depth: float | None = None) -> Scene:
+                flicker_depth: float | None = None, sensor_ahead_m: float | None = None) -> Scene:
     """``scene`` with the given motion, ambient scale and flicker in place of its own (None: keep)."""
     motion, flicker = scene.motion, scene.flicker
     if yaw_rate_deg_s is not None:
         motion = replace(motion, yaw_rate_rad_s=math.radians(yaw_rate_deg_s))
     if speed_m_s is not None:
         motion = replace(motion, speed_m_s=speed_m_s)
+    if sensor_ahead_m is not None:
+        if not math.isfinite(sensor_ahead_m):
+            raise SceneError(f"sensor_ahead_m must be finite, got {sensor_ahead_m}")
+        motion = replace(motion, sensor_ahead_m=sensor_ahead_m)
     if flicker_hz is not None:
         if not flicker_hz > 0:
             raise SceneError(f"flicker frequency must be positive, got {flicker_hz} Hz")

@@ -21,9 +21,9 @@ something moving in the scene, a texture coming in from outside the image
 such parallaxes come with every turn of a real robot: it turns about its own axis, so a sensor
 mounted d ahead of it also moves sideways by d x the turn (at d = 0.1 m and 90 deg/s, 8 mm per
 50 ms: ~2 px at 2.5 m, ~5 px at 1 m); and the scan frame's z axis is the robot's yaw axis only
-if the laser plane is level. The simulator turns the sensor about its own vertical axis, so
-neither is in ``laserpi bench motion``; on a robot, near objects would keep a residue and count
-as moved there. Where the neighbours, turned, still differ
+if the laser plane is level. The simulator models the first (``sensor_ahead_m``; ``laserpi bench
+motion``'s points "0.1 m ahead": the valid share 1-2 points lower, at 1.5-3 m), not the second;
+near objects keep a residue and count as moved. Where the neighbours, turned, still differ
 by most of what they differed (MAX_TURN_RESIDUE: driving straight), no turn is returned at all;
 step 0 judges the registered neighbours as it judges the raw ones.
 
