@@ -128,7 +128,13 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     # the side wall at 3 m, where a row is worth 6 % of range, is one row off)
     assert _phantoms(measured) == 0
     assert now["gross_fraction"] <= 0.001 and now["false_returns"] == 0 and now["valid_fraction"] > 0.3
-    without = FastPipeline(CFG, dataclasses.replace(device.params, moved_block_level=math.inf), op.min_m, op.max_m)
+    # two checks stop them, each alone: the block test, and the neighbours' agreement beside
+    # moved columns (test_driving_forward_an_edge_that_moved_a_row_beside_moved_columns_is_no_line)
+    for off in ({"moved_block_level": math.inf}, {"agree_reach_columns": 0}):
+        alone = FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
+        assert _phantoms([(_process("fast", alone, p), p.truth) for p in pairs]) == 0
+    without = FastPipeline(CFG, dataclasses.replace(device.params, moved_block_level=math.inf, agree_reach_columns=0),
+                           op.min_m, op.max_m)
     assert _phantoms([(_process("fast", without, p), p.truth) for p in pairs]) >= 5
     # driving straight is no turn (device/vision/yaw.py's residue test): the neighbours are
     # judged as they are, bit for bit as without the turn
@@ -171,11 +177,24 @@ def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbour
     # 90 deg/s in 10x light (seed 0): the turned neighbours agree but for a fraction of a row at
     # sharp horizontal edges, where one's resampling put the edge apart from the other's; there
     # the lit frame shows one-row bright ridges that pass for lines. A line must stand
-    # turn_agree_ratio x above that disagreement: without it, more than 0.1 % gross errors
+    # agree_ratio x above that disagreement: without it, more than 0.1 % gross errors
     pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
-    device, without = _device_and_without({"turn_agree_ratio": 0.0})
+    device, without = _device_and_without({"agree_ratio": 0.0})
     assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["gross_fraction"] <= 0.001
     assert score([(_process("fast", without, p), p.truth) for p in pairs], MIN_M)["gross"] >= 5
+
+
+def test_driving_forward_an_edge_that_moved_a_row_beside_moved_columns_is_no_line():
+    # 1 m/s towards the office in 3x light (seed 3): a horizontal edge moves down a row a frame,
+    # its blocks change by 2 levels between the unlit neighbours (under the bar for one block, 3)
+    # and the column's mean by 0.6: the columns count as still, and the edge's residue passed as a
+    # line at 0.72 m where the wall is at 2.4 m (7 columns). Beside moved columns a line must
+    # stand agree_ratio x above where the neighbours disagree along it
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 3)
+    device, without = _device_and_without({"agree_reach_columns": 0})
+    measured = [(_process("fast", device, p), p.truth) for p in pairs]
+    assert _phantoms(measured) == 0 and score(measured, MIN_M)["gross_fraction"] <= 0.001
+    assert _phantoms([(_process("fast", without, p), p.truth) for p in pairs]) >= 5
 
 
 @pytest.mark.parametrize("off,point", [
@@ -248,7 +267,8 @@ def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("bad", [{"moved_block_level": 0.0}, {"moved_block_ratio": -1.0}, {"turn_share": 0.0},
-                                 {"max_turn_deg": 0.0}, {"max_turn_deg": 60.0}, {"turn_agree_ratio": -1.0}])
+                                 {"max_turn_deg": 0.0}, {"max_turn_deg": 60.0}, {"agree_ratio": -1.0},
+                                 {"agree_reach_columns": -1}, {"agree_share": 0.0}])
 def test_step_0_refuses_motion_thresholds_that_mean_nothing(bad):
     from device.vision.fast import FastParams
 
@@ -370,6 +390,10 @@ def test_too_close_needs_the_return_against_both_neighbours():
 
 
 def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
+    import dataclasses
+
+    from device.vision.fast import FastPipeline
+
     # the person crossing while the robot turns at 45 deg/s (seed 1): where nothing is in the
     # laser's plane, the lit frame stands ~2.3 levels above the mean of its unlit neighbours (a
     # moved smooth background, not linear in time), and the one-sided noise level does not see
@@ -377,9 +401,11 @@ def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
     # (moved_level 0.9), its residue's trend is taken out; at 1.0 a faint phantom at 0.96 m stays
     # (the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows such a pedestal)
     # (without the turn, which makes these frames still ones: the threshold is for motion no turn
-    # explains)
+    # explains; and without the neighbours' agreement beside moved columns, which stops it too)
     pairs = sequence(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1, COARSE)
     device, before = (_no_turn(p) for p in _device_and_without({"moved_level": 1.0}))
+    device, before = (FastPipeline(CFG, dataclasses.replace(p.params, agree_reach_columns=0), MIN_M, CFG.operating_point.max_m)
+                      for p in (device, before))
     assert device.params.moved_level < 0.95
     assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["false_returns"] == 0
     assert score([(_process("fast", before, p), p.truth) for p in pairs], MIN_M)["false_returns"] >= 3

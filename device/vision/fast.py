@@ -54,12 +54,15 @@ Per frame pair (or triple):
    those columns moved. The frame is then judged as a still one, the columns that count as moved
    since the turn as above: a column only one neighbour saw (the image's side the turn brought
    in) against that one, and counted as moved; one neither saw is REJECTED (a line or "no
-   return" there). A line in a column
-   still since the turn must stand ``turn_agree_ratio`` times above where the two turned
-   neighbours still disagree along it (a sharp edge that one's resampling put a fraction of a
-   row from the other's), and, every column having moved, be part of a run of
-   ``moving_min_run``. The near rows of step 7 are not turned: there the neighbours count as
-   they moved.
+   return" there). The near rows of step 7 are not turned: there the neighbours count as they
+   moved.
+
+   A line in a column that counts as still, in a turned frame or, where ``agree_share`` of the
+   columns moved (the robot drives), within ``agree_reach_columns`` of a moved one, must stand ``agree_ratio`` times above where the two neighbours disagree
+   along it (a sharp edge that one turned neighbour's resampling put a fraction of a row from
+   the other's; a horizontal edge that moved a row between them as the robot drove, whose
+   blocks changed by less than the bar for one block), and what is left there be part of a run
+   of ``moving_min_run``. A still scene pays nothing for it, nor one where only a person crosses.
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -195,7 +198,9 @@ class FastParams:
     trend_rows: int = 11  # the moved background's trend along each column is taken over this many rows (taller than a line)
     turn_share: float = 0.25  # when at least this share of the columns moved, the neighbours are turned to the lit frame (inf: never)
     max_turn_deg: float = 20.0  # ... by at most this much each (and at most what the lens allows: device/vision/yaw.py)
-    turn_agree_ratio: float = 3.0  # ... and a line where they still disagree must stand this x above that
+    agree_ratio: float = 3.0  # a line in a still column of a turned frame, or beside a moved one, must stand this x above where the neighbours disagree
+    agree_reach_columns: int = 16  # ... beside: within this many columns,
+    agree_share: float = 0.25  # ... where at least this share of the columns moved (the robot drives; not a person crossing, nor noise)
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -214,9 +219,11 @@ class FastParams:
         if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0):
             raise ValueError(f"need moved_block_level > 0 and moved_block_ratio >= 0, got "
                              f"{self.moved_block_level}, {self.moved_block_ratio}")
-        if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.turn_agree_ratio >= 0):
-            raise ValueError(f"need turn_share > 0 (inf: never turn), 0 < max_turn_deg <= 45 and turn_agree_ratio >= 0, got "
-                             f"{self.turn_share}, {self.max_turn_deg}, {self.turn_agree_ratio}")
+        if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.agree_ratio >= 0
+                and self.agree_reach_columns >= 0 and self.agree_share > 0):
+            raise ValueError(f"need turn_share > 0 (inf: never turn), 0 < max_turn_deg <= 45, agree_ratio >= 0, "
+                             f"agree_reach_columns >= 0 and agree_share > 0, got {self.turn_share}, {self.max_turn_deg}, "
+                             f"{self.agree_ratio}, {self.agree_reach_columns}, {self.agree_share}")
         if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1:
             raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line) and moving_min_run >= 1, got "
                              f"{self.trend_rows}, {self.moving_min_run}")
@@ -379,7 +386,14 @@ class FastPipeline:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
                                      moved, neighbours, lit_band, t0)
         if brought_in is not None:
-            status = self._turned_untrusted(status, row, peak, moved, brought_in, neighbours)
+            # no neighbour saw what the lit frame shows there: neither a line nor "nothing there"
+            none = status == STATUS_U8[ColumnStatus.NO_RETURN]
+            status = np.where(((status == STATUS_U8[ColumnStatus.OK]) | none) & brought_in,
+                              STATUS_U8[ColumnStatus.REJECTED], status)
+            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool))
+        elif moved is not None and moved.mean() >= p.agree_share:
+            near = cv2.dilate(moved.astype(np.uint8)[None, :], np.ones((1, 2 * p.agree_reach_columns + 1), np.uint8))[0]
+            status = self._disagreed(status, row, peak, moved, neighbours, near > 0)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -449,32 +463,33 @@ class FastPipeline:
             return background, other, moved, None
         return a, b, turned_moved, brought_in
 
-    def _turned_untrusted(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
-                          brought_in: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """Step 0's rejections in a frame whose neighbours were turned to it (:meth:`_turned`): a
-        line or "no return" in a column the turn ``brought_in`` (which neither neighbour saw); a
-        line in a column still since the turn that does not stand ``turn_agree_ratio``
-        times above where the turned neighbours still disagree along it (smoothed as detection
-        sees it, over its rows +- half_width: a sharp edge that one neighbour's resampling put a
-        fraction of a row from the other's); and what these leave outside a run of
-        ``moving_min_run`` continuous columns: every column of a turned frame moved, and what a
-        resampled edge leaves passes in fragments, as a moved edge's residue does (_untrusted)."""
+    def _disagreed(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
+                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray) -> np.ndarray:
+        """Step 0's rejections among the ``judged`` columns (every column of a frame whose
+        neighbours were turned to it; else, where ``agree_share`` of them moved, those within
+        ``agree_reach_columns`` of a moved one): a
+        line in a column that counts as still that does not stand ``agree_ratio`` times above where
+        the two neighbours disagree along it (smoothed as detection sees it, over its rows +-
+        half_width: a sharp edge that one turned neighbour's resampling put a fraction of a row
+        from the other's; a horizontal edge that moved a row between them as the robot drove,
+        its blocks' change under the bar for one block), and what is left among them outside a
+        run of ``moving_min_run`` continuous columns (such residue passes in fragments, as a
+        moved edge's does: _untrusted)."""
         import cv2
 
         p = self.params
         ok = status == STATUS_U8[ColumnStatus.OK]
-        # no neighbour saw what the lit frame shows there: neither a line nor "nothing there"
-        bad = (ok | (status == STATUS_U8[ColumnStatus.NO_RETURN])) & brought_in
-        cols = np.nonzero(ok & ~moved)[0]
+        bad = np.zeros(status.size, bool)
+        cols = np.nonzero(ok & ~moved & judged)[0]
         if cols.size:
             d = cv2.blur(cv2.absdiff(*neighbours), (5, 3))
             h, n = p.half_width, d.shape[0]
             r = np.rint(row[cols]).astype(np.intp) - self.top
             rows = clamp(r[None, :] + np.arange(-h, h + 1)[:, None], 0, n - 1)
             disagree = d.ravel().take(rows * d.shape[1] + cols[None, :]).max(axis=0)
-            bad[cols] |= peak[cols] < p.turn_agree_ratio * disagree
+            bad[cols] = peak[cols] < p.agree_ratio * disagree
         ok &= ~bad
-        bad |= ok & (_run_length(ok) < p.moving_min_run)
+        bad |= ok & judged & (_run_length(ok) < p.moving_min_run)
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     @functools.cached_property
