@@ -251,3 +251,22 @@ def test_a_turn_that_leaves_most_columns_moved_is_not_used(rays, mocker):
     assert fast.register.called
     plain = _unturned(device).process(lit, after, LIT_ROWS, other_unlit=before)
     assert np.array_equal(meas.status, plain.status) and np.array_equal(meas.range, plain.range, equal_nan=True)
+
+
+def test_a_lens_and_band_that_leave_no_turn_to_search_judge_the_frames_without_it(rays, mocker, caplog):
+    """Where the grid cannot be built (here made to fail), the pipeline says so once in the log and
+    judges every frame as without the turn, bit for bit, instead of failing each one."""
+    from device.vision import fast
+
+    device = _device()
+    mocker.patch.object(fast, "yaw_grid", side_effect=ValueError("the band's grid is too small to search a turn in"))
+    lit, before, after = _lit(rays, device), image(rays, math.radians(-2)), image(rays, math.radians(2))
+    with caplog.at_level("WARNING", logger="device.vision.fast"):
+        first = device.process(lit, after, LIT_ROWS, other_unlit=before)
+        again = device.process(lit, after, LIT_ROWS, other_unlit=before)
+    assert fast.yaw_grid.call_count == 1
+    assert [r.getMessage() for r in caplog.records] == [
+        "the unlit neighbours cannot be turned to the lit frame: the band's grid is too small to search a turn in"]
+    plain = _unturned(device).process(lit, after, LIT_ROWS, other_unlit=before)
+    for m in (first, again):
+        assert np.array_equal(m.status, plain.status) and np.array_equal(m.range, plain.range, equal_nan=True)

@@ -131,6 +131,7 @@ This module keeps the order of the steps, the tracking and the parameters.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 from dataclasses import dataclass
 
@@ -144,6 +145,8 @@ from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, l
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
 from .yaw import register, yaw_grid
+
+log = logging.getLogger(__name__)
 
 #: Rows per block of the candidate search (``COLUMNS_BLOCK_ROWS`` in columns/columns.h, which
 #: also fixes the detection blur at 5 columns x 3 rows).
@@ -495,10 +498,16 @@ class FastPipeline:
     @functools.cached_property
     def _yaw_grid(self):
         """The (elevation, azimuth) grid of the band (device/vision/yaw.py), built at the first
-        frame with both neighbours (~0.1 s here; not at the first turn, which would stall a scan)."""
+        frame with both neighbours (~0.1 s here; not at the first turn, which would stall a scan);
+        None, said once in the log, where this lens and band leave no turn to search: the frames
+        are then judged without it (the checks on a moved background)."""
         c = self.config
-        return yaw_grid(c.camera, scan_frame(c.plane), c.width, c.height, self.top, self.rows,
-                        math.radians(self.params.max_turn_deg))
+        try:
+            return yaw_grid(c.camera, scan_frame(c.plane), c.width, c.height, self.top, self.rows,
+                            math.radians(self.params.max_turn_deg))
+        except ValueError as exc:
+            log.warning("the unlit neighbours cannot be turned to the lit frame: %s", exc)
+            return None
 
     def _near_above_moved_background(self, lit: np.ndarray, unlit: np.ndarray, other: np.ndarray,
                                      candidates: np.ndarray) -> np.ndarray:
