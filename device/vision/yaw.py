@@ -58,8 +58,8 @@ from ..model.scan_frame import ScanFrame
 COARSE = 4
 #: The fine search looks this many cells either side of the coarse shift.
 FINE_REACH = COARSE
-#: A neighbour shifted by less than this (cells) is read as it is: a turn that small moves
-#: nothing by a pixel, and driving straight (a shift of ~0: parallax is no turn) costs no resampling.
+#: A neighbour shifted by less than this (cells) is read as it is: a turn that small (a robot
+#: starting or ending one) moves nothing by a pixel, and resampling would only blur it.
 MIN_SHIFT = 0.5
 #: The turn found must leave at most this share of how the two neighbours differ (register).
 MAX_TURN_RESIDUE = 0.7
