@@ -58,6 +58,23 @@ def test_a_sensor_ahead_of_the_robots_axis_moves_sideways_when_it_turns():
     np.testing.assert_allclose(y, ay + d * np.sin(yaw), atol=1e-12)
 
 
+@pytest.mark.parametrize("ahead_m", [0.3, -0.3])
+def test_a_sensor_off_the_robots_axis_sees_the_wall_where_it_is_from_where_it_stands(ahead_m):
+    # turning at 90 deg/s 0.3 m ahead of (or behind) the robot's axis: each true point, carried
+    # from where the sensor stood at the pulse into the scene's frame, lies on the wall (x = 2 m);
+    # a renderer that turned the sensor on the axis would put them ~0.1-0.2 m off
+    scene = with_motion(wall_scene(2.0), yaw_rate_deg_s=90, sensor_ahead_m=ahead_m)
+    timing = pulse_frame(T0 + 400_000_000)
+    _, truth = SceneRenderer(CFG, scene, options=QUIET, time_zero_ns=T0).render(timing, np.random.default_rng(0))
+    t_pulse = ((timing.pulses_ns[0][0] + timing.pulses_ns[0][1]) / 2 - T0) * 1e-9
+    yaw, x, y = (float(v) for v in sensor_pose(scene.motion, t_pulse))
+    ok = np.isfinite(truth.range_m)
+    assert ok.sum() > 1000
+    wall_x = x + truth.range_m[ok] * np.cos(yaw + truth.angle_rad[ok])
+    np.testing.assert_allclose(wall_x, 2.0, atol=0.005)  # the 1 ms pulse's smear
+    assert abs(y) > 0.1  # the sensor did move sideways
+
+
 def test_a_turning_sensor_sees_the_wall_turned_the_other_way_at_the_pulse_time():
     rate = math.radians(90)
     scene = with_motion(wall_scene(2.0), yaw_rate_deg_s=90)
@@ -186,3 +203,12 @@ def test_scene_files_take_motion_flicker_and_texture_contrast():
     with pytest.raises(SceneError, match="sensor_ahead_m"):
         with_motion(s, sensor_ahead_m=math.inf)
     assert with_motion(s, sensor_ahead_m=0.2).motion == Motion(math.radians(90), 0.5, 0.2)
+    # and from the command line (laserpi simulate and evaluate)
+    import argparse
+
+    from device.commands.argtypes import add_motion_arguments, scene_with_motion
+
+    parser = argparse.ArgumentParser()
+    add_motion_arguments(parser)
+    args = parser.parse_args(["--yaw-rate-deg-s", "45", "--sensor-ahead-m", "-0.15"])
+    assert scene_with_motion(s, args).motion == Motion(math.radians(45), 0.5, -0.15)

@@ -11,7 +11,7 @@ import pytest
 from device.config import load_preset
 from device.model.camera import pixel_grid, project_points, undistort_robust
 from device.model.scan_frame import scan_frame
-from device.vision.yaw import COMPOSE_STEP, MAX_TURN_RESIDUE, register, yaw_grid
+from device.vision.yaw import COMPOSE_STEP, NoTurnToSearch, register, yaw_grid
 
 CFG = load_preset("thesis-calibrated")
 FRAME = scan_frame(CFG.plane)
@@ -259,7 +259,7 @@ def test_a_lens_and_band_that_leave_no_turn_to_search_judge_the_frames_without_i
     from device.vision import fast
 
     device = _device()
-    mocker.patch.object(fast, "yaw_grid", side_effect=ValueError("the band's grid is too small to search a turn in"))
+    mocker.patch.object(fast, "yaw_grid", side_effect=NoTurnToSearch("the band's grid is too small to search a turn in"))
     lit, before, after = _lit(rays, device), image(rays, math.radians(-2)), image(rays, math.radians(2))
     with caplog.at_level("WARNING", logger="device.vision.fast"):
         first = device.process(lit, after, LIT_ROWS, other_unlit=before)

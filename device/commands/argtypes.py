@@ -52,7 +52,8 @@ def add_motion_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--yaw-rate-deg-s", type=finite_float, help="the sensor turns at this rate (counter-clockwise)")
     parser.add_argument("--speed-m-s", type=finite_float, help="the sensor moves forward at this speed")
     parser.add_argument("--sensor-ahead-m", type=finite_float,
-                        help="the sensor is mounted this far ahead of the robot's turning axis (a turn also moves it sideways)")
+                        help="the sensor is mounted this far ahead of the robot's turning axis, its x in base_link "
+                             "(negative: behind; a turn then also moves it sideways)")
     parser.add_argument("--ambient-scale", type=nonnegative_float, help="ambient light x this (1: the scene's own)")
     parser.add_argument("--flicker-hz", type=positive_float, help="ambient flicker frequency (100 or 120: twice the mains)")
     parser.add_argument("--flicker-depth", type=nonnegative_float, help="ambient flicker modulation depth, 0..1")

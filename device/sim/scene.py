@@ -37,8 +37,8 @@ time zero, which the simulated camera puts at its first frame's exposure)::
     flicker_depth = 0.3         # ... and its modulation depth: irradiance x (1 + depth sin 2 pi f t)
     [motion]                    # the sensor on a robot: a constant yaw rate and forward speed
     yaw_rate_deg_s = 90.0       # counter-clockwise (REP 103), about the robot's vertical axis
-    speed_m_s = 0.5             # along the sensor's x axis (forward)
-    sensor_ahead_m = 0.1        # the sensor is mounted this far ahead of that axis (default 0)
+    speed_m_s = 0.5             # along the robot's x axis (forward; the sensor faces forward)
+    sensor_ahead_m = 0.1        # the sensor's x in the robot's base_link: ahead of that axis (< 0: behind; default 0)
     [[cylinder]]                # a person crossing: a moving box or cylinder
     center = [1.5, -1.0]
     radius = 0.2
@@ -133,8 +133,10 @@ class Floor:
 @dataclass(frozen=True)
 class Motion:
     """The sensor's motion: the robot's constant yaw rate (rad/s, counter-clockwise) and forward
-    speed (m/s), the sensor mounted ``sensor_ahead_m`` ahead of the robot's turning axis (along
-    its x axis: a turn then also moves it sideways)."""
+    speed (m/s), the sensor mounted ``sensor_ahead_m`` ahead of the robot's turning axis (its x
+    in the robot's base_link, REP 105; negative: behind the axis): a turn then also moves it
+    sideways. The sensor sits on the robot's centre line facing forward, its scan frame's z axis
+    the robot's yaw axis; no sideways offset or mounting yaw is modelled."""
 
     yaw_rate_rad_s: float = 0.0
     speed_m_s: float = 0.0

@@ -58,11 +58,13 @@ Per frame pair (or triple):
    moved.
 
    A line in a column that counts as still, in a turned frame or, where ``agree_share`` of the
-   columns moved (the robot drives), within ``agree_reach_columns`` of a moved one, must stand ``agree_ratio`` times above where the two neighbours disagree
+   columns moved and no turn was taken (the robot drives), within ``agree_reach_columns`` of a
+   moved one, must stand ``agree_ratio`` times above where the two neighbours disagree
    along it (a sharp edge that one turned neighbour's resampling put a fraction of a row from
    the other's; a horizontal edge that moved a row between them as the robot drove, whose
    blocks changed by less than the bar for one block), and what is left there be part of a run
-   of ``moving_min_run``. A still scene pays nothing for it, nor one where only a person crosses.
+   of ``moving_min_run``. A still scene pays nothing for it (noise marks 1-2 % of its columns
+   moved), nor the person crossing a still robot of ``laserpi bench motion`` (16-17 %).
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
    part ``unlit - lit`` gives each column's noise level and reveals a pulse that lit the wrong
@@ -144,7 +146,7 @@ from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
-from .yaw import register, yaw_grid
+from .yaw import NoTurnToSearch, register, yaw_grid
 
 log = logging.getLogger(__name__)
 
@@ -505,7 +507,7 @@ class FastPipeline:
         try:
             return yaw_grid(c.camera, scan_frame(c.plane), c.width, c.height, self.top, self.rows,
                             math.radians(self.params.max_turn_deg))
-        except ValueError as exc:
+        except NoTurnToSearch as exc:
             log.warning("the unlit neighbours cannot be turned to the lit frame: %s", exc)
             return None
 

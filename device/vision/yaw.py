@@ -22,8 +22,9 @@ such parallaxes come with every turn of a real robot: it turns about its own axi
 mounted d ahead of it also moves sideways by d x the turn (at d = 0.1 m and 90 deg/s, 8 mm per
 50 ms: ~2 px at 2.5 m, ~5 px at 1 m); and the scan frame's z axis is the robot's yaw axis only
 if the laser plane is level. The simulator models the first (``sensor_ahead_m``; ``laserpi bench
-motion``'s points "0.1 m ahead": the valid share 1-2 points lower, at 1.5-3 m), not the second;
-near objects keep a residue and count as moved. Where the neighbours, turned, still differ
+motion``'s points "0.1 m ahead", with surfaces 1.5-3 m away: the office turning at 90 deg/s
+keeps 1-2 points less of its columns than on the axis, the person crossing as many), not the
+second; near objects keep a residue and count as moved. Where the neighbours, turned, still differ
 by most of what they differed (MAX_TURN_RESIDUE: driving straight), no turn is returned at all;
 step 0 judges the registered neighbours as it judges the raw ones.
 
@@ -76,6 +77,12 @@ SEARCH_ROW_STEP = 4
 #: The band's map into a neighbour is composed on every this-many-th row and spread to the
 #: others by linear interpolation (the displacement a turn makes changes slowly along a column).
 COMPOSE_STEP = 5
+
+
+class NoTurnToSearch(ValueError):
+    """This lens and band leave no turn to search: no pixel of the band has a ray, or its grid is
+    too small (a configuration's property, not a caller's mistake: the pipeline goes on without
+    the turn)."""
 
 
 @dataclass(frozen=True)
@@ -139,7 +146,7 @@ def yaw_grid(camera: CameraModel, frame: ScanFrame, width: int, height: int, top
                              np.stack([np.zeros(rows), y], 1), np.stack([np.full(rows, width - 1.0), y], 1)])
     azimuth, elevation, ok = _directions(border, camera, frame)
     if not ok.any():
-        raise ValueError("no pixel of the band has a ray (lens model)")
+        raise NoTurnToSearch("no pixel of the band has a ray (lens model)")
     step_az, step_el = 1.0 / k.fx, 1.0 / k.fy
     az0, az1 = float(azimuth[ok].min()), float(azimuth[ok].max())
     el0, el1 = float(elevation[ok].min()), float(elevation[ok].max())
@@ -171,7 +178,7 @@ def yaw_grid(camera: CameraModel, frame: ScanFrame, width: int, height: int, top
     # the search slides the middle half of the grid's width along it at most
     max_shift = min(int(math.ceil(max_yaw_rad / step_az)), (n_az - 1) // 4)
     if max_shift <= FINE_REACH + 1 or len(search) < COARSE:
-        raise ValueError(f"the band's grid ({len(search)} x {n_az} cells) is too small to search a turn in")
+        raise NoTurnToSearch(f"the band's grid ({len(search)} x {n_az} cells) is too small to search a turn in")
     return YawGrid(search, to_image, top, rows, max_shift, step_az, cells, compose.astype(np.float32), bracket,
                    np.stack(np.meshgrid(x, y), axis=-1).astype(np.float32), (width, height))
 
