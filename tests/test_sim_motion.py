@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from device.config import load_preset
-from device.sim.motion import flicker_mean, scene_at, sensor_pose
+from device.sim.motion import flicker_mean, image_speed_px_s, scene_at, sensor_pose
 from device.sim.render import FrameTiming, RenderOptions, SceneRenderer
 from device.sim.scene import (Cylinder, Flicker, Material, Motion, Scene, SceneError, get_scene, scene_from_dict,
                               wall_scene, with_motion)
@@ -56,6 +56,16 @@ def test_a_sensor_ahead_of_the_robots_axis_moves_sideways_when_it_turns():
     _, ax, ay = sensor_pose(Motion(w, 0.7), t)
     np.testing.assert_allclose(x, ax - d + d * np.cos(yaw), atol=1e-12)
     np.testing.assert_allclose(y, ay + d * np.sin(yaw), atol=1e-12)
+
+
+def test_the_image_speed_bound_counts_a_sensor_off_the_robots_axis():
+    # the renderer slices an exposure by this bound: a sensor 0.3 m from the axis at 90 deg/s
+    # moves 0.47 m/s sideways, seen at 0.5 m as fast as the turn itself
+    fx = CFG.camera.intrinsics.fx
+    on_axis = image_speed_px_s(with_motion(wall_scene(2.0), yaw_rate_deg_s=90), fx)
+    for ahead in (0.3, -0.3):
+        off = image_speed_px_s(with_motion(wall_scene(2.0), yaw_rate_deg_s=90, sensor_ahead_m=ahead), fx)
+        assert off == pytest.approx(on_axis + fx * math.radians(90) * 0.3 / 0.5)
 
 
 @pytest.mark.parametrize("ahead_m", [0.3, -0.3])

@@ -389,6 +389,19 @@ def test_too_close_needs_the_return_against_both_neighbours():
         assert score([(meas, p.truth)], MIN_M)["false_too_close"] == np.sum(close & ~truly)
 
 
+def test_a_person_crossing_before_a_still_robot_is_judged_without_the_agreement_check():
+    # 16-17 % of the columns moved, under agree_share: the still wall beside the person keeps
+    # its lines as at rest (checked beside the person, the check would take some of them)
+    pairs = sequence(CFG, with_motion(get_scene("person"), ambient_scale=3), 2, 0)
+    device, without = _device_and_without({"agree_reach_columns": 0})
+    for p in pairs:
+        m, w = _process("fast", device, p), _process("fast", without, p)
+        assert np.array_equal(m.status, w.status) and np.array_equal(m.range, w.range, equal_nan=True)
+    everywhere = _device_and_without({"agree_share": 0.05})[1]
+    assert any(not np.array_equal(_process("fast", everywhere, p).status, _process("fast", device, p).status)
+               for p in pairs)
+
+
 def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
     import dataclasses
 
