@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from device.bench.motion import _no_turn
 from device.config import load_preset
 from device.model.camera import pixel_grid, project_points, undistort_robust
 from device.model.scan_frame import scan_frame
@@ -173,15 +174,6 @@ def _device():
     return device
 
 
-def _unturned(device):
-    import dataclasses
-
-    from device.vision.fast import FastPipeline
-
-    return FastPipeline(CFG, dataclasses.replace(device.params, turn_share=math.inf), device.geometry.min_m,
-                        device.geometry.max_m)
-
-
 def _lit(rays, device, columns=slice(None)):
     """The lit frame: the texture with a laser line of LINE levels drawn in ``columns``, mid-range."""
     line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
@@ -213,7 +205,7 @@ def test_the_pipeline_judges_a_turned_frame_and_rejects_what_no_neighbour_saw(ra
     assert not valid[seen_by_neither].any() and np.all(status[seen_by_neither] == ColumnStatus.REJECTED)
     inside = np.zeros_like(seen_by_neither)
     inside[100 : CFG.active_width - 100] = True
-    u = _unturned(device).process(lit, after, LIT_ROWS, other_unlit=before).valid[ACTIVE][inside].mean()
+    u = _no_turn(device).process(lit, after, LIT_ROWS, other_unlit=before).valid[ACTIVE][inside].mean()
     assert valid[inside].mean() > 0.95 and u < 0.3  # here: 1.0 against 0.10
 
 
@@ -249,7 +241,7 @@ def test_a_turn_that_leaves_most_columns_moved_is_not_used(rays, mocker):
         Registered(rng.integers(0, 255, (ROWS, CFG.width), dtype=np.uint8), np.ones(CFG.width, bool), s) for s in (-0.03, 0.03)])
     meas = device.process(lit, after, LIT_ROWS, other_unlit=before)
     assert fast.register.called
-    plain = _unturned(device).process(lit, after, LIT_ROWS, other_unlit=before)
+    plain = _no_turn(device).process(lit, after, LIT_ROWS, other_unlit=before)
     assert np.array_equal(meas.status, plain.status) and np.array_equal(meas.range, plain.range, equal_nan=True)
 
 
@@ -267,6 +259,6 @@ def test_a_lens_and_band_that_leave_no_turn_to_search_judge_the_frames_without_i
     assert fast.yaw_grid.call_count == 1
     assert [r.getMessage() for r in caplog.records] == [
         "the unlit neighbours cannot be turned to the lit frame: the band's grid is too small to search a turn in"]
-    plain = _unturned(device).process(lit, after, LIT_ROWS, other_unlit=before)
+    plain = _no_turn(device).process(lit, after, LIT_ROWS, other_unlit=before)
     for m in (first, again):
         assert np.array_equal(m.status, plain.status) and np.array_equal(m.range, plain.range, equal_nan=True)

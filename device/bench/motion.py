@@ -89,18 +89,27 @@ def sequence(cfg, scene, lit_frames: int, seed: int, options=None):
 
 
 def _pipelines(cfg):
-    import dataclasses
-
     from ..service.assembly import PIPELINE
-    from ..vision.fast import FastPipeline
     from ..vision.pipelines import make_pipeline
 
     op = cfg.operating_point
     device = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
     return {"reference": make_pipeline("reference", cfg),
             "fast one-unlit": make_pipeline("fast-com-track", cfg, op.min_m, op.max_m),
-            "fast no turn": FastPipeline(cfg, dataclasses.replace(device.params, turn_share=math.inf), op.min_m, op.max_m),
+            "fast no turn": _no_turn(device),
             "fast": device}
+
+
+def _no_turn(pipe):
+    """``pipe`` (a FastPipeline) with its unlit neighbours never turned to the lit frame
+    (``turn_share`` inf): the checks on a moved background alone, as for a motion no turn
+    explains (driving, a person crossing)."""
+    import dataclasses
+
+    from ..vision.fast import FastPipeline
+
+    g = pipe.geometry
+    return FastPipeline(pipe.config, dataclasses.replace(pipe.params, turn_share=math.inf), g.min_m, g.max_m)
 
 
 def _process(name, pipe, pair):

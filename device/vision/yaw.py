@@ -74,8 +74,8 @@ OUTSIDE = -1e4
 #: Elevation rows of the grid the search reads: every this-many-th (the turn shifts along the
 #: azimuth only; the rows between add little to the match and cost their share).
 SEARCH_ROW_STEP = 4
-#: The band's map into a neighbour is composed on every this-many-th row and spread to the
-#: others by linear interpolation (the displacement a turn makes changes slowly along a column).
+#: The band's map into a neighbour is composed on every this-many-th row and column and spread
+#: to the others by linear interpolation (the displacement a turn makes changes slowly).
 COMPOSE_STEP = 5
 
 
@@ -94,8 +94,9 @@ class YawGrid:
     image); ``to_image``: (n_elevation, n_azimuth, 2) float32 image (x, y) of every cell's ray,
     NaN where it is not in the image. ``top``: the band's first image row; ``max_shift``: the
     largest shift searched, in cells (``max_yaw_rad``, or a quarter of the grid's width where
-    that is less: the lens's widest searchable turn); ``cell_rad``: the azimuth step. ``compose_pixels``: (n_rows, n_columns, 2) float32 pixels (x, y) of every
-    COMPOSE_STEP-th row and column of the band, where ``cv2.resize`` samples an image
+    that is less: the lens's widest searchable turn); ``cell_rad``: the azimuth step.
+    ``compose_pixels``: (n_rows, n_columns, 2) float32 pixels (x, y) of every COMPOSE_STEP-th row
+    and column of the band, where ``cv2.resize`` samples an image
     COMPOSE_STEP times coarser, so that its linear interpolation spreads what is composed there
     to every pixel, and ``compose_cells`` their (azimuth, elevation) cells, NaN where a pixel
     has no ray; ``compose_bracket``: (2, width) the composed columns either side of each image
@@ -179,8 +180,10 @@ def yaw_grid(camera: CameraModel, frame: ScanFrame, width: int, height: int, top
     max_shift = min(int(math.ceil(max_yaw_rad / step_az)), (n_az - 1) // 4)
     if max_shift <= FINE_REACH + 1 or len(search) < COARSE:
         raise NoTurnToSearch(f"the band's grid ({len(search)} x {n_az} cells) is too small to search a turn in")
-    return YawGrid(search, to_image, top, rows, max_shift, step_az, cells, compose.astype(np.float32), bracket,
-                   np.stack(np.meshgrid(x, y), axis=-1).astype(np.float32), (width, height))
+    band = pixel_grid(width, rows, np.float32)
+    band[..., 1] += top
+    return YawGrid(search, to_image, top, rows, max_shift, step_az, cells, compose.astype(np.float32), bracket, band,
+                   (width, height))
 
 
 def _directions(pixels: np.ndarray, camera: CameraModel, frame: ScanFrame):
