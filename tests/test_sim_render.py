@@ -134,6 +134,29 @@ def test_empty_scene_has_no_return_and_clutter_has_depth_jumps():
     assert jumps.max() > 0.5
 
 
+def test_surfaces_that_meet_make_one_line_without_a_gap():
+    """Two wall segments in line (the poster-wall scene's seams) and a corner are one continuous
+    laser curve: every column between them has its return and its light (interpolating only
+    along one surface left a column at each seam without either), while a depth jump still has
+    its empty columns (clutter, above)."""
+    from device.sim.scene import scene_from_dict
+
+    ys = np.linspace(-2.0, 2.0, 17)  # a wall in 16 segments (a seam falls between two laser samples'
+    # columns one time in a few), and a second wall at a corner
+    walls = [{"from": [2.0, a], "to": [2.0, b]} for a, b in zip(ys[:-1], ys[1:])] + [{"from": [2.0, 2.0], "to": [0.5, 3.5]}]
+    r = SceneRenderer(CFG, scene_from_dict({"wall": walls}), options=QUIET)
+    t = r.truth_template
+    has = np.flatnonzero(np.isfinite(t.range_m))
+    assert len(set(t.surface[has].tolist())) == 17
+    assert np.all(np.diff(has) == 1)  # no column without its return from the first to the last
+    e, _ = r.expected_electrons(full_pulse())
+    line = e.max(axis=0)
+    seams = has[1:][np.diff(t.surface[has]) != 0]
+    assert seams.size == 16
+    for c in seams:  # as bright as the columns beside it
+        assert line[c - 1 : c + 1].min() > 0.8 * min(line[c - 4], line[c + 3])
+
+
 def test_glossy_floor_makes_a_ghost_line_below_the_real_one():
     scene = get_scene("glossy-floor")
     with_gloss = SceneRenderer(CFG, scene, options=QUIET)

@@ -248,10 +248,20 @@ class _Crossings:
     surface: np.ndarray
 
 
+#: Two neighbouring laser samples on different surfaces nearer each other than this share of
+#: their depth are one continuous curve: the surfaces meet there (two wall segments in line, a
+#: corner). Neighbouring samples on one surface lie ~1.5e-4 of the depth apart (16384 rays over
+#: the fan; 6x that at 80 deg incidence); a surface's edge in front of another leaves centimetres.
+SEAM_REL = 2e-3
+
+
 def _resample_columns(u, v, ok, surface, rate, depth, points) -> _Crossings:
     """Interpolate per-sample curve values at every integer column between consecutive samples
-    that are both valid and on the same surface (never across a depth jump or an occlusion)."""
-    pair = ok[:-1] & ok[1:] & (surface[:-1] == surface[1:])
+    that are both valid and on the same surface, or on surfaces that meet there (SEAM_REL):
+    never across a depth jump or an occlusion."""
+    with np.errstate(invalid="ignore"):
+        meet = np.linalg.norm(points[1:] - points[:-1], axis=1) <= SEAM_REL * np.minimum(depth[:-1], depth[1:])
+    pair = ok[:-1] & ok[1:] & ((surface[:-1] == surface[1:]) | meet)
     k = np.nonzero(pair)[0]
     u0, u1 = u[k], u[k + 1]
     lo, hi = np.minimum(u0, u1), np.maximum(u0, u1)
