@@ -55,7 +55,18 @@ Per frame pair (or triple):
    since the turn as above: a column only one neighbour saw (the image's side the turn brought
    in) against that one, and counted as moved; one neither saw is REJECTED (a line or "no
    return" there). The near rows of step 7 are not turned: there the neighbours count as they
-   moved.
+   moved. A turned neighbour is resampled: a sharp edge the image drew within a row (an edge
+   the lens leaves sharp, or a renderer's point-sampled pixels) comes back up to half a row from
+   where the lit frame has it, a short horizontal residue as high as half the edge (a phantom
+   line: 6-8 columns at 14-45 deg/s where a wall meets the floor). So the lit frame is held
+   against the turned neighbours' mean allowed a row's misplacement: each pixel against the
+   nearest value between the least and the greatest of the mean over its row and the rows above
+   and below, that range narrowed by ``resample_slack`` levels each side (sensor noise alone
+   opens none: 2-3 levels there on a 3x lit wall), so a line loses only what an edge under it
+   spans. Where the edge's row in the lit frame shows what neither neighbour's shows (a texture
+   that still rises up to the edge), a residue a row high stays: a line there must also stand
+   ``edge_ratio`` times above the largest step the turned neighbours' mean makes from one row to
+   the next within a row of it.
 
    A line in a column that counts as still, in a turned frame or, where ``agree_share`` of the
    columns moved and no turn was taken (the robot drives), within ``agree_reach_columns`` of a
@@ -206,6 +217,8 @@ class FastParams:
     agree_ratio: float = 3.0  # a line in a still column of a turned frame, or beside a moved one, must stand this x above where the neighbours disagree
     agree_reach_columns: int = 16  # ... beside: within this many columns,
     agree_share: float = 0.25  # ... where at least this share of the columns moved (the robot drives; not a person crossing, nor noise)
+    resample_slack: float = 4.0  # a turned frame's background may be off by a row where it changes by more than this (levels) over three rows (inf: not at all)
+    edge_ratio: float = 0.75  # ... and a line there must stand this x above the background's largest step between two rows within a row of it
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -225,10 +238,12 @@ class FastParams:
             raise ValueError(f"need moved_block_level > 0 and moved_block_ratio >= 0, got "
                              f"{self.moved_block_level}, {self.moved_block_ratio}")
         if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.agree_ratio >= 0
-                and self.agree_reach_columns >= 0 and self.agree_share > 0):
+                and self.agree_reach_columns >= 0 and self.agree_share > 0 and self.resample_slack >= 0
+                and self.edge_ratio >= 0):
             raise ValueError(f"need turn_share > 0 (inf: never turn), 0 < max_turn_deg <= 45, agree_ratio >= 0, "
-                             f"agree_reach_columns >= 0 and agree_share > 0, got {self.turn_share}, {self.max_turn_deg}, "
-                             f"{self.agree_ratio}, {self.agree_reach_columns}, {self.agree_share}")
+                             f"agree_reach_columns >= 0, agree_share > 0, resample_slack >= 0 and edge_ratio >= 0, got "
+                             f"{self.turn_share}, {self.max_turn_deg}, {self.agree_ratio}, {self.agree_reach_columns}, "
+                             f"{self.agree_share}, {self.resample_slack}, {self.edge_ratio}")
         if self.trend_rows <= 2 * self.half_width + 1 or self.moving_min_run < 1:
             raise ValueError(f"need trend_rows > 2 half_width + 1 (taller than a line) and moving_min_run >= 1, got "
                              f"{self.trend_rows}, {self.moving_min_run}")
@@ -333,7 +348,9 @@ class FastPipeline:
                 background, other, moved, brought_in = self._turned(grid, lum_lit, lum_unlit, lum_other, background,
                                                                     other, moved)
             neighbours = (background, other)
-            background = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
+            background = turned_mean = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
+            if brought_in is not None and math.isfinite(p.resample_slack):
+                background = _within_a_row(lit_band, background, p.resample_slack)
             if moved.any():
                 # a line hidden in what the moved background left cannot be told from no line:
                 # "no return" is judged on that residue's noise (blind_noise)
@@ -395,7 +412,7 @@ class FastPipeline:
             none = status == STATUS_U8[ColumnStatus.NO_RETURN]
             status = np.where(((status == STATUS_U8[ColumnStatus.OK]) | none) & brought_in,
                               STATUS_U8[ColumnStatus.REJECTED], status)
-            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool))
+            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), turned_mean)
         elif moved is not None and moved.mean() >= p.agree_share:
             near = cv2.dilate(moved.astype(np.uint8)[None, :], np.ones((1, 2 * p.agree_reach_columns + 1), np.uint8))[0]
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0)
@@ -469,7 +486,8 @@ class FastPipeline:
         return a, b, turned_moved, brought_in
 
     def _disagreed(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
-                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray) -> np.ndarray:
+                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray,
+                   turned_mean: np.ndarray | None = None) -> np.ndarray:
         """Step 0's rejections among the ``judged`` columns (every column of a frame whose
         neighbours were turned to it; else, where ``agree_share`` of them moved, those within
         ``agree_reach_columns`` of a moved one): a
@@ -479,7 +497,10 @@ class FastPipeline:
         from the other's; a horizontal edge that moved a row between them as the robot drove,
         its blocks' change under the bar for one block), and what is left among them outside a
         run of ``moving_min_run`` continuous columns (such residue passes in fragments, as a
-        moved edge's does: _untrusted)."""
+        moved edge's does: _untrusted). With ``turned_mean`` (the turned neighbours' mean: a
+        turned frame), a line must also stand ``edge_ratio`` times above the largest step that
+        mean makes from one row to the next within a row of the line's (an edge's row the lit
+        frame shows and neither neighbour does)."""
         import cv2
 
         p = self.params
@@ -493,6 +514,11 @@ class FastPipeline:
             rows = clamp(r[None, :] + np.arange(-h, h + 1)[:, None], 0, n - 1)
             disagree = d.ravel().take(rows * d.shape[1] + cols[None, :]).max(axis=0)
             bad[cols] = peak[cols] < p.agree_ratio * disagree
+            if turned_mean is not None:
+                steps = cv2.absdiff(turned_mean[1:], turned_mean[:-1])  # row y: between rows y and y + 1
+                near = clamp(r[None, :] + np.arange(-2, 2)[:, None], 0, n - 2)  # rows r - 1 .. r + 1
+                edge = steps.ravel().take(near * steps.shape[1] + cols[None, :]).max(axis=0)
+                bad[cols] |= peak[cols] < p.edge_ratio * edge
         ok &= ~bad
         bad |= ok & judged & (_run_length(ok) < p.moving_min_run)
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
@@ -710,6 +736,19 @@ def _ridges(image: np.ndarray, k: int) -> np.ndarray:
     out = np.zeros(image.shape, np.int16)
     out[k:-k] = np.minimum(image[k:-k] - image[: -2 * k], image[k:-k] - image[2 * k :])
     return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def _within_a_row(lit: np.ndarray, background: np.ndarray, slack: float) -> np.ndarray:
+    """(rows, W) uint8: the background each pixel of ``lit`` is held against when ``background``
+    may be misplaced by up to a row: ``lit`` itself where it lies between the least and the
+    greatest of ``background`` over its row and the rows above and below, each moved ``slack``
+    levels towards ``background`` (no further), else the nearer of them (step 0, turned frames)."""
+    import cv2
+
+    column = np.ones((3, 1), np.uint8)
+    hi = cv2.max(cv2.subtract(cv2.dilate(background, column), slack), background)
+    lo = cv2.min(cv2.add(cv2.erode(background, column), slack), background)
+    return cv2.min(cv2.max(lit, lo), hi)
 
 
 def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarray, trend_rows: int):
