@@ -466,3 +466,14 @@ def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close():
         assert score([(_process("fast", pipe, p), p.truth) for p in pairs], MIN_M)["false_too_close"] == 0
     assert score([(_process("fast", near_only, p), p.truth) for p in pairs], MIN_M)["false_too_close"] >= 15
 
+
+def test_bench_motion_picks_points_by_labels_that_hold_commas(capsys):
+    from device.bench.motion import wanted_points
+
+    assert wanted_points(None) is None
+    assert wanted_points("yaw 90, 1x; poster wall, yaw 14 ;still") == {"yaw 90, 1x", "poster wall, yaw 14", "still"}
+    for bad in ("yaw 91", ";", "still; yaw 91"):
+        with pytest.raises(ValueError, match="unknown sweep point"):
+            wanted_points(bad)
+    assert main(["bench", "motion", "--points", "yaw 90, 2x"]) == 2
+    assert "unknown sweep point(s) yaw 90, 2x; choose from still; yaw 14;" in capsys.readouterr().out

@@ -58,6 +58,9 @@ SWEEP = (
     ("person", "person", 0, 0.0, 3, 0.0, 0.0),
     ("person, yaw 45", "person", 45, 0.0, 3, 0.0, 0.0),
     ("person, yaw 45, 0.1 m ahead", "person", 45, 0.0, 3, 0.0, 0.1),
+    ("poster wall", "poster-wall", 0, 0.0, 3, 0.0, 0.0),
+    ("poster wall, yaw 14", "poster-wall", 14, 0.0, 3, 0.0, 0.0),
+    ("poster wall, yaw 90", "poster-wall", 90, 0.0, 3, 0.0, 0.0),
 )
 VARIANTS = ("reference", "fast one-unlit", "fast no turn", "fast")
 #: the variants that take both unlit neighbours
@@ -72,7 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=30, help="timed calls per variant (default 30)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="thesis-calibrated")
-    parser.add_argument("--points", help="comma-separated labels of the sweep points to run (default all)")
+    parser.add_argument("--points", help="semicolon-separated labels of the sweep points to run (labels hold commas; "
+                                         "default all)")
     parser.add_argument("--png", help="write the plot to this PNG")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
 
@@ -162,10 +166,7 @@ def measure(args) -> dict:
 
     cv2.setNumThreads(1)
     cfg = load_preset(args.preset)
-    wanted = None if not args.points else {p.strip() for p in args.points.split(",")}
-    unknown = (wanted or set()) - {s[0] for s in SWEEP}
-    if unknown:
-        raise ValueError(f"unknown sweep point(s) {', '.join(sorted(unknown))}; choose from {', '.join(s[0] for s in SWEEP)}")
+    wanted = wanted_points(args.points)
     points = []
     timed = {}
     for label, scene_name, yaw, speed, ambient, flicker, ahead in SWEEP:
@@ -301,17 +302,31 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def wanted_points(points: str | None) -> set[str] | None:
+    """The sweep points' labels ``--points`` names (separated by semicolons: labels hold commas),
+    None for all; an unknown label is refused, naming the choices."""
+    if not points:
+        return None
+    wanted = {p.strip() for p in points.split(";") if p.strip()}
+    unknown = wanted - {s[0] for s in SWEEP}
+    if unknown or not wanted:
+        raise ValueError(f"unknown sweep point(s) {', '.join(sorted(unknown)) or repr(points)}; choose from "
+                         f"{'; '.join(s[0] for s in SWEEP)}")
+    return wanted
+
+
 def _print(result: dict, frames: int) -> None:
     op = result["operating_point"]
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, OpenCV 1 thread; "
           f"exposure {op['exposure_us']:g} us, gain {op['analog_gain']:g}, {frames} lit frame(s) per point")
     f = lambda v, s: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, s)  # noqa: E731
-    print(f"{'point':<22} {'variant':<15} {'gross %':>8} {'false':>6} {'close':>6} {'valid %':>8} {'blind %':>8} "
+    w = max(len(p["point"]) for p in result["points"]) if result["points"] else 5
+    print(f"{'point':<{w}} {'variant':<15} {'gross %':>8} {'false':>6} {'close':>6} {'valid %':>8} {'blind %':>8} "
           f"{'sigma %':>8}")
     for p in result["points"]:
         for name in VARIANTS:
             s = p[name]
-            print(f"{p['point'] if name == VARIANTS[0] else '':<22} {name:<15} {f(s['gross_fraction'] * 100, '8.2f')} "
+            print(f"{p['point'] if name == VARIANTS[0] else '':<{w}} {name:<15} {f(s['gross_fraction'] * 100, '8.2f')} "
                   f"{s['false_returns']:>6d} {s['false_too_close']:>6d} {f(s['valid_fraction'] * 100, '8.1f')} "
                   f"{f(s['blind_fraction'] * 100, '8.1f')} {f(s['sigma_pct'], '8.2f')}")
     ms, moving = result["ms_per_lit_frame"], result["ms_per_moving_lit_frame"]
