@@ -477,3 +477,21 @@ def test_bench_motion_picks_points_by_labels_that_hold_commas(capsys):
             wanted_points(bad)
     assert main(["bench", "motion", "--points", "yaw 90, 2x"]) == 2
     assert "unknown sweep point(s) yaw 90, 2x; choose from still; yaw 14;" in capsys.readouterr().out
+
+
+def test_bench_motions_targets_judge_every_scene():
+    from device.bench.motion import targets
+
+    def point(label, scene, yaw, ambient, valid, gross=0.0, false=0):
+        return {"point": label, "scene": scene, "yaw_deg_s": yaw, "speed_m_s": 0.0, "ambient_x": ambient,
+                "fast": {"gross_fraction": gross, "false_returns": false, "false_too_close": 0, "valid_fraction": valid}}
+
+    result = {"ratio_vs_one_unlit": 1.2, "points": [
+        point("office", "office", 90, 3, 0.95), point("wall", "poster-wall", 14, 3, 0.6),
+        point("bright", "office", 90, 10, 0.2, gross=0.0005)]}
+    gross, valid, speed = targets(result)
+    assert gross.startswith("MET") and "worst gross 0.05 %" in gross
+    assert valid.startswith("NOT MET") and "worst 60.0 %, wall" in valid  # 10x light is not judged for it
+    assert speed.startswith("MET")
+    result["points"][0]["fast"]["false_returns"] = 1
+    assert targets(result)[0].startswith("NOT MET")
