@@ -746,9 +746,12 @@ def _within_a_row(lit: np.ndarray, background: np.ndarray, slack: float) -> np.n
     import cv2
 
     column = np.ones((3, 1), np.uint8)
-    hi = cv2.max(cv2.subtract(cv2.dilate(background, column), slack), background)
-    lo = cv2.min(cv2.add(cv2.erode(background, column), slack), background)
-    return cv2.min(cv2.max(lit, lo), hi)
+    # in place: each new band-sized array costs this as much as the operation (fresh pages)
+    hi = cv2.dilate(background, column)
+    cv2.max(cv2.subtract(hi, slack, dst=hi), background, dst=hi)
+    lo = cv2.erode(background, column)
+    cv2.min(cv2.add(lo, slack, dst=lo), background, dst=lo)
+    return cv2.min(cv2.max(lit, lo, dst=lo), hi, dst=lo)
 
 
 def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarray, trend_rows: int):
