@@ -275,7 +275,7 @@ def _plot(result: dict, path: str) -> None:
     axes[2].set_ylabel("valid (%)")
     axes[2].set_xticks(x, [p["point"] for p in pts], rotation=35, ha="right", fontsize=8)
     axes[0].legend(fontsize=8, title="variant (CPU per lit frame, still scene)", title_fontsize=8)
-    axes[0].set_title("LaserPi on a moving robot (simulated; office and person scenes; dashed: the targets)")
+    axes[0].set_title("LaserPi on a moving robot (simulated; office, person and poster-wall scenes; dashed: the targets)")
     for ax in axes:
         ax.grid(True, axis="y", alpha=0.3)
     fig.tight_layout()
