@@ -222,3 +222,34 @@ def test_scene_files_take_motion_flicker_and_texture_contrast():
     add_motion_arguments(parser)
     args = parser.parse_args(["--yaw-rate-deg-s", "45", "--sensor-ahead-m", "-0.15"])
     assert scene_with_motion(s, args).motion == Motion(math.radians(45), 0.5, -0.15)
+
+
+def test_a_column_whose_line_crosses_a_depth_jump_during_the_exposure_keeps_both_ranges():
+    """Turning fast past a post before a wall, with a pulse over the whole exposure: the columns
+    at the post's edges see the post in some time slices and the wall in others. Their truth's
+    range is the light-weighted mean, between the two, where nothing is; its span names both."""
+    post = Cylinder((1.0, 0.0), 0.05, material=Material(0.9, texture="plain"))
+    wall = wall_scene(2.0)
+    scene = Scene("post before a wall", walls=wall.walls, cylinders=(post,), motion=Motion(math.radians(180), 0.0))
+    r = SceneRenderer(CFG, scene, options=QUIET, time_zero_ns=T0)
+    t, e_us = T0 + 50_000_000, 9200.0
+    _, truth = r.render(pulse_frame(t, e_us, (t - int(e_us * 1e3) - 1, t + int(CFG.height * LINE_NS) + 1)),
+                        np.random.default_rng(0))
+    has = np.isfinite(truth.range_m)
+    near, far = truth.range_span_m[has].T
+    # (range_m is the range of the mean point, the ends means of ranges: equal to 1e-6 on one surface)
+    assert np.all(near <= truth.range_m[has] * (1 + 1e-6)) and np.all(truth.range_m[has] <= far * (1 + 1e-6))
+    assert np.all(np.isnan(truth.range_span_m[~has]))
+    jump = far > 1.05 * near
+    # the post's two edges, as far as the turn swept them: a flat wall's range changes with the
+    # turn in each column (by up to 15 % at the image's edges) but it is one surface
+    post_cols = np.nonzero(truth.surface == 1)[0]
+    assert jump.sum() >= 4 and np.all(np.abs(np.nonzero(has)[0][jump][:, None] - post_cols[None, :]).min(axis=1) < 80)
+    # the ends are the post (~0.95 m ahead) and the wall (~2 m), the mean neither
+    assert np.all(np.abs(near[jump] - 0.95) < 0.05) and np.all(np.abs(far[jump] - 2.0) < 0.1)
+    mean = truth.range_m[has][jump]
+    assert np.all((mean > 1.05 * near[jump]) | (mean < far[jump] / 1.05))
+    # a still scene's truth has one range per column
+    _, still = SceneRenderer(CFG, with_motion(scene, yaw_rate_deg_s=0.0), options=QUIET,
+                             time_zero_ns=T0).render(pulse_frame(t), np.random.default_rng(0))
+    assert still.range_span_m is None

@@ -128,7 +128,7 @@ def score(meas_truths, min_m: float) -> dict:
     near end) where the truth is not, an obstacle that is not there."""
     import numpy as np
 
-    from ..vision.evaluation import GROSS_ERROR_REL
+    from ..vision.evaluation import GROSS_ERROR_REL, range_error_rel
     from ..vision.measurements import ColumnStatus
 
     n_true = n_empty = valid = gross = false = blind = false_close = 0
@@ -137,8 +137,7 @@ def score(meas_truths, min_m: float) -> dict:
         c = meas.column
         has = np.isfinite(truth.row[c]) & np.isfinite(truth.range_m[c])
         ok = meas.valid & np.isfinite(meas.range)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            e = (meas.range - truth.range_m[c]) / truth.range_m[c]
+        e = range_error_rel(meas.range, truth, c)
         n_true += int(has.sum())
         n_empty += int((~has).sum())
         valid += int((has & ok).sum())

@@ -178,7 +178,8 @@ def _load_truth(path: str, cfg) -> dict:
         if z["row"].shape[1] != cfg.width:
             raise ValueError(f"{path}: truth is {z['row'].shape[1]} columns wide, the configuration {cfg.width}")
         return {int(s): FrameTruth(z["row"][i], z["range_m"][i], z["angle_rad"][i], z["points"][i], z["surface"][i],
-                                   z["lit_rows"][i], z["time_ns"][i] if "time_ns" in z.files else None)
+                                   z["lit_rows"][i], z["time_ns"][i] if "time_ns" in z.files else None,
+                                   z["range_span_m"][i] if "range_span_m" in z.files else None)
                 for i, s in enumerate(z["seq"])}
 
 

@@ -3,7 +3,9 @@
 Writes to ``--out DIR``: ``frames.npz`` (a recording ReplayCamera plays back), ``truth.npz``
 (per frame: ``row`` (N, W), ``range_m``, ``angle_rad``, ``points`` (N, W, 3), ``surface``,
 ``lit_rows`` (N, H), ``time_ns`` (N, W): when each column's laser light came, NaN for a still
-scene, where it does not matter, and where there is no return; ``seq`` (N,)), ``metadata.json`` (scene, configuration, seed, timing, render options,
+scene, where it does not matter, and where there is no return; ``range_span_m`` (N, W, 2): the
+nearest and farthest range each column's light had during the exposure, NaN likewise (a moving
+line may cross a depth jump: device.sim.truth.FrameTruth); ``seq`` (N,)), ``metadata.json`` (scene, configuration, seed, timing, render options,
 sensor constants) and with ``--png`` ``scene.png``, the scene from above with the laser hits.
 The laser fires on every ``--every``-th frame (a pulse schedule, see device/sim/pulses.py).
 The sensor can move and the light flicker (``--yaw-rate-deg-s``, ``--speed-m-s``,
@@ -96,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
     nan = np.full(cfg.width, np.nan)
     np.savez_compressed(out / "truth.npz", seq=np.array([f.seq for f in frames]),
                         time_ns=np.stack([nan if t.time_ns is None else t.time_ns for t in truths]),
+                        range_span_m=np.stack([np.full((cfg.width, 2), np.nan) if t.range_span_m is None
+                                               else t.range_span_m for t in truths]),
                         **{k: np.stack([getattr(t, k) for t in truths])
                            for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")})
     r = cam.renderer

@@ -633,8 +633,19 @@ class SceneRenderer:
         time_ns = np.where(has, mean(times) * 1e9 + self.time_zero_ns, np.nan)
         surface = np.stack([p.surface for p, _, _ in parts])[np.argmax(w_in, axis=0), np.arange(W)]
         angle, rng_m = to_scan_plane(points, self.frame)
+        # each surface's light-weighted mean range in the column; its nearest and farthest: one
+        # surface gives range_m twice, a line that crossed a depth jump both surfaces' ranges
+        ranges = np.where(present, np.stack([p.range_m for p, _, _ in parts]), 0.0)
+        ids = np.stack([p.surface for p, _, _ in parts])
+        span = np.stack([np.full(W, np.inf), np.full(W, -np.inf)], -1)
+        for i in np.unique(ids[w_in > 0]):
+            on = np.where(ids == i, w_in, 0.0)
+            weight_i = on.sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r_i = np.where(weight_i > 0, (on * ranges).sum(axis=0) / weight_i, np.nan)
+            span[:, 0], span[:, 1] = np.fmin(span[:, 0], r_i), np.fmax(span[:, 1], r_i)
         return FrameTruth(row, np.where(has, rng_m, np.inf), np.where(has, angle, np.nan), points,
-                          np.where(has, surface, -1), lit_rows, time_ns)
+                          np.where(has, surface, -1), lit_rows, time_ns, np.where(has[:, None], span, np.nan))
 
 
 def speckle_pattern_weights(contrast: float) -> np.ndarray:

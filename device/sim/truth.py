@@ -19,6 +19,12 @@ class FrameTruth:
     ``lit_rows``: (H,) bool, rows whose exposure overlapped the laser pulse.
     ``time_ns``: (W,) CLOCK_MONOTONIC of the column's laser light (the mean time of the light that
     made its line), NaN where none; None for a still scene (time does not matter there).
+    ``range_span_m``: (W, 2) the nearest and the farthest of the ranges of the surfaces the
+    column's laser light fell on during the exposure (each surface's light-weighted mean over the
+    time slices), NaN where none; both ``range_m`` where it fell on one surface; None for a still
+    scene. On a moving sensor a column's line may cross a depth jump during the exposure:
+    ``range_m``, the light-weighted mean, then lies between the two surfaces, where nothing is,
+    and either surface's range is a true one (device.vision.evaluation.range_error_rel).
     """
 
     row: np.ndarray
@@ -28,3 +34,4 @@ class FrameTruth:
     surface: np.ndarray
     lit_rows: np.ndarray
     time_ns: np.ndarray | None = None
+    range_span_m: np.ndarray | None = None

@@ -20,6 +20,26 @@ DISTANCE_BINS = (0.0, 0.5, 1.0, 1.5, 2.5, 3.5, 5.0, 10.0)
 GROSS_ERROR_REL = 0.05
 
 
+def range_error_rel(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
+    """Relative range error of ``measured_m`` at image ``columns`` against ``truth``: against its
+    range (the light-weighted mean over the exposure), and where the column's light crossed a
+    depth jump during the exposure (``truth.range_span_m`` wider than GROSS_ERROR_REL: a moving
+    sensor or object) the smallest of that and the errors against the nearest and the farthest
+    range its light had. The mean then lies between two surfaces, where nothing is, and a device
+    that measured either surface measured a true range, not a phantom. NaN where the truth has
+    no return."""
+    t = truth.range_m[columns]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e = (measured_m - t) / t
+        if truth.range_span_m is None:
+            return e
+        near, far = truth.range_span_m[columns].T
+        jump = far > near * (1 + GROSS_ERROR_REL)
+        ends = np.where(np.abs((measured_m - near) / near) <= np.abs((measured_m - far) / far),
+                        (measured_m - near) / near, (measured_m - far) / far)
+        return np.where(jump & (np.abs(ends) < np.abs(e)), ends, e)
+
+
 @dataclass(frozen=True)
 class FramePair:
     lit: np.ndarray
@@ -103,7 +123,7 @@ class Score:
         self.all_true_range.append(t_rng[has])
         self.all_valid.append(ok[has])
         self.row_err.append(meas.row[both] - t_row[both])
-        self.range_rel_err.append((meas.range[both] - t_rng[both]) / t_rng[both])
+        self.range_rel_err.append(range_error_rel(meas.range, truth, c)[both])
         self.true_range.append(t_rng[both])
 
     def valid_fraction_within(self, max_range_m: float) -> float:
