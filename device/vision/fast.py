@@ -74,7 +74,13 @@ Per frame pair (or triple):
    along it (a sharp edge that one turned neighbour's resampling put a fraction of a row from
    the other's; a horizontal edge that moved a row between them as the robot drove, whose
    blocks changed by less than the bar for one block), and what is left there be part of a run
-   of ``moving_min_run``. A still scene pays nothing for it (noise marks 1-2 % of its columns
+   of ``moving_min_run``. The disagreement is that of the neighbours as detection sees them:
+   their difference smoothed by detection's 5 x 3 box, then its magnitude (the background
+   detection measures a line against is the neighbours' mean, smoothed so). Sensor noise and
+   the pixel-scale residue of resampling a sharp texture at two fractions of a pixel average
+   out in it as they do in detection; the magnitude of the difference before smoothing counted
+   them in full (a textured wall's turned neighbours differ there by 3-4 levels where the
+   smoothed difference is ~2), and a turned textured wall lost lines 3x above that. A still scene pays nothing for it (noise marks 1-2 % of its columns
    moved), nor the person crossing a still robot of ``laserpi bench motion`` (16-17 %).
 1. Difference ``lit - unlit`` (saturating, uint8) only over the rows where the laser can land
    for the configured depth limits, per column (:mod:`device.vision.geometry`); the negative
@@ -492,7 +498,7 @@ class FastPipeline:
         neighbours were turned to it; else, where ``agree_share`` of them moved, those within
         ``agree_reach_columns`` of a moved one): a
         line in a column that counts as still that does not stand ``agree_ratio`` times above where
-        the two neighbours disagree along it (smoothed as detection sees it, over its rows +-
+        the two neighbours disagree along it (their difference smoothed as detection sees it, over its rows +-
         half_width: a sharp edge that one turned neighbour's resampling put a fraction of a row
         from the other's; a horizontal edge that moved a row between them as the robot drove,
         its blocks' change under the bar for one block), and what is left among them outside a
@@ -508,7 +514,7 @@ class FastPipeline:
         bad = np.zeros(status.size, bool)
         cols = np.nonzero(ok & ~moved & judged)[0]
         if cols.size:
-            d = cv2.blur(cv2.absdiff(*neighbours), (5, 3))
+            d = cv2.convertScaleAbs(cv2.blur(cv2.subtract(*neighbours, dtype=cv2.CV_16S), (5, 3)))
             h, n = p.half_width, d.shape[0]
             r = np.rint(row[cols]).astype(np.intp) - self.top
             rows = clamp(r[None, :] + np.arange(-h, h + 1)[:, None], 0, n - 1)
