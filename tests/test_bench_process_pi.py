@@ -18,6 +18,7 @@ def test_on_a_pi_the_camera_capture_is_the_devices_own_cost():
     a, b = snapshot(0.0, 0, 1.0, 0.5, 0.2, 0.1), snapshot(10.0, 100, 5.0, 1.5, 1.2, 0.6)
     real = cost_per_scan(a, b, simulated=False)
     assert real["device_ms_per_scan"] == 40.0 and real["scan_rate_hz"] == 10.0  # 4 s CPU over 100 scans
+    assert real["sensor_scan_rate_hz"] == 10.0 and real["simulation_behind_pct"] == 0.0  # no simulation to lag
     assert real["other_ms_per_scan"] == 40.0 - 10.0 - 5.0  # capture included in "other"
     assert cost_per_scan(a, b)["device_ms_per_scan"] == 30.0  # simulated: rendering is not the device's
 

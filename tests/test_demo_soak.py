@@ -65,12 +65,14 @@ def test_soak_short_run_on_the_mock(tmp_path):
 def test_bench_process_subtracts_the_simulation_from_the_process_cpu():
     from device.bench.process import cost_per_scan
 
-    a = {"monotonic_s": 10.0, "cpu_process_s": 5.0, "cpu_sim_hardware_s": 1.0, "cpu_sim_gpio_s": 0.02,
+    a = {"monotonic_s": 10.0, "cpu_process_s": 5.0, "cpu_sim_hardware_s": 1.0, "cpu_sim_gpio_s": 0.02, "sim_lag_s": 0.3,
          "source": {"scans_made": 100, "cpu_camera_s": 2.0, "cpu_pipeline_s": 0.5, "cpu_laser_s": 0.1}}
-    b = {"monotonic_s": 20.0, "cpu_process_s": 9.0, "cpu_sim_hardware_s": 1.5, "cpu_sim_gpio_s": 0.07,
+    b = {"monotonic_s": 20.0, "cpu_process_s": 9.0, "cpu_sim_hardware_s": 1.5, "cpu_sim_gpio_s": 0.07, "sim_lag_s": 0.8,
          "source": {"scans_made": 200, "cpu_camera_s": 3.5, "cpu_pipeline_s": 1.2, "cpu_laser_s": 0.2}}
     r = cost_per_scan(a, b)
     assert r["scan_rate_hz"] == pytest.approx(10.0)
+    # the simulated sensor's time fell 0.5 s behind in those 10 s: its 100 scans took 9.5 s of it
+    assert r["sensor_scan_rate_hz"] == pytest.approx(100 / 9.5) and r["simulation_behind_pct"] == pytest.approx(5.0)
     assert r["process_ms_per_scan"] == pytest.approx(40.0)
     assert r["simulation_ms_per_scan"] == pytest.approx(20.0)  # 1.5 s render + 0.5 s hardware over 100 scans
     assert r["device_ms_per_scan"] == pytest.approx(20.0)

@@ -90,6 +90,26 @@ def test_answered_requests_leave_the_clock_stepping_in_whole_quanta(hardware):
         comcu.port.close()
 
 
+def test_a_clock_held_back_falls_behind_the_wall_clock_for_good_and_says_how_far(hardware):
+    """Held at ``limit_ns`` (the camera's consumer lags), simulated time stops while the wall
+    clock goes on; released, it goes on from there at the wall clock's pace instead of racing to
+    catch up, and ``lag_s`` (what `bench process` takes off the wall time of a scan rate) is the
+    time it lost."""
+    assert hardware.wait_until(hardware.now_ns() + 5_000_000, 2.0)
+    before = hardware.lag_s
+    assert before < 0.05
+    held_at = time.monotonic()
+    hardware.limit_ns = hardware.now_ns() + 1_000_000
+    time.sleep(0.3)
+    hardware.limit_ns = None
+    t_wall, t_sim = time.monotonic(), hardware.now_ns()
+    time.sleep(0.2)
+    ran_s = (hardware.now_ns() - t_sim) * 1e-9
+    # at the wall clock's pace, no burst (a descheduled clock thread only loses more)
+    assert 0.1 < ran_s <= time.monotonic() - t_wall + 0.01
+    assert 0.29 - 0.01 < hardware.lag_s - before <= time.monotonic() - held_at
+
+
 def test_a_waiter_is_woken_when_its_time_has_come_not_at_every_step(hardware):
     """wait_until's callers (the simulated camera waiting for its next frame, the ticker thread
     waiting for its tick) are notified once the clock reaches the time one of them waits for,

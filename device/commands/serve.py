@@ -113,7 +113,8 @@ def _stats_writer(path: str, hw):
         ru = resource.getrusage(resource.RUSAGE_SELF)
         doc = {"monotonic_s": time.monotonic(), "cpu_process_s": ru.ru_utime + ru.ru_stime,
                "cpu_sim_hardware_s": hw.cpu_s if hw is not None else 0.0,
-               "cpu_sim_gpio_s": hw.gpio_cpu_s if hw is not None else 0.0, "max_rss_kb": ru.ru_maxrss,
+               "cpu_sim_gpio_s": hw.gpio_cpu_s if hw is not None else 0.0,
+               "sim_lag_s": hw.lag_s if hw is not None else 0.0, "max_rss_kb": ru.ru_maxrss,
                **dataclasses.asdict(health)}
         tmp = f"{path}.tmp"
         with open(tmp, "w") as f:

@@ -289,6 +289,12 @@ class SimulatedHardware:
         return out
 
     @property
+    def lag_s(self) -> float:
+        """How far simulated time has fallen behind the wall clock for good (_run_clock): the
+        simulated sensor's frames, and so its scans, come that much later than a real one's."""
+        return self._lag_ns * 1e-9
+
+    @property
     def cpu_s(self) -> float:
         """This simulated hardware's own CPU time so far (see __init__)."""
         return self.clock_cpu_s + self.ticker_wait_cpu_s + self.gpio_cpu_s
