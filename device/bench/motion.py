@@ -128,7 +128,7 @@ def score(meas_truths, min_m: float) -> dict:
     near end) where the truth is not, an obstacle that is not there."""
     import numpy as np
 
-    from ..vision.evaluation import GROSS_ERROR_REL, range_error_rel
+    from ..vision.evaluation import GROSS_ERROR_REL, nearest_true_range, range_error_rel
     from ..vision.measurements import ColumnStatus
 
     n_true = n_empty = valid = gross = false = blind = false_close = 0
@@ -146,7 +146,7 @@ def score(meas_truths, min_m: float) -> dict:
         gross += int(bad.sum())
         blind += int((has & (meas.status == ColumnStatus.NO_RETURN)).sum())
         with np.errstate(invalid="ignore"):
-            false_close += int(((meas.status == ColumnStatus.TOO_CLOSE) & ~(truth.range_m[c] < min_m)).sum())
+            false_close += int(((meas.status == ColumnStatus.TOO_CLOSE) & ~(nearest_true_range(truth, c) < min_m)).sum())
         rel.append(e[has & ok & ~bad])
     rel = np.concatenate(rel) if rel else np.zeros(0)
     return {"columns_with_return": n_true, "columns_without_return": n_empty,

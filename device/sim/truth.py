@@ -24,7 +24,8 @@ class FrameTruth:
     time slices), NaN where none; both ``range_m`` where it fell on one surface; None for a still
     scene. On a moving sensor a column's line may cross a depth jump during the exposure:
     ``range_m``, the light-weighted mean, then lies between the two surfaces, where nothing is,
-    and either surface's range is a true one (device.vision.evaluation.range_error_rel).
+    and either surface's range is a true one, a range between them none
+    (device.vision.evaluation.reference_range).
     """
 
     row: np.ndarray

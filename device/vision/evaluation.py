@@ -20,24 +20,49 @@ DISTANCE_BINS = (0.0, 0.5, 1.0, 1.5, 2.5, 3.5, 5.0, 10.0)
 GROSS_ERROR_REL = 0.05
 
 
-def range_error_rel(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
-    """Relative range error of ``measured_m`` at image ``columns`` against ``truth``: against its
-    range (the light-weighted mean over the exposure), and where the column's light crossed a
-    depth jump during the exposure (``truth.range_span_m`` wider than GROSS_ERROR_REL: a moving
-    sensor or object) the smallest of that and the errors against the nearest and the farthest
-    range its light had. The mean then lies between two surfaces, where nothing is, and a device
-    that measured either surface measured a true range, not a phantom. NaN where the truth has
-    no return."""
+def depth_jump(truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
+    """Which image ``columns``' light crossed a depth jump during the exposure: the ranges of the
+    surfaces it fell on (``truth.range_span_m``, a moving sensor or object) more than
+    GROSS_ERROR_REL apart. Such a column has no one true range or row: its ``range_m`` and
+    ``row``, the light-weighted means, lie between the surfaces, where nothing is."""
+    if truth.range_span_m is None:
+        return np.zeros(np.shape(columns), bool)
+    near, far = truth.range_span_m[columns].T
+    with np.errstate(invalid="ignore"):
+        return far > near * (1 + GROSS_ERROR_REL)
+
+
+def reference_range(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
+    """The true range a range ``measured_m`` at image ``columns`` is judged against: the truth's
+    ``range_m``; in a depth-jump column (:func:`depth_jump`) the range of whichever of its two
+    surfaces (the nearest and the farthest) is nearer to the measurement: a device that measured
+    either surface measured a true range, and one that measured between them a phantom however
+    near the mean. +inf where the truth has no return."""
     t = truth.range_m[columns]
+    jump = depth_jump(truth, columns)
+    if not jump.any():
+        return t
+    near, far = truth.range_span_m[columns].T
     with np.errstate(invalid="ignore", divide="ignore"):
-        e = (measured_m - t) / t
-        if truth.range_span_m is None:
-            return e
-        near, far = truth.range_span_m[columns].T
-        jump = far > near * (1 + GROSS_ERROR_REL)
-        ends = np.where(np.abs((measured_m - near) / near) <= np.abs((measured_m - far) / far),
-                        (measured_m - near) / near, (measured_m - far) / far)
-        return np.where(jump & (np.abs(ends) < np.abs(e)), ends, e)
+        nearer = np.abs(measured_m - near) / near <= np.abs(measured_m - far) / far
+    return np.where(jump, np.where(nearer, near, far), t)
+
+
+def range_error_rel(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
+    """Relative range error of ``measured_m`` at image ``columns`` against :func:`reference_range`
+    (NaN where the truth has no return)."""
+    ref = reference_range(measured_m, truth, columns)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (measured_m - ref) / ref
+
+
+def nearest_true_range(truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
+    """The nearest true range of image ``columns``: the truth's, or in a depth-jump column its
+    nearer surface's (something that near was there during the exposure); +inf where none."""
+    t = truth.range_m[columns]
+    if truth.range_span_m is None:
+        return t
+    return np.where(depth_jump(truth, columns), truth.range_span_m[columns, 0], t)
 
 
 @dataclass(frozen=True)
@@ -120,11 +145,14 @@ class Score:
         self.columns_without_return += int((~has).sum())
         self.false_returns += int((~has & ok).sum())
         both = has & ok
+        ref = reference_range(meas.range, truth, c)
         self.all_true_range.append(t_rng[has])
         self.all_valid.append(ok[has])
-        self.row_err.append(meas.row[both] - t_row[both])
-        self.range_rel_err.append(range_error_rel(meas.range, truth, c)[both])
-        self.true_range.append(t_rng[both])
+        # a depth-jump column has no one true row (depth_jump)
+        one = both & ~depth_jump(truth, c)
+        self.row_err.append(meas.row[one] - t_row[one])
+        self.range_rel_err.append((meas.range[both] - ref[both]) / ref[both])
+        self.true_range.append(ref[both])
 
     def valid_fraction_within(self, max_range_m: float) -> float:
         """Valid share of the columns whose true range is at most ``max_range_m``."""
