@@ -489,7 +489,11 @@ class SyncController:
         margin_start = (ws - float(est.mcu_to_pi_ns(rise))) * 1e-9
         margin_end = (float(est.mcu_to_pi_ns(fall)) - we) * 1e-9
         top = 2 * tr.guard_s + 2 / self.cfg.tick_hz
-        return "ok" if 0.0 < margin_start < top and 0.0 < margin_end < top else "bad"
+        if 0.0 < margin_start < top and 0.0 < margin_end < top:
+            return "ok"
+        log.info("frame %d: its pulse began %.1f us before its window and ended %.1f us after it "
+                 "(each must be within 0-%.1f us)", frame.sequence, margin_start * 1e6, margin_end * 1e6, top * 1e6)
+        return "bad"
 
     def _update_lock(self, frame: FrameInfo, status: str) -> FrameLabel:
         cfg = self.cfg
