@@ -26,8 +26,8 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
         first = comcu.ping().mcu_ticks + 60 * MS
         sched.schedule(first, period, width, pattern)
         _run(port, comcu, 0.13)  # lit pulse 0 (0-12.5 ms after first) is over, the next (at 100 ms) not begun
-        sched.trim(-321, period + 40)
-        sched.trim(21, period + 50)  # before the same boundary: phases add, the period is the last one
+        fw_moved = [sched.trim(-321, period + 40),
+                    sched.trim(21, period + 50)]  # before the same boundary: phases add, the period is the last one
         _run(port, comcu, 0.6)
         second = comcu.ping().mcu_ticks + 120 * MS
         sched.schedule(second, period, width, pattern)  # replaces the train: stopped first
@@ -39,14 +39,14 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
     sim.now_s = first / 2e6 - 0.06
     sim.schedule(first, period, width, pattern)
     sim.now_s += 0.13
-    sim.trim(-321, period + 40)
-    sim.trim(21, period + 50)
+    sim_moved = [sim.trim(-321, period + 40), sim.trim(21, period + 50)]
     sim.advance_to(first / 2e6 + 0.7)
     fw_rise = [r for r, _ in fw][:len(sim.pulses.rise_tick)]
     assert len(fw_rise) >= 4
     assert fw_rise == sim.pulses.rise_tick[:len(fw_rise)]
     # trims sent ~70 ms after the first rise: slot 2 (lit, at 100 ms) is the first they reach
     assert fw_rise[1] == first + 2 * period - 300 and fw_rise[2] == fw_rise[1] + 2 * (period + 50)
+    assert fw_moved == sim_moved == [2, 2]  # each answers the slot it moves (the controller's copy follows it)
     assert all(f - r == width for r, f in fw)
     assert [r for r, _ in fw if r >= second][:2] == [second, second + 2 * period]
 

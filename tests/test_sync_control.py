@@ -146,9 +146,11 @@ class _Recorder:
 
     def schedule(self, *a):
         self.calls.append(("schedule", a))
+        return 0
 
     def trim(self, *a):
         self.calls.append(("trim", a))
+        return 0
 
     def stop(self):
         self.calls.append(("stop",))
@@ -211,3 +213,56 @@ def test_at_20_scans_per_second_the_first_lit_frames_after_lock_are_not_lost_to_
         lost += int(np.sum(lit[first:] & (f["label"][first:] != 1)))
     # what is left: an unlock 3 s in (seed 1) and one widening (seed 6), from the early clock map's sigma
     assert lost <= 4
+
+
+def test_trims_reach_the_mcu_when_every_next_slot_begins_within_the_command_latency():
+    """The controller does not know whether a trim arrives before or after the start of the slot
+    ahead of the one it aims at (the command latency): the MCU's answer names the slot it moved.
+    The old controller waited a frame instead; with a latency that covers most of a frame (or the
+    simulated serve's 20 ms at its frame phase) every frame had that doubt, no trim was ever sent,
+    and the train drifted out of its guard (here: unlocks at 16 and 19 s)."""
+    from device.sim import mcu as sim_mcu
+
+    trims = []
+    real_trim = sim_mcu.SimulatedMcu.trim
+
+    def counted(self, phase, period):
+        trims.append(real_trim(self, phase, period))
+        return trims[-1]
+
+    # the controller's copy of the train, which it aims its trims with, predicts every reported
+    # rise to the tick (those of slots from the last trim's on: earlier ones it no longer holds)
+    misses = []
+    real_edges = SyncController.on_mcu_edges
+
+    def checked(self, reports):
+        tr = self.train
+        for rise, _ in reports if tr is not None else ():
+            slot = tr.ref_slot + round((rise - tr.ref_tick) / tr.period)
+            if slot >= tr.ref_slot and rise != tr.start(slot):
+                misses.append((slot, rise - tr.start(slot)))
+        real_edges(self, reports)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sim_mcu.SimulatedMcu, "trim", counted)
+        mp.setattr(SyncController, "on_mcu_edges", checked)
+        r = run(replace(BASE, seconds=20.0, seed=0, sync={"cmd_latency_max_s": 0.04}))
+    assert [e for _, e in r.events if e != "lock"] == []
+    assert len(trims) >= 20 and misses == []
+    m = r.metrics
+    _assert_clean(m)
+    assert m["p99_error_us_settled"] <= 20
+
+
+def test_a_loose_early_gpio_map_gives_way_to_the_pings_instead_of_stopping_the_laser():
+    """With three pulses' pairs the GPIO map's slope can rest on two block minima 10 ms apart
+    (seed 0, ROI rows 50-150): its honest sigma then needs a guard above the limit. Trusting it
+    because it is fresh, the old controller refused to place a train, so no pulse ever tightened
+    the map: unlocked for 2 s until it went stale. The pings' map is the surer one then."""
+    r = run(replace(BASE, seconds=4.0, seed=0, row_min=50, row_max=150))
+    assert [e for _, e in r.events if e != "lock"] == []
+    f = r.frames
+    first = int(np.argmax(f["label"] == 1))
+    lit = (f["sequence"] % 2 == 0) & f["delivered"]
+    assert np.sum(lit[first:] & (f["label"][first:] != 1)) == 0
+    _assert_clean(r.metrics)

@@ -90,11 +90,14 @@ def test_mcu_trims_move_the_next_slot_and_add_up():
     mcu.schedule(100_000, 100_000, 20_000, [True, False])
     mcu.advance_to(0.065)  # lit slot 0 (50-60 ms) done; slot 1 (unlit) starts at 100 ms
     mcu.now_s = 0.065
-    mcu.trim(7, 100_010)
-    mcu.trim(3, 100_020)  # waiting for the same slot: the phases add, the last period stays
+    moved = [mcu.trim(7, 100_010),
+             mcu.trim(3, 100_020)]  # waiting for the same slot: the phases add, the last period stays
+    mcu.now_s = 0.099  # arrives (1 ms later) as slot 1 begins, less than 100 us before: slot 2 moves
+    moved.append(mcu.trim(-5, 100_020))
     mcu.advance_to(0.6)
     rise = mcu.pulses.rise_tick
-    assert rise[1] == 200_000 + 10 + 100_020  # slot 1 moved by 10, slot 2 one new period later
+    assert moved == [1, 1, 2]  # the slot each moves, as the firmware's ACK answers
+    assert rise[1] == 200_000 + 10 + 100_020 - 5  # slot 1 moved by 10, slot 2 one new period later, then by -5
     assert rise[2] == rise[1] + 2 * 100_020
 
 

@@ -237,21 +237,23 @@ class CoMcuTrain:
         self.comcu = comcu
         self._period: int | None = None
 
-    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern) -> None:
+    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern) -> int:
         lit = [bool(x) for x in pattern]
         if not 1 <= len(lit) <= 32 or not any(lit):
             raise ValueError(f"pattern must have 1..32 slots with at least one lit, got {lit}")
         self.comcu.stop()
         self._period = None
         mask = sum(1 << i for i, x in enumerate(lit) if x)
-        self.comcu.schedule(first_start_tick, period_ticks, width_ticks, mask, len(lit), stream_edges=True)
+        first_lit = self.comcu.schedule(first_start_tick, period_ticks, width_ticks, mask, len(lit), stream_edges=True)
         self._period = period_ticks
+        return first_lit
 
-    def trim(self, phase_ticks: int, period_ticks: int) -> None:
+    def trim(self, phase_ticks: int, period_ticks: int) -> int:
         if self._period is None:
             raise CoMcuError("trim without a running train: schedule first")
-        self.comcu.trim(phase_ticks, period_ticks - self._period)
+        moved = self.comcu.trim(phase_ticks, period_ticks - self._period)
         self._period = period_ticks
+        return moved
 
     def stop(self) -> None:
         self.comcu.stop()

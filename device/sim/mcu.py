@@ -138,7 +138,7 @@ class SimulatedMcu:
             raise ScheduleRefused(f"lit pulses every {spacing * period} ticks: faster than the envelope's "
                                   f"minimum period of {self.cfg.min_period_ticks} ticks (envelope_rate)")
 
-    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> None:
+    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> int:
         if not pattern or not any(pattern):
             raise ScheduleRefused("pattern must light at least one slot")
         self._check_envelope(period_ticks, width_ticks, pattern)
@@ -146,15 +146,35 @@ class SimulatedMcu:
         if first_start_tick <= self.tick_at(at):
             raise ScheduleRefused(f"first start tick {first_start_tick} is in the past")
         self._pending.append((at, "schedule", (int(first_start_tick), int(period_ticks), int(width_ticks), tuple(bool(p) for p in pattern))))
+        return next(i for i, p in enumerate(pattern) if p)  # the firmware's ACK.info: the first lit slot
 
-    def trim(self, phase_ticks: int, period_ticks: int) -> None:
+    def trim(self, phase_ticks: int, period_ticks: int) -> int:
+        """Returns the slot it moves, as the firmware's ACK does (known here when it is sent: the
+        simulation does not model the answer's delay, only the command's)."""
         if self._train is None and not any(k == "schedule" for _, k, _ in self._pending):
             raise ScheduleRefused("no pulse train to trim")
         pattern = self._train["pattern"] if self._train else next(a[3] for _, k, a in reversed(self._pending) if k == "schedule")
         width = self._train["width"] if self._train else next(a[2] for _, k, a in reversed(self._pending) if k == "schedule")
         self._check_envelope(period_ticks, width, pattern)
         # effective for the first slot starting TRIM_LEAD_S after it arrives (a slot in flight is never moved)
-        self._pending.append((self._receipt() + TRIM_LEAD_S, "trim", (int(phase_ticks), int(period_ticks))))
+        at = self._receipt() + TRIM_LEAD_S
+        moved = self._slot_starting_from(at)
+        self._pending.append((at, "trim", (int(phase_ticks), int(period_ticks))))
+        return moved
+
+    def _slot_starting_from(self, t: float) -> int:
+        """The first slot, lit or not, of the train running at ``t`` that starts at or after ``t``,
+        once the commands and slots before ``t`` have run (a dry run of ``advance_to``)."""
+        live = self._train, self._pending, self._boot, self.resets
+        self._train = None if self._train is None else dict(self._train)
+        self._pending, self.resets = list(self._pending), list(self.resets)
+        try:
+            self._run(math.nextafter(t, -math.inf), emit=False)
+            if self._train is None:
+                raise ScheduleRefused("no pulse train when the trim arrives")
+            return self._train["slot"]
+        finally:
+            self._train, self._pending, self._boot, self.resets = live
 
     def stop(self) -> None:
         self._pending.append((self._receipt(), "stop", ()))
@@ -191,6 +211,12 @@ class SimulatedMcu:
 
     def advance_to(self, t: float) -> None:
         """Run the MCU (commands, slots, edges) up to true time ``t``."""
+        self._run(t, emit=True)
+        self._spurious(t)
+        self._t = t
+
+    def _run(self, t: float, emit: bool) -> None:
+        """Commands and slots up to true time ``t``, the lit slots' edges emitted if ``emit``."""
         self._pending.sort(key=lambda e: e[0])
         while True:
             next_cmd = self._pending[0][0] if self._pending else math.inf
@@ -207,12 +233,10 @@ class SimulatedMcu:
                 tr["next"] += phase
                 continue
             start = tr["next"]
-            if tr["pattern"][tr["slot"] % len(tr["pattern"])]:
+            if emit and tr["pattern"][tr["slot"] % len(tr["pattern"])]:
                 self._emit(start, start + tr["width"])
             tr["slot"] += 1
             tr["next"] = start + tr["period"]
-        self._spurious(t)
-        self._t = t
 
     def _emit(self, rise: int, fall: int) -> None:
         c = self.cfg

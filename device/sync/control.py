@@ -63,17 +63,19 @@ class LaserScheduler(Protocol):
 
     - ``schedule``: replace the train (stopping a running one) from ``first_start_tick`` on: slot n starts at
       ``first_start_tick + n * period_ticks`` and is lit (for ``width_ticks``) if
-      ``pattern[n % len(pattern)]``.
+      ``pattern[n % len(pattern)]``. Returns the first lit slot (the firmware's ACK.info).
     - ``trim``: as the firmware's TRIM (firmware_pwm/README.md) with the new period absolute: the
       first slot, lit or not, starting at least ``TRIM_LEAD_S`` after the trim arrives moves by
       ``phase_ticks``; the slots after it follow at ``period_ticks``; trims waiting together add up.
+      Returns the slot it moved (firmware_pwm/src/core.c do_trim: ACK.info), counted from the
+      schedule's slot 0.
     - ``stop``: laser off, train cleared.
     Out-of-envelope or impossible requests raise an exception naming the reason.
     """
 
-    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> None: ...
+    def schedule(self, first_start_tick: int, period_ticks: int, width_ticks: int, pattern: Sequence[bool]) -> int: ...
 
-    def trim(self, phase_ticks: int, period_ticks: int) -> None: ...
+    def trim(self, phase_ticks: int, period_ticks: int) -> int: ...
 
     def stop(self) -> None: ...
 
@@ -222,6 +224,10 @@ class CameraTimeline:
         return float(self._fit.sigma(float(seq - self._ref[0])))
 
 
+def _sigma_now(est: ClockEstimate, now_ns: int) -> float:
+    return float(est.sigma_s(est.pi_to_mcu_tick(now_ns)))
+
+
 @dataclass
 class _Train:
     """The controller's copy of the MCU's train: slot n <-> camera frame ``frame0 + n``."""
@@ -303,11 +309,16 @@ class SyncController:
 
     # --- the clock map -----------------------------------------------------------------------
     def clock(self) -> ClockEstimate | None:
-        """The best MCU->Pi map now: GPIO pairs if fresh, else the ping fallback, else None."""
-        est = self.gpio_map.estimate()
-        if est is not None and self._last_pair_ns is not None and self._now_ns - self._last_pair_ns < self.cfg.gpio_stale_s * 1e9:
-            return est
-        return self.ping_map.estimate()
+        """The best MCU->Pi map now: the GPIO pairs' if fresh and no less certain now than the
+        pings' (from a few pulses it may not be yet: a pair of close block minima leaves its slope
+        loose, and a controller that then refused to pulse would never get the pairs that tighten
+        it), else the pings', else None."""
+        gpio, ping = self.gpio_map.estimate(), self.ping_map.estimate()
+        if gpio is None or self._last_pair_ns is None or self._now_ns - self._last_pair_ns >= self.cfg.gpio_stale_s * 1e9:
+            return ping
+        if ping is not None and _sigma_now(ping, self._now_ns) < _sigma_now(gpio, self._now_ns):
+            return ping
+        return gpio
 
     def _update_pairs(self) -> None:
         est = self.gpio_map.estimate() or self.ping_map.estimate()
@@ -433,7 +444,7 @@ class SyncController:
         period = int(round(period_s / est.fit.b * cfg.tick_hz))
         width = t1 - t0 + 1
         pattern = [cfg.lit(seq + i) for i in range(len(cfg.pattern))]
-        if not self._command(self.mcu.schedule, t0, period, width, pattern):
+        if self._command(self.mcu.schedule, t0, period, width, pattern) is None:
             return
         self.train = _Train(frame0=seq, ref_slot=0, ref_tick=t0, period=period, width=width, guard_s=guard,
                             scheduled_ns=self._now_ns)
@@ -446,30 +457,36 @@ class SyncController:
         slot = max(frame.sequence - tr.frame0 + 1, 0)
         while est.mcu_to_pi_ns(tr.start(slot)) <= reach:
             slot += 1
-        if slot - 1 >= 0 and est.mcu_to_pi_ns(tr.start(slot - 1)) > self._now_ns - 50e3:
-            return  # the trim could move this slot or the one before: wait a frame
         ws, _ = self._window_ns(tr.frame0 + slot, frame)
         want = math.floor(float(est.pi_to_mcu_tick(ws - tr.guard_s * 1e9))) - TRIM_DEADBAND_TICKS
         period = int(round(self.camera.period_s / est.fit.b * cfg.tick_hz))
         phase = want - tr.start(slot)
         if abs(phase) <= TRIM_DEADBAND_TICKS and period == tr.period:
             return
-        if not self._command(self.mcu.trim, phase, period):  # trims waiting for one slot add up, as the copy assumes
+        moved = self._command(self.mcu.trim, phase, period)
+        if moved is None:
             return
-        tr.ref_slot, tr.ref_tick, tr.period = slot, want, period
+        # The trim arrives somewhere in the command latency: it moves ``slot`` or, when it arrives
+        # before the slot ahead of it begins, that one; the MCU's answer says which. The copy
+        # follows it (a slot's start moves by the phase, the slots after it follow the new period;
+        # trims waiting for one slot add up, as the copy's start then already holds the first).
+        # Waiting until neither could be moved instead never trims at all when the frames arrive
+        # at a phase where the next slot always begins within the latency (the simulated serve's:
+        # 110 frames untrimmed, the train drifted out of its guard at frame 128).
+        tr.ref_slot, tr.ref_tick, tr.period = moved, tr.start(moved) + phase, period
 
-    def _command(self, send: Callable, *args) -> bool:
-        """Send a schedule/trim; a refusal or a dead link drops to ACQUIRING (a new train next frame)."""
+    def _command(self, send: Callable[..., int], *args) -> int | None:
+        """Send a schedule/trim and return the MCU's answer (``LaserScheduler``); None after a refusal
+        or a dead link, which drop to ACQUIRING (a new train next frame)."""
         try:
-            send(*args)
-            return True
+            return send(*args)
         except (ValueError, RuntimeError) as exc:  # ScheduleRefused / CoMcuNack / CoMcuTimeout name the reason
             why = f"co-MCU refused a command: {exc}"
             (log.debug if why == self.reason else log.warning)("%s (%s)", why, getattr(send, "__name__", send))
             self.refusals += 1
             self._unlock(why)
             self.train = None
-            return False
+            return None
 
     def _verify(self, frame: FrameInfo, est: ClockEstimate) -> str:
         """Was this frame's pulse where it had to be? "ok", "bad", "missing", "pending" or "n/a"."""
