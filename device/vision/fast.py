@@ -322,6 +322,9 @@ class FastPipeline:
         W = config.width
         self._padded_buf = np.zeros((self.rows + 2 * self._pad, W), np.uint8)
         self._sm_buf = np.zeros((self.rows, W), np.uint8)
+        # step 0's disagreement: the neighbours' difference, its box, its magnitude (_disagreed)
+        self._disagree_bufs = (np.zeros((self.rows, W), np.int16), np.zeros((self.rows, W), np.int16),
+                               np.zeros((self.rows, W), np.uint8))
         spacing = np.abs(np.diff(g.column_angle))
         self.column_spacing_rad = float(np.median(spacing[np.isfinite(spacing)]))
 
@@ -514,7 +517,8 @@ class FastPipeline:
         bad = np.zeros(status.size, bool)
         cols = np.nonzero(ok & ~moved & judged)[0]
         if cols.size:
-            d = cv2.convertScaleAbs(cv2.blur(cv2.subtract(*neighbours, dtype=cv2.CV_16S), (5, 3)))
+            diff, box, d = self._disagree_bufs
+            cv2.convertScaleAbs(cv2.blur(cv2.subtract(*neighbours, dst=diff, dtype=cv2.CV_16S), (5, 3), dst=box), dst=d)
             h, n = p.half_width, d.shape[0]
             r = np.rint(row[cols]).astype(np.intp) - self.top
             rows = clamp(r[None, :] + np.arange(-h, h + 1)[:, None], 0, n - 1)
