@@ -34,6 +34,27 @@ def test_envelope_fit_is_unbiased_and_its_sigma_is_honest():
     assert np.mean(np.abs(errs) < 4 * sig) > 0.99
 
 
+def test_envelope_fit_of_three_pulses_keeps_its_slope_when_the_block_minima_cluster():
+    """Three pulses' rise and fall pairs (8.6 ms wide, 100 ms apart) fall in two blocks of three;
+    here the first block's minimum is the second rise and the second block's the second fall,
+    8.6 ms apart with 23 us between their latencies (as seed 0 of the sync simulator's ROI rows
+    50-150 had it). A line through those two was 2700 ppm off, 830 us at 0.2 s beyond the last
+    pair (its sigma said so: 834 us). The block medians, 190 ms apart, give the slope then: 16 ppm,
+    5 us there, sigma 66 us."""
+    x = np.array([0.0, 0.0086, 0.1, 0.1086, 0.2, 0.2086]) - 0.2086
+    late = np.array([40, 42, 2, 25, 45, 40]) * 1e-6
+    y = 1e-3 + x * (1 - 100e-6) + late
+    f = lower_envelope_fit(x, y, prior_sigma=50e-6)
+    at = 0.2
+    err = f.predict(at) - (1e-3 + at * (1 - 100e-6))
+    assert abs(f.b - (1 - 100e-6)) < 300e-6
+    assert abs(err) < 100e-6 and abs(err) < 3 * f.sigma(at)
+    # the well-spread minima of many blocks still give the slope (the unbiased fit above)
+    x = np.arange(48) * 0.05 - 2.35
+    f = lower_envelope_fit(x, 1e-3 + x * (1 - 100e-6) + np.random.default_rng(0).exponential(20e-6, x.size))
+    assert f.sxx == pytest.approx(np.sum((x[::3][:16] - x[::3][:16].mean()) ** 2), rel=0.5)
+
+
 def test_envelope_fit_rejects_bad_shapes():
     with pytest.raises(ValueError, match="at least 2"):
         lower_envelope_fit(np.array([1.0]), np.array([1.0]))

@@ -145,12 +145,20 @@ def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sig
     bx, by = xs[rows, k], ys[rows, k]
     xbar = float(bx.sum()) / nb
     sxx = float(((bx - xbar) ** 2).sum())
-    if sxx > 0:
+    # The minima's slope has the spread J/m / sqrt(sxx), the block medians' J/sqrt(m) / sqrt(sxx of
+    # their x): the minima's is the surer unless they cluster in x (few blocks: with three pulses'
+    # rise and fall pairs in two blocks of three, the two minima can be one pulse's rise and the
+    # next block's fall, 10 ms apart, the slope then off by thousands of ppm). Then the medians'
+    # slope is kept, and the line's lever is theirs (sxx of the middles / m, the same spread).
+    xm = xs[:, m // 2]
+    sxx_median = float(((xm - xm.mean()) ** 2).sum()) / m
+    if sxx > 0 and sxx >= sxx_median:
         ybar = float(by.sum()) / nb
         b = float(((bx - xbar) * (by - ybar)).sum()) / sxx
         a = ybar - b * xbar
     else:
-        b, a = slope0, float(np.min(by - slope0 * bx))
+        b, a = slope0, float(np.mean(by - slope0 * bx))
+        sxx = sxx_median
     resid = by - (a + b * bx)
     excess_all = (ys - (a + b * xs)).ravel()
     half = excess_all.size // 2
