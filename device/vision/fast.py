@@ -125,6 +125,19 @@ Per frame pair (or triple):
    ``max_range_sigma`` the column is REJECTED (NaN), never a guess (``columns.c``: ``Line``,
    ``fit_sigma``). A line next to rows the pulse missed is UNLIT rather than REJECTED (the cause).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
+   In a turned frame (step 0), a depth edge is smeared: while a row is exposed, the turn sweeps
+   the scene by the turn between the frames (the larger of the neighbours' registered shifts)
+   times the exposure over the frame period (the operating point's; the pulse covers every
+   row's exposure), and a column within that sweep of the edge sees both surfaces at rows a
+   fraction of a row apart: one line, centred between them (its profile cannot tell: at 90
+   deg/s, seed 2, BENCHMARKS.md "Motion", their RMS spread is within the right columns' 99th
+   percentile). Its range lies between the surfaces, a wrong range on neither. So a valid
+   column whose depth lies more than ``mixed_tol`` (relative) from both the nearest and the
+   farthest valid depth within half that sweep plus detection's box (2 columns) each side, where
+   those two differ by more than ``mixed_jump``, is REJECTED (a mixture of surfaces no more
+   than ``mixed_jump`` apart is never more than half of it off either). A surface slanted so
+   steeply that its depth changes by ``mixed_jump`` within that window (at 90 deg/s, 17
+   columns: ~75 deg from its normal) loses those columns too while the robot turns.
 Tracking (``track_margin`` > 0, variant ``fast-com-track``): steps 1-5 search only the rows of
 the previous frame's line and runs of second candidates (e.g. a floor's mirror image) +-
 ``track_margin`` (one rectangle of whole blocks over all columns; the noise level is still taken
@@ -225,6 +238,8 @@ class FastParams:
     agree_share: float = 0.25  # ... where at least this share of the columns moved (the robot drives; not a person crossing, nor noise)
     resample_slack: float = 4.0  # a turned frame's background may be off by a row where it changes by more than this (levels) over three rows (inf: not at all)
     edge_ratio: float = 0.75  # ... and a line there must stand this x above the background's largest step between two rows within a row of it
+    mixed_jump: float = 0.1  # in a turned frame, where the depths within the turn's sweep differ by more than this (relative; inf: off),
+    mixed_tol: float = 0.02  # ... a column this far from both the nearest and the farthest is a mixture of them: REJECTED
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -263,6 +278,9 @@ class FastParams:
         if not (0 < self.jump_rel < 1 and self.min_peak > 0 and self.max_range_sigma > 0):
             raise ValueError(f"need 0 < jump_rel < 1, min_peak > 0 and max_range_sigma > 0, got {self.jump_rel}, "
                              f"{self.min_peak}, {self.max_range_sigma}")
+        if not 0 <= 2 * self.mixed_tol < self.mixed_jump:
+            raise ValueError(f"need 0 <= 2 mixed_tol < mixed_jump (inf: off; no depth is more than half the jump from "
+                             f"both ends), got {self.mixed_tol}, {self.mixed_jump}")
         if not 0 < self.dim_peak_fraction <= self.own_peak_fraction <= 1:
             raise ValueError(f"need 0 < dim_peak_fraction <= own_peak_fraction <= 1, got "
                              f"{self.dim_peak_fraction}, {self.own_peak_fraction}")
@@ -346,7 +364,7 @@ class FastPipeline:
         background = lum_unlit[self.top : self.top + self.rows]  # the band's rows of the unlit frame
         lit_band = lum_lit[self.top : self.top + self.rows]
         p = self.params
-        moved = moved_raw = neighbours = lum_other = brought_in = None
+        moved = moved_raw = neighbours = lum_other = brought_in = turn_rad = None
         noise_background = residue_noise = None
         if other_unlit is not None:  # step 0
             lum_other = luminance(other_unlit, "other unlit", shape)
@@ -354,8 +372,8 @@ class FastPipeline:
             grid = self._yaw_grid if math.isfinite(p.turn_share) else None  # built at the first call with both
             moved = moved_raw = self._moved(background, other, background)
             if grid is not None and moved.mean() >= p.turn_share:
-                background, other, moved, brought_in = self._turned(grid, lum_lit, lum_unlit, lum_other, background,
-                                                                    other, moved)
+                background, other, moved, brought_in, turn_rad = self._turned(grid, lum_lit, lum_unlit, lum_other,
+                                                                              background, other, moved)
             neighbours = (background, other)
             background = turned_mean = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
             if brought_in is not None and math.isfinite(p.resample_slack):
@@ -439,6 +457,12 @@ class FastPipeline:
                 status[nearer] = STATUS_U8[ColumnStatus.REJECTED]
                 found &= ~nearer
                 row[nearer] = np.nan
+        if turn_rad is not None:
+            mixed = self._mixed(tri.depth, found, turn_rad)
+            if mixed.any():
+                status[mixed] = STATUS_U8[ColumnStatus.REJECTED]
+                found &= ~mixed
+                row[mixed] = np.nan
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
@@ -478,10 +502,11 @@ class FastPipeline:
         they differ and leaves fewer than half of the ``moved`` columns moved; else the bands as
         they were. Columns a neighbour did not see (the turn brought them in from outside the
         image) keep the raw bands and count as moved. Returns (band of the unlit frame, band of
-        the other, moved, the columns brought in, or None where the bands were not turned)."""
+        the other, moved, the columns brought in, the larger of the two turns in rad; the last
+        two None where the bands were not turned)."""
         regs = register(grid, lum_lit, (lum_unlit, lum_other))
         if regs is None:
-            return background, other, moved, None
+            return background, other, moved, None, None
         a, b = regs[0].band, regs[1].band
         only_a, only_b = regs[0].seen & ~regs[1].seen, regs[1].seen & ~regs[0].seen
         b[:, only_a] = a[:, only_a]
@@ -491,8 +516,16 @@ class FastPipeline:
             turned[:, brought_in] = raw[:, brought_in]
         turned_moved = self._moved(a, b, background) | brought_in | only_a | only_b
         if turned_moved.sum() >= 0.5 * moved.sum():
-            return background, other, moved, None
-        return a, b, turned_moved, brought_in
+            return background, other, moved, None, None
+        return a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)
+
+    def _mixed(self, depth: np.ndarray, found: np.ndarray, turn_rad: float) -> np.ndarray:
+        """Step 6's mixtures of two surfaces in a turned frame (module docstring): the turn swept
+        the scene by ``turn_rad`` x the exposure over the frame period while a row was exposed."""
+        p, op = self.params, self.config.operating_point
+        sweep_rad = turn_rad * op.exposure_us * 1e-6 * 2 * op.scan_rate_hz
+        half = math.ceil(sweep_rad / self.column_spacing_rad / 2) + 2  # + detection's 5-column box
+        return between_surfaces(depth, found & np.isfinite(depth), half, p.mixed_jump, p.mixed_tol)
 
     def _disagreed(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
                    neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray,
@@ -738,6 +771,24 @@ class FastPipeline:
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[found & near_dark] = ColumnStatus.UNLIT
         return status
+
+
+def between_surfaces(depth: np.ndarray, valid: np.ndarray, half: int, jump: float, tol: float) -> np.ndarray:
+    """Mask of the ``valid`` columns of ``depth`` (W,) that lie more than ``tol`` (relative) from
+    both the nearest and the farthest valid depth within ``half`` columns each side, where those
+    two differ by more than ``jump``: a mixture of two surfaces, not a range on either."""
+    import cv2
+
+    depth, valid = np.asarray(depth), np.asarray(valid, dtype=bool)
+    if depth.ndim != 1 or depth.shape != valid.shape or half < 0:
+        raise ValueError(f"need depth and valid of one 1-D shape and half >= 0, got {depth.shape}, {valid.shape}, {half}")
+    z = depth.astype(np.float32)[None, :]
+    kernel = np.ones((1, 2 * half + 1), np.uint8)
+    nearest = cv2.erode(np.where(valid, z, np.inf), kernel, borderType=cv2.BORDER_REPLICATE)[0]
+    farthest = cv2.dilate(np.where(valid, z, -np.inf), kernel, borderType=cv2.BORDER_REPLICATE)[0]
+    with np.errstate(invalid="ignore"):
+        return (valid & (farthest > nearest * (1 + jump))
+                & (z[0] > nearest * (1 + tol)) & (z[0] * (1 + tol) < farthest))
 
 
 def _ridges(image: np.ndarray, k: int) -> np.ndarray:
