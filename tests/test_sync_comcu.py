@@ -2,6 +2,7 @@
 controller's LaserScheduler on device.laser.comcu: the same commands give the same pulse ticks."""
 
 import numpy as np
+import pytest
 
 from device.laser.comcu import CoMcu, CoMcuTrain
 from device.sim.comcu_emulator import SteppedMcuPort
@@ -51,11 +52,15 @@ def test_schedule_and_trim_on_the_firmware_match_the_simulated_mcu(emulator):
     assert [r for r, _ in fw if r >= second][:2] == [second, second + 2 * period]
 
 
-def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator):
+@pytest.mark.parametrize("cmd_latency_s", [3e-3, 20e-3])
+def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator, cmd_latency_s):
     """Closed loop with the real firmware: SyncController -> CoMcuTrain -> CoMcu -> simavr.
     The MCU runs 100 ppm fast against the 'Pi' clock; the laser pin's edges (cycle-exact) reach
     the controller as GPIO events with a 3 us + exponential(20 us) interrupt latency; the truth
-    is the pin log against the camera clock's true frame times."""
+    is the pin log against the camera clock's true frame times. The controller's copy of the
+    train follows the slot the firmware answers each TRIM moved; it predicts every reported rise
+    to the tick, at the default command latency and the device's 20 ms (device/service/assembly.py),
+    so the firmware's slot numbering is the copy's (one slot off, every trim misses)."""
     from device.sim.comcu_emulator import CPU_HZ
     from device.sim.timing import CameraClock, CameraTimingConfig
     from device.sync.control import FrameInfo, SyncConfig, SyncController, SyncState
@@ -65,7 +70,16 @@ def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator):
     rng = np.random.default_rng(0)
     cam = CameraClock(CameraTimingConfig(frame_duration_s=0.05, exposure_s=0.005, drop_probability=0.0,
                                          start_time_s=offset + 0.4), np.random.default_rng(1))
-    ctrl_cfg = SyncConfig(row_min=300, row_max=700, frame_duration_s=0.05)
+    ctrl_cfg = SyncConfig(row_min=300, row_max=700, frame_duration_s=0.05, cmd_latency_max_s=cmd_latency_s)
+    misses = []
+
+    def check_copy(reports):  # each reported rise against the copy (slots from its last trim on)
+        tr = ctrl.train
+        for rise, _ in reports if tr is not None else ():
+            slot = tr.ref_slot + round((rise - tr.ref_tick) / tr.period)
+            if slot >= tr.ref_slot and rise != tr.start(slot):
+                misses.append((slot, rise - tr.start(slot)))
+
     with SteppedMcuPort(*emulator) as port:
         def pi_s(cycle):
             return offset + cycle / CPU_HZ / (1 + drift)
@@ -90,14 +104,16 @@ def test_our_controller_locks_the_firmware_onto_a_simulated_camera(emulator):
             advance_to(ft.true_start_s + 922 * ft.line_time_s + 0.005)
             new, seen = port.edges[seen:], len(port.edges)
             ctrl.on_gpio_edges([(int((pi_s(c) + 3e-6 + rng.exponential(20e-6)) * 1e9), lvl == 1) for c, lvl in new])
-            ctrl.on_mcu_edges([(e.rise_ticks, e.fall_ticks) for e in comcu.edges() if not e.flags])
+            reports = [(e.rise_ticks, e.fall_ticks) for e in comcu.edges() if not e.flags]
+            check_copy(reports)
+            ctrl.on_mcu_edges(reports)
             ping()
             lab = ctrl.on_frame(FrameInfo(ft.sequence, ft.sensor_timestamp_ns, ft.exposure_s, ft.line_time_s,
                                           ft.frame_duration_s), int(pi_s(port.cycle) * 1e9))
             labels.append(lab)
             truth_frames.append(ft)
         edges = port.edges
-    assert ctrl.refusals == 0
+    assert ctrl.refusals == 0 and misses == []
     locked = [lab.state is SyncState.LOCKED for lab in labels]
     assert any(locked) and locked.index(True) < 10 and all(locked[locked.index(True):])
     levels = [lvl for _, lvl in edges]
