@@ -612,3 +612,14 @@ def test_a_turned_frame_rejects_the_mixture_of_two_surfaces_at_a_depth_edge():
     assert now["gross"] == 0 and now["false_returns"] == 0
     assert before["gross"] >= 5
     assert now["valid_fraction"] > before["valid_fraction"] - 0.02
+
+
+def test_the_turns_sweep_takes_the_lit_frames_own_exposure():
+    from device.camera.frame import Frame
+    from device.vision.fast import exposure_share
+
+    op = CFG.operating_point
+    image = np.zeros((CFG.height, CFG.width), np.uint8)
+    frame = Frame(image, 3, 10**9, 20_000.0, 50_000.0, CFG.window.mode.line_time_ns)
+    assert exposure_share(frame, op) == pytest.approx(0.4)  # a recording's ExposureTime / FrameDuration
+    assert exposure_share(image, op) == pytest.approx(op.exposure_us * 1e-6 * 2 * op.scan_rate_hz)  # a bare image

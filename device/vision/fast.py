@@ -127,8 +127,8 @@ Per frame pair (or triple):
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
    In a turned frame (step 0), a depth edge is smeared: while a row is exposed, the turn sweeps
    the scene by the turn between the frames (the larger of the neighbours' registered shifts)
-   times the exposure over the frame period (the operating point's; the pulse covers every
-   row's exposure), and a column within that sweep of the edge sees both surfaces at rows a
+   times the exposure over the frame period (the lit frame's metadata, or the operating point's
+   for a bare image; the pulse covers every row's exposure), and a column within that sweep of the edge sees both surfaces at rows a
    fraction of a row apart: one line, centred between them (its profile cannot tell: at 90
    deg/s, seed 2, BENCHMARKS.md "Motion", their RMS spread is within the right columns' 99th
    percentile). Its range lies between the surfaces, a wrong range on neither. So a valid
@@ -169,6 +169,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera.frame import Frame
 from ..config import SensorConfig
 from ..model.scan_frame import scan_frame
 from ..model.triangulation import RangeStatus
@@ -458,7 +459,7 @@ class FastPipeline:
                 found &= ~nearer
                 row[nearer] = np.nan
         if turn_rad is not None:
-            mixed = self._mixed(tri.depth, found, turn_rad)
+            mixed = self._mixed(tri.depth, found, turn_rad * exposure_share(lit, self.config.operating_point))
             if mixed.any():
                 status[mixed] = STATUS_U8[ColumnStatus.REJECTED]
                 found &= ~mixed
@@ -519,11 +520,10 @@ class FastPipeline:
             return background, other, moved, None, None
         return a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)
 
-    def _mixed(self, depth: np.ndarray, found: np.ndarray, turn_rad: float) -> np.ndarray:
+    def _mixed(self, depth: np.ndarray, found: np.ndarray, sweep_rad: float) -> np.ndarray:
         """Step 6's mixtures of two surfaces in a turned frame (module docstring): the turn swept
-        the scene by ``turn_rad`` x the exposure over the frame period while a row was exposed."""
-        p, op = self.params, self.config.operating_point
-        sweep_rad = turn_rad * op.exposure_us * 1e-6 * 2 * op.scan_rate_hz
+        the scene by ``sweep_rad`` while a row was exposed."""
+        p = self.params
         half = math.ceil(sweep_rad / self.column_spacing_rad / 2) + 2  # + detection's 5-column box
         return between_surfaces(depth, found & np.isfinite(depth), half, p.mixed_jump, p.mixed_tol)
 
@@ -771,6 +771,14 @@ class FastPipeline:
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
         status[found & near_dark] = ColumnStatus.UNLIT
         return status
+
+
+def exposure_share(frame, op) -> float:
+    """The share of the frame period a row of ``frame`` was exposed: its own metadata (a Frame:
+    ExposureTime over FrameDuration), the operating point's ``op`` for a bare image."""
+    if isinstance(frame, Frame):
+        return frame.exposure_us / frame.frame_duration_us
+    return op.exposure_us * 1e-6 * 2 * op.scan_rate_hz
 
 
 def between_surfaces(depth: np.ndarray, valid: np.ndarray, half: int, jump: float, tol: float) -> np.ndarray:
