@@ -224,8 +224,8 @@ class CameraTimeline:
         return float(self._fit.sigma(float(seq - self._ref[0])))
 
 
-def _sigma_now(est: ClockEstimate, now_ns: int) -> float:
-    return float(est.sigma_s(est.pi_to_mcu_tick(now_ns)))
+def _sigma_at(est: ClockEstimate, pi_ns: float) -> float:
+    return float(est.sigma_s(est.pi_to_mcu_tick(pi_ns)))
 
 
 @dataclass
@@ -309,14 +309,17 @@ class SyncController:
 
     # --- the clock map -----------------------------------------------------------------------
     def clock(self) -> ClockEstimate | None:
-        """The best MCU->Pi map now: the GPIO pairs' if fresh and no less certain now than the
+        """The best MCU->Pi map now: the GPIO pairs' if fresh and no less certain than the
         pings' (from a few pulses it may not be yet: a pair of close block minima leaves its slope
         loose, and a controller that then refused to pulse would never get the pairs that tighten
         it), else the pings', else None."""
         gpio, ping = self.gpio_map.estimate(), self.ping_map.estimate()
         if gpio is None or self._last_pair_ns is None or self._now_ns - self._last_pair_ns >= self.cfg.gpio_stale_s * 1e9:
             return ping
-        if ping is not None and _sigma_now(ping, self._now_ns) < _sigma_now(gpio, self._now_ns):
+        # compared where the pulses are placed: two frames ahead (on_frame's guard), where a loose
+        # slope has strayed further than now
+        ahead_ns = self._now_ns + 2 * self.cfg.frame_duration_s * 1e9
+        if ping is not None and _sigma_at(ping, ahead_ns) < _sigma_at(gpio, ahead_ns):
             return ping
         return gpio
 
