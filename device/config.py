@@ -140,6 +140,11 @@ class OperatingPoint:
     min_m: float = 0.4
     max_m: float = 3.2
 
+    @property
+    def frame_duration_s(self) -> float:
+        """A frame's period: a lit and an unlit frame per scan."""
+        return 0.5 / self.scan_rate_hz
+
 
 @dataclass(frozen=True)
 class PostCalibration:
@@ -338,7 +343,7 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
         raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} exceeds [laser] rate_hz = {laser.rate_hz:g}, "
                           "the pulse rate the laser's eye-safety envelope is built for (a faster rate needs a [laser] "
                           "of that rate and power, and the co-MCU firmware built for it: `laserpi design` lists both)")
-    frame_s = 0.5 / op.scan_rate_hz
+    frame_s = op.frame_duration_s
     if not mode.min_frame_duration_s <= frame_s <= mode.max_frame_duration_s:
         raise ConfigError(f"{where}: scan_rate_hz = {op.scan_rate_hz:g} needs {2 * op.scan_rate_hz:g} frames/s; the "
                           f"{mode.name} sensor mode runs at {1 / mode.max_frame_duration_s:.3g} to "

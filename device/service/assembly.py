@@ -164,7 +164,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     if setup.scan_rate_hz is not None:
         cfg = with_operating_point(cfg, scan_rate_hz=setup.scan_rate_hz)
     op = cfg.operating_point  # scan rate, exposure, gain, depth range ([operating_point])
-    frame_duration_s = 0.5 / op.scan_rate_hz  # a lit and an unlit frame per scan
+    frame_duration_s = op.frame_duration_s
     pipeline = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
     count = setup.points or cfg.active_width or cfg.width
     scan = ScanPipeline(pipeline, count)

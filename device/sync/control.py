@@ -365,9 +365,7 @@ class SyncController:
         return label
 
     def _placement_sigma(self, est: ClockEstimate, seq: int) -> float:
-        t_ns = self.camera.predict_ns(seq)
-        tick = float(est.pi_to_mcu_tick(t_ns))
-        return math.hypot(float(est.sigma_s(tick)), self.camera.sigma_s(seq))
+        return math.hypot(_sigma_at(est, self.camera.predict_ns(seq)), self.camera.sigma_s(seq))
 
     def _guard(self, est: ClockEstimate, seq: int) -> float:
         """The guard that placing frame ``seq``'s pulse with ``est`` needs."""

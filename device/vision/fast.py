@@ -453,17 +453,10 @@ class FastPipeline:
             # a line in a moved column that triangulates nearer than the range lies at the region of
             # interest's near edge, where a moved edge's residue passes for one as well: it is no
             # "too close" (step 7 judges the near rows of columns without a line), it is REJECTED
-            nearer = moved_raw & found & (tri.status == RangeStatus.TOO_CLOSE)
-            if nearer.any():
-                status[nearer] = STATUS_U8[ColumnStatus.REJECTED]
-                found &= ~nearer
-                row[nearer] = np.nan
+            _reject(moved_raw & found & (tri.status == RangeStatus.TOO_CLOSE), status, found, row)
         if turn_rad is not None:
-            mixed = self._mixed(tri.depth, found, turn_rad * exposure_share(lit, self.config.operating_point))
-            if mixed.any():
-                status[mixed] = STATUS_U8[ColumnStatus.REJECTED]
-                found &= ~mixed
-                row[mixed] = np.nan
+            _reject(self._mixed(tri.depth, found, turn_rad * exposure_share(lit, self.config.operating_point)),
+                    status, found, row)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
@@ -773,12 +766,19 @@ class FastPipeline:
         return status
 
 
+def _reject(mask: np.ndarray, status: np.ndarray, found: np.ndarray, row: np.ndarray) -> None:
+    """Columns ``mask`` (of a line found) REJECTED after triangulation, in place: no line, no row."""
+    status[mask] = STATUS_U8[ColumnStatus.REJECTED]
+    found &= ~mask
+    row[mask] = np.nan
+
+
 def exposure_share(frame, op) -> float:
     """The share of the frame period a row of ``frame`` was exposed: its own metadata (a Frame:
     ExposureTime over FrameDuration), the operating point's ``op`` for a bare image."""
     if isinstance(frame, Frame):
         return frame.exposure_us / frame.frame_duration_us
-    return op.exposure_us * 1e-6 * 2 * op.scan_rate_hz
+    return op.exposure_us * 1e-6 / op.frame_duration_s
 
 
 def between_surfaces(depth: np.ndarray, valid: np.ndarray, half: int, jump: float, tol: float) -> np.ndarray:
