@@ -775,7 +775,10 @@ def _reject(mask: np.ndarray, status: np.ndarray, found: np.ndarray, row: np.nda
 
 def exposure_share(frame, op) -> float:
     """The share of the frame period a row of ``frame`` was exposed: its own metadata (a Frame:
-    ExposureTime over FrameDuration), the operating point's ``op`` for a bare image."""
+    ExposureTime over FrameDuration, both microseconds, the second the time from one frame's start
+    to the next's: raspberrypi/libcamera src/libcamera/control_ids_core.yaml; device/camera/
+    picamera2_camera.py fills them from the request's metadata), the operating point's ``op`` for
+    a bare image."""
     if isinstance(frame, Frame):
         return frame.exposure_us / frame.frame_duration_us
     return op.exposure_us * 1e-6 / op.frame_duration_s
