@@ -395,16 +395,20 @@ def test_too_close_needs_the_return_against_both_neighbours():
 
 def test_a_person_crossing_before_a_still_robot_is_judged_without_the_agreement_check():
     # 16-17 % of the columns moved, under agree_share: the still wall beside the person keeps
-    # its lines as at rest (checked beside the person, the check would take a few of them: 7
-    # columns of these 3 frames, 0-6 a frame over seeds 0-2)
+    # its lines as at rest, however strict the check would be. At agree_ratio 6 the check,
+    # applied beside the person, takes a few of them (12 columns of these 3 frames). At the
+    # device's ratio it would take none of these either now: the 0-7 columns a frame over
+    # seeds 0-4 it took before were fragments of the wall between gated columns, which now
+    # continue their run (test_a_line_seen_but_not_measured_continues_its_run_in_a_turned_frame)
     pairs = sequence(CFG, with_motion(get_scene("person"), ambient_scale=3), 3, 2)
-    device, without = _device_and_without({"agree_reach_columns": 0})
+    _, device = _device_and_without({"agree_ratio": 6.0})
+    _, without = _device_and_without({"agree_ratio": 6.0, "agree_reach_columns": 0})
+    _, everywhere = _device_and_without({"agree_ratio": 6.0, "agree_share": 0.05})
     for p in pairs:
         m, w = _process("fast", device, p), _process("fast", without, p)
         assert np.array_equal(m.status, w.status) and np.array_equal(m.range, w.range, equal_nan=True)
-    everywhere = _device_and_without({"agree_share": 0.05})[1]
-    assert any(not np.array_equal(_process("fast", everywhere, p).status, _process("fast", device, p).status)
-               for p in pairs)
+    assert sum(int(np.sum(_process("fast", everywhere, p).status != _process("fast", device, p).status))
+               for p in pairs) >= 5
 
 
 def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
@@ -570,13 +574,53 @@ def test_the_neighbours_disagreement_is_measured_as_detection_sees_it():
     a[:, 900:1000] += 4
     ok = np.full(W, STATUS_U8[ColumnStatus.OK], np.uint8)
     out = device._disagreed(ok, np.full(W, top + r), np.full(W, 10.0), np.zeros(W, bool),
-                            (a.astype(np.uint8), b.astype(np.uint8)), np.ones(W, bool), a.astype(np.uint8))
+                            (a.astype(np.uint8), b.astype(np.uint8)), np.ones(W, bool), np.zeros(W, bool),
+                            a.astype(np.uint8))
     rejected = out == STATUS_U8[ColumnStatus.REJECTED]
     for kept in (slice(0, 398), slice(402, 498), slice(1010, W)):
         assert not rejected[kept].any()
     for moved in (slice(602, 698), slice(752, 848), slice(902, 998)):
         assert rejected[moved].all()
 
+
+
+def test_a_line_seen_but_not_measured_continues_its_run_in_a_turned_frame():
+    # in a turned frame what the checks leave must be part of a run of moving_min_run (5)
+    # columns: a moved edge's residue passes in fragments. A column whose line was seen but not
+    # measured (the range gate: its predicted sigma too large, as on a far wall in bright light)
+    # is part of the line all the same, as on a still frame; a gap without a line is not. Seed
+    # 0 turning at 14 deg/s in 3x light lost 6 % of the back wall's columns to fragments between
+    # gated ones (BENCHMARKS.md "Motion")
+    from device.vision.measurements import STATUS_U8
+
+    device, _ = _device_and_without({})
+    g = device.geometry
+    W, n = device.cols.size, device.rows
+    flat = np.full((n, W), 100, np.uint8)
+    row = (g.roi_lo + g.roi_hi) / 2.0  # a wall: the middle of each column's region of interest
+    status = np.full(W, STATUS_U8[ColumnStatus.OK], np.uint8)
+    for c0, gap in ((100, ColumnStatus.REJECTED), (200, ColumnStatus.NO_RETURN), (300, ColumnStatus.REJECTED)):
+        status[c0 : c0 + 2] = status[c0 + 5 : c0 + 7] = status[c0 + 10 : c0 + 12] = STATUS_U8[gap]
+    row[307:312] += 30.0  # the second fragment at 300 and the seen columns after it: a nearer surface
+    seen = status == STATUS_U8[ColumnStatus.REJECTED]
+    out = device._disagreed(status, row, np.full(W, 20.0), np.zeros(W, bool), (flat, flat), np.ones(W, bool), seen, flat)
+    ok = out == STATUS_U8[ColumnStatus.OK]
+    assert ok[102:105].all() and ok[107:110].all()  # 3-column fragments between columns a line was seen in
+    assert not ok[202:205].any() and not ok[207:210].any()  # between columns without one
+    assert ok[302:305].all()  # on the wall, through the seen columns at 300
+    assert not ok[307:310].any()  # the nearer surface: a depth jump from the seen columns on either side
+    assert ok[:100].all() and ok[400:].all()
+
+
+def test_lines_in_run_joins_through_seen_columns_on_one_surface_only():
+    from device.vision.fast import _lines_in_run
+
+    ok = np.array([1, 1, 0, 1, 0, 1, 1, 0, 1, 0, 1, 1], bool)
+    seen = np.array([0, 0, 1, 0, 0, 0, 0, 1, 0, 1, 0, 0], bool)
+    depth = np.array([2.0, 2.0, 2.05, 2.1, np.nan, 2.0, 2.0, 1.0, 1.0, 3.0, np.nan, np.nan])
+    # 0-3: through the seen column at 2 (depth steps under 8 %); 4: no line; 5-6; the seen column
+    # at 7 is nearer (a jump), so 7-8 stand alone; 9 seen at 3 m; 10-11 ok with no depth: joined
+    assert _lines_in_run(ok, seen, depth, 0.08).tolist() == [3, 3, 3, 3, 0, 2, 2, 1, 1, 0, 2, 2]
 
 
 def test_between_surfaces_is_the_middle_of_a_ramp_between_two_depths():

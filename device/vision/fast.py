@@ -74,7 +74,12 @@ Per frame pair (or triple):
    along it (a sharp edge that one turned neighbour's resampling put a fraction of a row from
    the other's; a horizontal edge that moved a row between them as the robot drove, whose
    blocks changed by less than the bar for one block), and what is left there be part of a run
-   of ``moving_min_run``. The disagreement is that of the neighbours as detection sees them:
+   holding ``moving_min_run`` of them on one surface: a column whose line was seen but not
+   measured (step 5's REJECTED: the range gate) continues the run, as on a still frame (its
+   line is there, only its row is not precise enough), where the depth changes by less than
+   ``jump_rel`` from one column to the next; a gap without a line, or a depth jump, ends it
+   (a phantom beside gated columns of a wall is no part of the wall's line). The disagreement
+   is that of the neighbours as detection sees them:
    their difference smoothed by detection's 5 x 3 box, then its magnitude (the background
    detection measures a line against is the neighbours' mean, smoothed so). Sensor noise and
    the pixel-scale residue of resampling a sharp texture at two fractions of a pixel average
@@ -401,6 +406,8 @@ class FastPipeline:
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
+        # a line seen but not measured (step 5: REJECTED) still continues a line's run (step 0)
+        seen_unmeasured = status == STATUS_U8[ColumnStatus.REJECTED]
         if p.track_margin:
             tr = self._track
             self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
@@ -440,10 +447,11 @@ class FastPipeline:
             none = status == STATUS_U8[ColumnStatus.NO_RETURN]
             status = np.where(((status == STATUS_U8[ColumnStatus.OK]) | none) & brought_in,
                               STATUS_U8[ColumnStatus.REJECTED], status)
-            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), turned_mean)
+            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), seen_unmeasured,
+                                     turned_mean)
         elif moved is not None and moved.mean() >= p.agree_share:
             near = cv2.dilate(moved.astype(np.uint8)[None, :], np.ones((1, 2 * p.agree_reach_columns + 1), np.uint8))[0]
-            status = self._disagreed(status, row, peak, moved, neighbours, near > 0)
+            status = self._disagreed(status, row, peak, moved, neighbours, near > 0, seen_unmeasured)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -521,7 +529,7 @@ class FastPipeline:
         return between_surfaces(depth, found & np.isfinite(depth), half, p.mixed_jump, p.mixed_tol)
 
     def _disagreed(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
-                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray,
+                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray, seen_unmeasured: np.ndarray,
                    turned_mean: np.ndarray | None = None) -> np.ndarray:
         """Step 0's rejections among the ``judged`` columns (every column of a frame whose
         neighbours were turned to it; else, where ``agree_share`` of them moved, those within
@@ -531,9 +539,10 @@ class FastPipeline:
         half_width: a sharp edge that one turned neighbour's resampling put a fraction of a row
         from the other's; a horizontal edge that moved a row between them as the robot drove,
         its blocks' change under the bar for one block), and what is left among them outside a
-        run of ``moving_min_run`` continuous columns (such residue passes in fragments, as a
-        moved edge's does: _untrusted). With ``turned_mean`` (the turned neighbours' mean: a
-        turned frame), a line must also stand ``edge_ratio`` times above the largest step that
+        run holding ``moving_min_run`` of them (such residue passes in fragments, as a moved
+        edge's does: _untrusted), where ``seen_unmeasured`` columns (a line seen but not
+        measured) continue a run on one surface (``jump_rel``). With ``turned_mean`` (the
+        turned neighbours' mean: a turned frame), a line must also stand ``edge_ratio`` times above the largest step that
         mean makes from one row to the next within a row of the line's (an edge's row the lit
         frame shows and neither neighbour does)."""
         import cv2
@@ -556,7 +565,8 @@ class FastPipeline:
                 edge = steps.ravel().take(near * steps.shape[1] + cols[None, :]).max(axis=0)
                 bad[cols] |= peak[cols] < p.edge_ratio * edge
         ok &= ~bad
-        bad |= ok & judged & (_run_length(ok) < p.moving_min_run)
+        depth = self.geometry.triangulate(np.where(ok | seen_unmeasured, row, np.nan)).depth
+        bad |= ok & judged & (_lines_in_run(ok, seen_unmeasured, depth, p.jump_rel) < p.moving_min_run)
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     @functools.cached_property
@@ -868,6 +878,22 @@ def _spans(mask: np.ndarray, join: int) -> np.ndarray:
     apart = np.flatnonzero(runs[1:, 0] - runs[:-1, 1] >= join)
     return np.stack([np.concatenate(([runs[0, 0]], runs[apart + 1, 0])),
                      np.concatenate((runs[apart, 1], [runs[-1, 1]]))], axis=1)
+
+
+def _lines_in_run(ok: np.ndarray, seen: np.ndarray, depth: np.ndarray, jump: float) -> np.ndarray:
+    """How many ``ok`` columns lie in each column's run (0 outside ``ok | seen``): consecutive ok
+    columns, joined through ``seen`` ones (a line seen but not measured) where ``depth``
+    changes by less than ``jump`` (relative to the nearer) from one column to the next: one
+    surface. A NaN depth joins only two ok columns."""
+    line = ok | seen
+    with np.errstate(invalid="ignore"):
+        surface = np.abs(np.diff(depth)) < jump * np.fmin(depth[1:], depth[:-1])
+    joined = (ok[1:] & ok[:-1]) | (line[1:] & line[:-1] & surface)
+    starts = line.copy()
+    starts[1:] &= ~joined
+    run = np.cumsum(starts)
+    totals = np.bincount(run, weights=ok & line, minlength=int(run[-1]) + 1)
+    return np.where(line, totals[run], 0).astype(np.intp)
 
 
 def _run_length(mask: np.ndarray) -> np.ndarray:
