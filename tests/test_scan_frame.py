@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from device.config import load_preset
-from device.model.scan_frame import resample_scan, scan_frame, to_scan_plane, uniform_angles
+from device.model.scan_frame import angle_order, resample_scan, scan_frame, to_scan_plane, uniform_angles
 from device.model.triangulation import LaserPlane
 
 
@@ -55,3 +55,13 @@ def test_codes_sharing_a_cell_the_first_that_says_more_than_no_return_wins():
     assert np.isposinf(out[0]) and np.isnan(out[1]) and np.isneginf(out[2])
     measured = resample_scan(np.array([0.0, 0.01]), np.array([2.0, np.nan]), grid, max_gap=0.1)
     assert measured[1] == 2.0, "a measured range in the cell wins over a code"
+
+
+def test_angle_order_skips_non_finite_angles_and_keeps_equal_ones_in_column_order():
+    angles = np.array([0.3, np.nan, 0.1, 0.2, 0.1, np.inf, -0.4, 0.2])
+    assert angle_order(angles).tolist() == [6, 2, 4, 3, 7, 0]
+    # many equal angles (an unstable sort reorders them): each angle's columns in column order
+    many = np.round(np.random.default_rng(0).uniform(-0.5, 0.5, 200), 1)
+    order = angle_order(many)
+    assert np.all(np.diff(many[order]) >= 0)
+    assert all(np.all(np.diff(order[many[order] == v]) > 0) for v in np.unique(many))
