@@ -20,11 +20,20 @@ at 26bfadc6; raspberrypi/linux drivers/media/platform/bcm2835/bcm2835-unicam.c):
   (v4l2_videodevice.cpp: ``tv_sec * 1000000000ULL + tv_usec * 1000ULL``). The sensor reads the
   whole mode (1232 rows in the binned mode); the ISP crops afterwards (``ScalerCrop``), so the
   stamp is ``crop top`` rows before image row 0 is read. Plus an interrupt latency.
-* **YUV420 with stride padding.** ``make_array("main")`` of a YUV420 stream is a
-  ``(height * 3 // 2, stride)`` uint8 array, the padding left in (request.py
+* **YUV420 with stride padding.** The mapped array of a YUV420 stream (``MappedArray``, below;
+  ``make_array`` gives a copy of the same) is a ``(height * 3 // 2, stride)`` uint8 array, the
+  padding left in (request.py
   ``_make_array_shared``: "We leave any packing in there"); planes are 32-byte aligned on VC4, so
   the Y stride is a multiple of 64 (picamera2.py ``align_stream``: "all planes are a multiple
   of 32/64 bytes wide. This matches the hardware behaviour").
+* **Mapped buffers, recycled on release.** ``MappedArray(request, stream, reshape=True,
+  write=True)`` is a context manager whose ``array`` shares the stream's buffer (request.py
+  ``MappedArray.__enter__``: ``np.array(b, copy=False)``, a YUV420 buffer reshaped to
+  ``(height * 3 // 2, stride)``) while the block runs (``__exit__`` deletes it and ends the
+  dma-buf sync); a stream the request does not have is a KeyError (``request.stream_map[stream]``).
+  ``release()`` queues the request back to the camera (request.py ``release``:
+  ``self.picam2.camera.queue_request``), which fills its buffer with a later frame: here it is
+  overwritten at once, so that a frame still sharing it would show it.
 * **Sensor-mode information.** After ``configure``, ``camera_controls["ScalerCrop"]`` is
   (min, max, default) with max the mode's crop on the active array and
   ``camera_controls["FrameDurationLimits"][0]`` the mode's shortest frame in microseconds
@@ -106,11 +115,7 @@ class FakeCompletedRequest:
         self.request = types.SimpleNamespace(buffers={self.stream_map["raw"]: _Buffer(sequence, metadata["SensorTimestamp"]),
                                                       self.stream_map["main"]: _Buffer(sequence, metadata["SensorTimestamp"])})
         self.released = False
-
-    def make_array(self, name: str) -> np.ndarray:
-        if name != "main":
-            raise RuntimeError(f"Stream {name!r} is not defined")
-        return self._yuv
+        self.mappings: list[MappedArray] = []  # the MappedArrays made of this request, in order
 
     def get_metadata(self) -> dict:
         return dict(self._meta)
@@ -119,6 +124,25 @@ class FakeCompletedRequest:
         if self.released:
             raise RuntimeError("CompletedRequest: lock now has negative ref_count")
         self.released = True
+        self._yuv[:] = 0x55  # back to the camera: a later frame is written into this buffer
+
+
+class MappedArray:
+    """picamera2.MappedArray (request.py) over a FakeCompletedRequest; the module docstring."""
+
+    def __init__(self, request: FakeCompletedRequest, stream: str, reshape: bool = True, write: bool = True):
+        request.stream_map[stream]  # noqa: B018 -- a KeyError for a stream the request does not have
+        self._request, self.write, self.array = request, write, None
+        request.mappings.append(self)
+
+    def __enter__(self) -> MappedArray:
+        if self._request.released:
+            raise RuntimeError("the request was released: its buffer is the camera's again")
+        self.array = self._request._yuv
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.array = None
 
 
 class FakePicamera2:
@@ -133,6 +157,7 @@ class FakePicamera2:
         real camera does."""
         self.hold_frames = hold_frames
         self.tuning = tuning
+        self.requests: list[FakeCompletedRequest] = []  # every request handed out, in order
         self.camera_num, self.clock, self.render, self.timing = camera_num, clock, render, timing
         self.latency_ns, self.isp_ns, self.modes = latency_ns, isp_ns, modes
         self.stats = FakeStats()
@@ -269,7 +294,9 @@ class FakePicamera2:
         meta = {"SensorTimestamp": stamp, "ExposureTime": int(round(exposure_us)),
                 "FrameDuration": int(round(ft.frame_duration_s * 1e6)), "ScalerCrop": self._crop(),
                 "AnalogueGain": float(self.controls.get("AnalogueGain", 1.0))}
-        return FakeCompletedRequest(self, yuv, meta, ft.sequence)
+        request = FakeCompletedRequest(self, yuv, meta, ft.sequence)
+        self.requests.append(request)
+        return request
 
 
 def _tuning(gamma: list[int]) -> dict:
@@ -313,6 +340,7 @@ def fake_modules(*, tuning_files: dict = TUNING_FILES, **kwargs) -> tuple[dict[s
     module = types.ModuleType("picamera2")
     module.__file__ = "/usr/lib/python3/dist-packages/picamera2/__init__.py"
     module.Picamera2 = factory
+    module.MappedArray = MappedArray
     libcamera = types.ModuleType("libcamera")
     libcamera.ColorSpace = types.SimpleNamespace(Sycc=lambda: "Sycc", Rec709=lambda: "Rec709")
     return {"picamera2": module, "libcamera": libcamera}, made

@@ -90,6 +90,20 @@ def test_capture_takes_the_luminance_plane_and_the_timing_libcamera_reports(monk
     assert g.seq == f.seq + 1
 
 
+def test_the_luminance_is_copied_out_of_the_buffer_mapped_for_reading_before_its_release(monkeypatch):
+    # once released the buffer is the camera's again and a later frame is written into it (the
+    # fake overwrites it at once): the frame must hold its own copy, taken from the buffer mapped
+    # for reading only (a read sync of the dma-buf), the chroma and padding left behind
+    made = install(monkeypatch)
+    cam = Picamera2Camera()
+    cam.start()
+    f = cam.capture(timeout_s=0.5)
+    (request,) = made[0].requests
+    assert request.released and not (request._yuv != 0x55).any()
+    assert np.array_equal(f.image[:922, :1640], gradient(0, 0, 0, 0, 0))
+    assert [m.write for m in request.mappings] == [False] and request.mappings[0].array is None
+
+
 def test_a_lagging_consumer_sees_a_sequence_gap_not_a_restart(monkeypatch):
     clock = ManualClock()
     made = install(monkeypatch, clock=clock)

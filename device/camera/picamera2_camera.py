@@ -40,7 +40,13 @@ cropping the 10-bit raw Bayer mode on the Pi's CPU would cost it milliseconds pe
 
 The Y plane is placed at the top left of a zeroed buffer of the configured size (1664x928 for
 the thesis configuration, docs/thesis-notes.md N6), so that frames from a Pi and from the simulator have one
-layout.
+layout. It is copied straight out of the request's buffer, mapped for reading
+(picamera2 request.py ``MappedArray(request, "main", write=False)``: the YUV420 buffer as a
+``(height * 3 // 2, stride)`` array that shares its memory, after a read sync of the dma-buf),
+before the request is released and its buffer goes back to the camera. ``make_array`` would
+first copy the whole buffer, chroma and padding included (request.py ``make_array``:
+``make_buffer``, "np.array(b, dtype=np.uint8)"), 2.3 MB a frame of which 1.5 MB is needed: on a
+Pi Zero 2 W's memory a copy of that size costs milliseconds a frame (not measured here).
 """
 
 from __future__ import annotations
@@ -117,6 +123,7 @@ class Picamera2Camera:
         self._window = window
         self._cam = None
         self._pending = None  # capture job still outstanding after a timeout
+        self._mapped_array = None  # picamera2.MappedArray, once started
         self._mode_crop: tuple[int, int, int, int] | None = None  # the configured mode's crop_limits
         self._shortest_frame_us = 0.0
         self.readout: ReadoutGeometry | None = None  # from the last frame's metadata
@@ -162,6 +169,7 @@ class Picamera2Camera:
             picamera2 = importlib.import_module("picamera2")
         except ImportError as exc:
             raise CameraError(f"picamera2 is not installed ({exc}); {CAMERA_STACK_FIX}") from None
+        self._mapped_array = picamera2.MappedArray
         cam, extra = self._open(picamera2)
         try:
             config = cam.create_video_configuration(
@@ -234,18 +242,19 @@ class Picamera2Camera:
             self._pending = job
             raise CaptureTimeout(f"no frame from picamera2 within {timeout_s} s") from None
         self._pending = None
+        w, h = self._output
         try:
-            yuv = request.make_array("main")
+            with self._mapped_array(request, "main", write=False) as mapped:  # the module docstring
+                yuv = mapped.array
+                if yuv.ndim != 2 or yuv.shape[0] < h * 3 // 2 or yuv.shape[1] < w:
+                    raise CameraError(f"unexpected YUV420 buffer shape {yuv.shape} for a {w}x{h} stream")
+                image = np.zeros((self.height, self.width), dtype=np.uint8)
+                image[:h, :w] = yuv[:h, :w]  # the Y plane; U and V follow below it
             meta = request.get_metadata()
             # the raw stream's buffer is Unicam's: its sequence counts the sensor's frames
             seq = int(request.request.buffers[request.stream_map["raw"]].metadata.sequence)
         finally:
             request.release()
-        w, h = self._output
-        if yuv.ndim != 2 or yuv.shape[0] < h * 3 // 2 or yuv.shape[1] < w:
-            raise CameraError(f"unexpected YUV420 buffer shape {yuv.shape} for a {w}x{h} stream")
-        image = np.zeros((self.height, self.width), dtype=np.uint8)
-        image[:h, :w] = yuv[:h, :w]  # the Y plane; U and V follow below it
         try:
             ts = int(meta["SensorTimestamp"])
         except KeyError:
