@@ -169,7 +169,7 @@ class Picamera2Camera:
             picamera2 = importlib.import_module("picamera2")
         except ImportError as exc:
             raise CameraError(f"picamera2 is not installed ({exc}); {CAMERA_STACK_FIX}") from None
-        self._mapped_array = picamera2.MappedArray
+        self._mapped_array = picamera2.MappedArray  # picamera2/__init__.py: from .request import ..., MappedArray
         cam, extra = self._open(picamera2)
         try:
             config = cam.create_video_configuration(
