@@ -74,9 +74,9 @@ Per frame pair (or triple):
    along it (a sharp edge that one turned neighbour's resampling put a fraction of a row from
    the other's; a horizontal edge that moved a row between them as the robot drove, whose
    blocks changed by less than the bar for one block), and what is left there be part of a run
-   holding ``moving_min_run`` of them on one surface: a column whose line was seen but not
-   measured (step 5's REJECTED: the range gate) continues the run, as on a still frame (its
-   line is there, only its row is not precise enough), where the depth changes by less than
+   holding ``moving_min_run`` of them on one surface: a column whose line was found but whose
+   range the gate rejected (step 5) continues the run, as on a still frame (its line is there,
+   only its row is not precise enough; not a peak detection rejected), where the depth changes by less than
    ``jump_rel`` from one column to the next; a gap without a line, or a depth jump, ends it
    (a phantom beside gated columns of a wall is no part of the wall's line). The disagreement
    is that of the neighbours as detection sees them:
@@ -406,8 +406,10 @@ class FastPipeline:
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
-        # a line seen but not measured (step 5: REJECTED) still continues a line's run (step 0)
-        seen_unmeasured = status == STATUS_U8[ColumnStatus.REJECTED]
+        # a line found but its range too uncertain (the range gate, step 5: REJECTED, ``found``
+        # kept; columns.c) still continues a line's run (step 0); not a column REJECTED at
+        # detection (a peak too dim or too wide to be a line's: not found)
+        seen_unmeasured = found & (status == STATUS_U8[ColumnStatus.REJECTED])
         if p.track_margin:
             tr = self._track
             self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
@@ -540,8 +542,8 @@ class FastPipeline:
         from the other's; a horizontal edge that moved a row between them as the robot drove,
         its blocks' change under the bar for one block), and what is left among them outside a
         run holding ``moving_min_run`` of them (such residue passes in fragments, as a moved
-        edge's does: _untrusted), where ``seen_unmeasured`` columns (a line seen but not
-        measured) continue a run on one surface (``jump_rel``). With ``turned_mean`` (the
+        edge's does: _untrusted), where ``seen_unmeasured`` columns (a line found, its range
+        gated) continue a run on one surface (``jump_rel``). With ``turned_mean`` (the
         turned neighbours' mean: a turned frame), a line must also stand ``edge_ratio`` times above the largest step that
         mean makes from one row to the next within a row of the line's (an edge's row the lit
         frame shows and neither neighbour does)."""
