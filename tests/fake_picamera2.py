@@ -132,17 +132,21 @@ class MappedArray:
 
     def __init__(self, request: FakeCompletedRequest, stream: str, reshape: bool = True, write: bool = True):
         request.stream_map[stream]  # noqa: B018 -- a KeyError for a stream the request does not have
-        self._request, self.write, self.array = request, write, None
+        self._request, self.write, self._array = request, write, None
         request.mappings.append(self)
 
     def __enter__(self) -> MappedArray:
         if self._request.released:
             raise RuntimeError("the request was released: its buffer is the camera's again")
-        self.array = self._request._yuv
+        self._array = self._request._yuv
         return self
 
     def __exit__(self, *exc) -> None:
-        self.array = None
+        del self._array  # as request.py's __exit__: ``array`` is gone (AttributeError) after the block
+
+    @property
+    def array(self) -> np.ndarray | None:
+        return self._array
 
 
 class FakePicamera2:

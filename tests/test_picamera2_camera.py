@@ -101,7 +101,9 @@ def test_the_luminance_is_copied_out_of_the_buffer_mapped_for_reading_before_its
     (request,) = made[0].requests
     assert request.released and not (request._yuv != 0x55).any()
     assert np.array_equal(f.image[:922, :1640], gradient(0, 0, 0, 0, 0))
-    assert [m.write for m in request.mappings] == [False] and request.mappings[0].array is None
+    assert [m.write for m in request.mappings] == [False]
+    with pytest.raises(AttributeError):  # the mapping ended with the block
+        request.mappings[0].array  # noqa: B018
 
 
 def test_a_lagging_consumer_sees_a_sequence_gap_not_a_restart(monkeypatch):
@@ -142,6 +144,21 @@ def test_a_broken_camera_stack_names_the_fix(monkeypatch):
     monkeypatch.setitem(sys.modules, "picamera2", None)
     problem = camera_stack_problem()
     assert problem is not None and "python3-picamera2" in problem and "--system-site-packages" in problem
+
+
+def test_a_picamera2_without_read_only_mapping_names_the_fix(monkeypatch):
+    # picamera2 before 0.3.13: MappedArray(request, stream, reshape=True), no ``write`` (capture
+    # would raise a TypeError at every frame)
+    install(monkeypatch)
+    assert camera_stack_problem() is None
+
+    class OldMappedArray:
+        def __init__(self, request, stream, reshape=True):
+            pass
+
+    monkeypatch.setattr(sys.modules["picamera2"], "MappedArray", OldMappedArray)
+    problem = camera_stack_problem()
+    assert problem is not None and "0.3.13" in problem and "apt update" in problem
 
 
 @pytest.mark.slow

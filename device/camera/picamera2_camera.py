@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import inspect
 import logging
 
 import numpy as np
@@ -91,11 +92,18 @@ def linear_tuning(tuning: dict, find_algo) -> dict:
 
 
 def camera_stack_problem() -> str | None:
-    """Why picamera2 (and the libcamera it imports) cannot be imported here, with the fix; None if it can."""
+    """Why picamera2 (and the libcamera it imports) cannot be used here, with the fix; None if it can."""
     try:
-        importlib.import_module("picamera2")
+        picamera2 = importlib.import_module("picamera2")
     except Exception as exc:  # ImportError, or a binding built against another numpy/libcamera
         return f"picamera2 does not import ({type(exc).__name__}: {exc}); {CAMERA_STACK_FIX}"
+    # capture maps the buffer for reading only: MappedArray's ``write`` argument came with
+    # picamera2 0.3.13 (raspberrypi/picamera2 commit 0ffa131, "Add DmaHeap to allocate frame
+    # buffers"; request.py before it: ``MappedArray(request, stream, reshape=True)``), which the
+    # first bookworm images may predate
+    if "write" not in inspect.signature(picamera2.MappedArray).parameters:
+        return (f"picamera2 is older than 0.3.13 (its MappedArray takes no write argument): sudo apt update, "
+                f"then {CAMERA_STACK_FIX}")
     return None
 
 
@@ -244,12 +252,16 @@ class Picamera2Camera:
         self._pending = None
         w, h = self._output
         try:
+            # no view of the mapped array may outlive the block: an allocator whose sync closes
+            # its mmap on exit refuses while one exists (BufferError), hiding any error here
             with self._mapped_array(request, "main", write=False) as mapped:  # the module docstring
-                yuv = mapped.array
-                if yuv.ndim != 2 or yuv.shape[0] < h * 3 // 2 or yuv.shape[1] < w:
-                    raise CameraError(f"unexpected YUV420 buffer shape {yuv.shape} for a {w}x{h} stream")
-                image = np.zeros((self.height, self.width), dtype=np.uint8)
-                image[:h, :w] = yuv[:h, :w]  # the Y plane; U and V follow below it
+                shape = mapped.array.shape
+                fits = len(shape) == 2 and shape[0] >= h * 3 // 2 and shape[1] >= w
+                if fits:
+                    image = np.zeros((self.height, self.width), dtype=np.uint8)
+                    image[:h, :w] = mapped.array[:h, :w]  # the Y plane; U and V follow below it
+            if not fits:
+                raise CameraError(f"unexpected YUV420 buffer shape {shape} for a {w}x{h} stream")
             meta = request.get_metadata()
             # the raw stream's buffer is Unicam's: its sequence counts the sensor's frames
             seq = int(request.request.buffers[request.stream_map["raw"]].metadata.sequence)
