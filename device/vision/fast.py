@@ -409,7 +409,7 @@ class FastPipeline:
         # a line found but its range too uncertain (the range gate, step 5: REJECTED, ``found``
         # kept; columns.c) still continues a line's run (step 0); not a column REJECTED at
         # detection (a peak too dim or too wide to be a line's: not found)
-        seen_unmeasured = found & (status == STATUS_U8[ColumnStatus.REJECTED])
+        gated = found & (status == STATUS_U8[ColumnStatus.REJECTED])
         if p.track_margin:
             tr = self._track
             self._track = _Track(found.copy(), *seen, 0 if band is None or tr is None else tr.since_full + 1)
@@ -449,11 +449,11 @@ class FastPipeline:
             none = status == STATUS_U8[ColumnStatus.NO_RETURN]
             status = np.where(((status == STATUS_U8[ColumnStatus.OK]) | none) & brought_in,
                               STATUS_U8[ColumnStatus.REJECTED], status)
-            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), seen_unmeasured,
+            status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), gated,
                                      turned_mean)
         elif moved is not None and moved.mean() >= p.agree_share:
             near = cv2.dilate(moved.astype(np.uint8)[None, :], np.ones((1, 2 * p.agree_reach_columns + 1), np.uint8))[0]
-            status = self._disagreed(status, row, peak, moved, neighbours, near > 0, seen_unmeasured)
+            status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
         found = status == STATUS_U8[ColumnStatus.OK]
@@ -531,7 +531,7 @@ class FastPipeline:
         return between_surfaces(depth, found & np.isfinite(depth), half, p.mixed_jump, p.mixed_tol)
 
     def _disagreed(self, status: np.ndarray, row: np.ndarray, peak: np.ndarray, moved: np.ndarray,
-                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray, seen_unmeasured: np.ndarray,
+                   neighbours: tuple[np.ndarray, np.ndarray], judged: np.ndarray, gated: np.ndarray,
                    turned_mean: np.ndarray | None = None) -> np.ndarray:
         """Step 0's rejections among the ``judged`` columns (every column of a frame whose
         neighbours were turned to it; else, where ``agree_share`` of them moved, those within
@@ -542,7 +542,7 @@ class FastPipeline:
         from the other's; a horizontal edge that moved a row between them as the robot drove,
         its blocks' change under the bar for one block), and what is left among them outside a
         run holding ``moving_min_run`` of them (such residue passes in fragments, as a moved
-        edge's does: _untrusted), where ``seen_unmeasured`` columns (a line found, its range
+        edge's does: _untrusted), where ``gated`` columns (a line found, its range
         gated) continue a run on one surface (``jump_rel``). With ``turned_mean`` (the
         turned neighbours' mean: a turned frame), a line must also stand ``edge_ratio`` times above the largest step that
         mean makes from one row to the next within a row of the line's (an edge's row the lit
@@ -567,8 +567,8 @@ class FastPipeline:
                 edge = steps.ravel().take(near * steps.shape[1] + cols[None, :]).max(axis=0)
                 bad[cols] |= peak[cols] < p.edge_ratio * edge
         ok &= ~bad
-        depth = self.geometry.triangulate(np.where(ok | seen_unmeasured, row, np.nan)).depth
-        bad |= ok & judged & (_lines_in_run(ok, seen_unmeasured, depth, p.jump_rel) < p.moving_min_run)
+        depth = self.geometry.triangulate(np.where(ok | gated, row, np.nan)).depth
+        bad |= ok & judged & (_lines_in_run(ok, gated, depth, p.jump_rel) < p.moving_min_run)
         return np.where(bad, STATUS_U8[ColumnStatus.REJECTED], status)
 
     @functools.cached_property
@@ -882,19 +882,19 @@ def _spans(mask: np.ndarray, join: int) -> np.ndarray:
                      np.concatenate((runs[apart, 1], [runs[-1, 1]]))], axis=1)
 
 
-def _lines_in_run(ok: np.ndarray, seen: np.ndarray, depth: np.ndarray, jump: float) -> np.ndarray:
-    """How many ``ok`` columns lie in each column's run (0 outside ``ok | seen``): consecutive ok
-    columns, joined through ``seen`` ones (a line seen but not measured) where ``depth``
-    changes by less than ``jump`` (relative to the nearer) from one column to the next: one
-    surface. A NaN depth joins only two ok columns."""
-    line = ok | seen
+def _lines_in_run(ok: np.ndarray, gated: np.ndarray, depth: np.ndarray, jump: float) -> np.ndarray:
+    """How many ``ok`` columns lie in each column's run (0 outside ``ok | gated``): consecutive ok
+    columns, joined through ``gated`` ones (a line found, its range too uncertain) where
+    ``depth`` changes by less than ``jump`` (relative to the nearer) from one column to the next:
+    one surface. A NaN depth joins only two ok columns."""
+    line = ok | gated
     with np.errstate(invalid="ignore"):
         surface = np.abs(np.diff(depth)) < jump * np.fmin(depth[1:], depth[:-1])
     joined = (ok[1:] & ok[:-1]) | (line[1:] & line[:-1] & surface)
     starts = line.copy()
     starts[1:] &= ~joined
     run = np.cumsum(starts)
-    totals = np.bincount(run, weights=ok & line, minlength=int(run[-1]) + 1)
+    totals = np.bincount(run, weights=ok, minlength=int(run[-1]) + 1)
     return np.where(line, totals[run], 0).astype(np.intp)
 
 
