@@ -42,9 +42,10 @@ def test_bench_pipeline_json_and_png(tmp_path):
     ).stdout
     rows = json.loads(out)
     assert [r["variant"] for r in rows] == ["reference", "fast-com"]
-    keys = {"variant", "ms_per_pair", "speedup_vs_reference", "subpixel_rms_px", "range_err_pct_2m",
-            "range_err_pct_3m", "valid_fraction"}
+    keys = {"variant", "ms_per_pair", "ms_per_pair_after_idle", "speedup_vs_reference", "subpixel_rms_px",
+            "range_err_pct_2m", "range_err_pct_3m", "valid_fraction"}
     assert keys <= set(rows[0])
+    assert all(r["ms_per_pair_after_idle"] > 0 for r in rows)
     assert rows[0]["speedup_vs_reference"] == pytest.approx(1.0)
     assert rows[1]["speedup_vs_reference"] == pytest.approx(rows[0]["ms_per_pair"] / rows[1]["ms_per_pair"])
     assert rows[1]["range_err_pct_2m"] < rows[0]["range_err_pct_2m"]

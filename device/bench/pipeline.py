@@ -4,6 +4,12 @@ Time per frame pair: the median CPU time of the calling thread (``time.thread_ti
 ``--repeats`` calls of ``process`` on one pair, OpenCV limited to one thread; CPU time rather than
 wall time because the machine is shared (a loaded machine stretches wall time, not CPU time) next to the error against ground truth on 90 % walls at 2 m and 3 m (indoor light,
 thesis-calibrated geometry), and the speed-up over the reference as a ratio.
+
+Two times per variant: back to back (``ms_per_pair``: the calls follow each other, so each finds
+the caches and branch predictors as the last one left them), and after an idle pause
+(``ms_per_pair_after_idle``: each call after the thread slept ``IDLE_S``, as the device's thread
+sleeps between frames). On this machine the same call costs ~1.6-1.8x as much after the pause
+(BENCHMARKS.md "Device process"); the device process (`laserpi bench process`) pays the second.
 """
 
 from __future__ import annotations
@@ -13,6 +19,10 @@ import json
 import math
 import platform
 import time
+
+#: The pause before each call of the "after idle" time: one frame interval at 40 frames/s (20
+#: scans/s), the device's wait for its next frame.
+IDLE_S = 0.025
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,16 +62,22 @@ def measure(args) -> list[dict]:
     for name, pipe in pipes.items():
         s2 = run_pipeline(pipe, walls[2])
         s3 = run_pipeline(pipe, walls[3])
-        times = []
+        times, idle = [], []
         for _ in range(max(args.repeats, 1)):
             t0 = time.thread_time()
             pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)
             times.append(time.thread_time() - t0)
+        for _ in range(max(args.repeats, 1)):
+            time.sleep(IDLE_S)
+            t0 = time.thread_time()
+            pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)
+            idle.append(time.thread_time() - t0)
         sum2, sum3 = s2.summary(), s3.summary()
         n2, n3 = sum2["columns_with_return"], sum3["columns_with_return"]
         rows.append({
             "variant": name,
             "ms_per_pair": float(np.median(times) * 1e3),
+            "ms_per_pair_after_idle": float(np.median(idle) * 1e3),
             "subpixel_rms_px": sum2["subpixel_rms_px"],
             "range_err_pct_2m": s2.range_error_near(2.0)[1],
             "range_err_pct_3m": s3.range_error_near(3.0)[1],
@@ -153,19 +169,21 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.png:
         _plot(rows, args.png)
-    keys = ("variant", "ms_per_pair", "speedup_vs_reference", "subpixel_rms_px", "range_err_pct_2m",
+    keys = ("variant", "ms_per_pair", "ms_per_pair_after_idle", "speedup_vs_reference", "subpixel_rms_px", "range_err_pct_2m",
             "range_err_pct_3m", "valid_fraction", "resolution_deg")
     if args.json:
         print(json.dumps([{k: r[k] for k in keys} for r in rows], indent=2))
         return 0
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}, OpenCV 1 thread")
-    print(f"{'variant':<18} {'ms/pair':>8} {'speed-up':>9} {'subpx RMS':>10} {'err 2m %':>9} {'err 3m %':>9} "
-          f"{'valid':>6} {'res deg':>8}")
+    print(f"{'variant':<18} {'ms/pair':>8} {'idle ms':>8} {'speed-up':>9} {'subpx RMS':>10} {'err 2m %':>9} "
+          f"{'err 3m %':>9} {'valid':>6} {'res deg':>8}")
     for r in rows:
         f = lambda v, s: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, s)
-        print(f"{r['variant']:<18} {f(r['ms_per_pair'], '8.2f')} {f(r['speedup_vs_reference'], '8.1f')}x "
+        print(f"{r['variant']:<18} {f(r['ms_per_pair'], '8.2f')} {f(r['ms_per_pair_after_idle'], '8.2f')} "
+              f"{f(r['speedup_vs_reference'], '8.1f')}x "
               f"{f(r['subpixel_rms_px'], '10.3f')} {f(r['range_err_pct_2m'], '9.2f')} {f(r['range_err_pct_3m'], '9.2f')} "
               f"{f(r['valid_fraction'], '6.3f')} {f(r['resolution_deg'], '8.2f')}")
+    print(f"idle ms: each call after {IDLE_S * 1e3:g} ms asleep, as the device's thread waits for its next frame")
     t = triangulation_timing(args)
     print(f"triangulation, one sub-pixel row per column: table {t['table_ms']:.3f} ms, direct (robust backward projection) "
           f"{t['direct_ms']:.3f} ms, largest relative depth difference {t['max_rel_depth_diff']:.1e}")
