@@ -6,10 +6,11 @@ wall time because the machine is shared (a loaded machine stretches wall time, n
 thesis-calibrated geometry), and the speed-up over the reference as a ratio.
 
 Two times per variant: back to back (``ms_per_pair``: the calls follow each other, so each finds
-the caches and branch predictors as the last one left them), and after an idle pause
-(``ms_per_pair_after_idle``: each call after the thread slept ``IDLE_S``, as the device's thread
-sleeps between frames). On this machine the same call costs ~1.6-1.8x as much after the pause
-(BENCHMARKS.md "Device process"); the device process (`laserpi bench process`) pays the second.
+the caches as the last one left them), and after a pause (``ms_per_pair_after_idle``: each call
+after the thread slept ``IDLE_S``, as the device's thread waits between frames). On this machine
+(a VM whose caches empty within a few milliseconds, whatever the thread does) the fast pipeline
+costs ~1.6-2x as much after the pause (BENCHMARKS.md "Device process", "Correction"); the device
+process (`laserpi bench process`) pays the second.
 """
 
 from __future__ import annotations
