@@ -151,7 +151,7 @@ class Score:
         # a depth-jump column has no one true row (depth_jump)
         one = both & ~depth_jump(truth, c)
         self.row_err.append(meas.row[one] - t_row[one])
-        self.range_rel_err.append((meas.range[both] - ref[both]) / ref[both])
+        self.range_rel_err.append(range_error_rel(meas.range, truth, c)[both])
         self.true_range.append(ref[both])
 
     def valid_fraction_within(self, max_range_m: float) -> float:
