@@ -84,6 +84,20 @@ def test_mcu_pulses_land_on_scheduled_ticks_with_drift():
     assert mcu.pulses.rise_s[0] == pytest.approx(0.05 / 1.0001, abs=1e-12)
 
 
+def test_mcu_commands_arrive_in_the_order_they_were_sent():
+    # one serial line: a STOP and the SCHEDULE sent right after it (SCHEDULE needs a STOP first)
+    # never swap, however their latencies fall (here 0-20 ms each); swapped, the STOP would end
+    # the new train before its first pulse
+    for seed in range(20):
+        mcu = SimulatedMcu(McuConfig(gpio_connected=False, cmd_latency_min_s=0.0, cmd_latency_max_s=0.02),
+                           np.random.default_rng(seed))
+        mcu.now_s = 0.01
+        mcu.stop()
+        mcu.schedule(200_000, 100_000, 20_000, [True, False])  # first rise at 100 ms
+        mcu.advance_to(0.5)
+        assert mcu.pulses.rise_tick[:2] == [200_000, 400_000], seed
+
+
 def test_mcu_trims_move_the_next_slot_and_add_up():
     # as firmware_pwm (README, TRIM): the first slot, lit or not, starting >= 100 us after arrival
     mcu = _mcu(gpio_connected=False, cmd_latency_min_s=1e-3, cmd_latency_max_s=1e-3)

@@ -8,7 +8,11 @@ slow sinusoidal wander (temperature) of ``wander_ppm``. Pulses start and end on 
 The link and the wire:
 
 - Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
-  ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency).
+  ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency), in the
+  order they were sent: one serial line carries them byte after byte into the USART's receive
+  FIFO (ATmega328P datasheet, Atmel-8271H, 20.11.1 UDRn: "The receive buffer consists of a two
+  level FIFO"), so none arrives before one sent earlier (a STOP and the SCHEDULE after it, sent
+  within a latency's spread of each other, must not swap).
   Trims behave as the firmware's (firmware_pwm/README.md, TRIM): the first slot, lit or not,
   that starts at least 100 us after the trim arrives moves by the phase and the slots after it
   follow the new period; trims waiting together add up.
@@ -95,6 +99,7 @@ class SimulatedMcu:
         self._reports: list[tuple[float, int, int]] = []  # (arrival s, rise tick, fall tick)
         self._gpio: list[tuple[int, bool]] = []  # (timestamp ns, rising)
         self._last_spurious = 0.0
+        self._last_receipt = -math.inf  # when the last command sent reaches the MCU (the link keeps their order)
 
     # --- clock -------------------------------------------------------------------------------
     def tick_at(self, t: float) -> float:
@@ -120,7 +125,10 @@ class SimulatedMcu:
 
     # --- LaserScheduler ------------------------------------------------------------------------
     def _receipt(self) -> float:
-        return self.now_s + self._rng.uniform(self.cfg.cmd_latency_min_s, self.cfg.cmd_latency_max_s)
+        """When a command sent now reaches the MCU: its latency, but not before the one sent before it."""
+        self._last_receipt = max(self.now_s + self._rng.uniform(self.cfg.cmd_latency_min_s, self.cfg.cmd_latency_max_s),
+                                 self._last_receipt)
+        return self._last_receipt
 
     def _check_envelope(self, period: int, width: int, pattern: Sequence[bool]) -> None:
         if width <= 0 or period <= 0:
