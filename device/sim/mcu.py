@@ -10,9 +10,9 @@ The link and the wire:
 - Commands (schedule / trim / stop) reach the MCU ``cmd_latency`` after they are sent (uniform in
   ``[cmd_latency_min_s, cmd_latency_max_s]``: serial frame time plus USB-serial latency), in the
   order they were sent: one serial line carries them byte after byte into the USART's receive
-  FIFO (ATmega48A/PA/88A/PA/168A/PA/328/P datasheet, DS40002061A, 20.11.1 UDRn: "The receive buffer consists of a two
-  level FIFO"), so none arrives before one sent earlier (a STOP and the SCHEDULE after it, sent
-  within a latency's spread of each other, must not swap).
+  FIFO (ATmega48A/PA/88A/PA/168A/PA/328/P datasheet, DS40002061A, 20.11.1 UDRn: "The receive
+  buffer consists of a two level FIFO"), so none arrives before one sent earlier (a STOP and the
+  SCHEDULE after it, sent within a latency's spread of each other, must not swap).
   Trims behave as the firmware's (firmware_pwm/README.md, TRIM): the first slot, lit or not,
   that starts at least 100 us after the trim arrives moves by the phase and the slots after it
   follow the new period; trims waiting together add up.
