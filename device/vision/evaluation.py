@@ -51,7 +51,10 @@ def reference_range(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarr
 def range_error_rel(measured_m: np.ndarray, truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
     """Relative range error of ``measured_m`` at image ``columns`` against :func:`reference_range`
     (NaN where the truth has no return)."""
-    ref = reference_range(measured_m, truth, columns)
+    return _relative_to(measured_m, reference_range(measured_m, truth, columns))
+
+
+def _relative_to(measured_m: np.ndarray, ref: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         return (measured_m - ref) / ref
 
@@ -151,7 +154,7 @@ class Score:
         # a depth-jump column has no one true row (depth_jump)
         one = both & ~depth_jump(truth, c)
         self.row_err.append(meas.row[one] - t_row[one])
-        self.range_rel_err.append(range_error_rel(meas.range, truth, c)[both])
+        self.range_rel_err.append(_relative_to(meas.range, ref)[both])
         self.true_range.append(ref[both])
 
     def valid_fraction_within(self, max_range_m: float) -> float:
