@@ -42,7 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def measure(args) -> list[dict]:
     import cv2
-    import numpy as np
 
     from ..config import load_preset
     from ..sim.render import COHERENT_DEFOCUSED
@@ -63,22 +62,15 @@ def measure(args) -> list[dict]:
     for name, pipe in pipes.items():
         s2 = run_pipeline(pipe, walls[2])
         s3 = run_pipeline(pipe, walls[3])
-        times, idle = [], []
-        for _ in range(max(args.repeats, 1)):
-            t0 = time.thread_time()
-            pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)
-            times.append(time.thread_time() - t0)
-        for _ in range(max(args.repeats, 1)):
-            time.sleep(IDLE_S)
-            t0 = time.thread_time()
-            pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)
-            idle.append(time.thread_time() - t0)
+        call = lambda: pipe.process(timing_pair.lit, timing_pair.unlit, lit_rows=timing_pair.lit_rows)  # noqa: E731
+        ms, _ = _median_ms(call, args.repeats)
+        ms_after_idle, _ = _median_ms(call, args.repeats, pause_s=IDLE_S)
         sum2, sum3 = s2.summary(), s3.summary()
         n2, n3 = sum2["columns_with_return"], sum3["columns_with_return"]
         rows.append({
             "variant": name,
-            "ms_per_pair": float(np.median(times) * 1e3),
-            "ms_per_pair_after_idle": float(np.median(idle) * 1e3),
+            "ms_per_pair": ms,
+            "ms_per_pair_after_idle": ms_after_idle,
             "subpixel_rms_px": sum2["subpixel_rms_px"],
             "range_err_pct_2m": s2.range_error_near(2.0)[1],
             "range_err_pct_3m": s3.range_error_near(3.0)[1],
@@ -110,15 +102,26 @@ def triangulation_timing(args) -> dict:
 
     out = {}
     for name, fn in (("table", lambda: g.triangulate(rows)), ("direct", direct)):
-        times = []
-        for _ in range(max(args.repeats, 1)):
-            t0 = time.thread_time()
-            res = fn()
-            times.append(time.thread_time() - t0)
-        out[name] = (float(np.median(times) * 1e3), res.depth)
+        ms, res = _median_ms(fn, args.repeats)
+        out[name] = (ms, res.depth)
     ok = np.isfinite(out["table"][1]) & np.isfinite(out["direct"][1])
     err = np.abs(out["table"][1][ok] - out["direct"][1][ok]) / out["direct"][1][ok]
     return {"table_ms": out["table"][0], "direct_ms": out["direct"][0], "max_rel_depth_diff": float(err.max())}
+
+
+def _median_ms(fn, repeats: int, pause_s: float = 0.0):
+    """(median thread CPU ms of ``repeats`` calls of ``fn``, each after ``pause_s`` asleep; the
+    last call's result)."""
+    import numpy as np
+
+    times = []
+    for _ in range(max(repeats, 1)):
+        if pause_s:
+            time.sleep(pause_s)
+        t0 = time.thread_time()
+        res = fn()
+        times.append(time.thread_time() - t0)
+    return float(np.median(times) * 1e3), res
 
 
 def _plot(rows: list[dict], path: str) -> None:
