@@ -54,7 +54,8 @@ def offline_error_pct(frames: int = 3) -> float:
     with an ideally placed pulse: what the device process may not make worse."""
     from device.camera.frame import Frame
     from device.scan.pipeline import ScanPipeline
-    from device.service.assembly import PIPELINE, sensor_config
+    from device.service.assembly import sensor_config
+    from device.vision.pipelines import DEVICE_VARIANT
     from device.sim.render import FrameTiming, SceneRenderer
     from device.sim.scene import get_scene
     from device.sim.sensor import SensorParams
@@ -63,7 +64,7 @@ def offline_error_pct(frames: int = 3) -> float:
     cfg = sensor_config(None, "thesis-calibrated")
     op = cfg.operating_point
     EXPOSURE_US = op.exposure_us
-    pipe = ScanPipeline(make_pipeline(PIPELINE, cfg, op.min_m, op.max_m), POINTS)
+    pipe = ScanPipeline(make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m), POINTS)
     g = pipe.pipeline.geometry
     renderer = SceneRenderer(cfg, get_scene("wall:distance=2"), SensorParams(analog_gain=op.analog_gain), seed=7)
     line_ns, t = cfg.window.mode.line_time_ns, 2_000_000_000

@@ -82,14 +82,14 @@ def test_a_still_wall_is_measured_as_accurately_with_both_neighbours(distance, m
 def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
     # still office, 3x light: dim lines far away (1 row is 5-8 % of range there), a depth edge
     # bridged by the fit, an outlier beside a shadow gap reporting the fit
-    from device.service.assembly import PIPELINE
+    from device.vision.pipelines import DEVICE_VARIANT
 
     pairs = sequence(CFG, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
     op = CFG.operating_point
-    assert PIPELINE == "fast-com-track-gated"  # the device runs the gate
+    assert DEVICE_VARIANT == "fast-com-track-gated"  # the device runs the gate
     ungated = make_pipeline("fast-com-track", CFG, op.min_m, op.max_m)
     off = score([(_process("fast", ungated, p), p.truth) for p in pairs], MIN_M)
-    gated = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    gated = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
     assert gated.params.max_range_sigma == 0.015
     on = score([(_process("fast", gated, p), p.truth) for p in pairs], MIN_M)
     assert off["gross_fraction"] > 0.002 and off["false_returns"] > 0  # the gate off: the issue's failure
@@ -104,14 +104,14 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     # only the column's mean), and the checks on a moved background stop them
     import dataclasses
 
-    from device.service.assembly import PIPELINE
+    from device.vision.pipelines import DEVICE_VARIANT
     from device.vision.fast import FastPipeline
 
     # (seed 2 of the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows them;
     # on seed 0's coarse frames the column-mean test alone has caught them since moved_level 0.9)
     pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2, COARSE)
     op = CFG.operating_point
-    device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    device = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
     now = score(measured, MIN_M)
     # no phantom line (the issue's target beside it: at most 0.1 % gross errors; one column of
@@ -136,11 +136,11 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
 def _device_and_without(off: dict):
     import dataclasses
 
-    from device.service.assembly import PIPELINE
+    from device.vision.pipelines import DEVICE_VARIANT
     from device.vision.fast import FastPipeline
 
     op = CFG.operating_point
-    device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    device = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
     return device, FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
 
 

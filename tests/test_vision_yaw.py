@@ -165,11 +165,11 @@ def test_a_grid_that_means_nothing_is_refused(width, top, rows, max_deg):
 
 
 def _device():
-    from device.service.assembly import PIPELINE
+    from device.vision.pipelines import DEVICE_VARIANT
     from device.vision.pipelines import make_pipeline
 
     op = CFG.operating_point
-    device = make_pipeline(PIPELINE, CFG, op.min_m, op.max_m)
+    device = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
     assert (device.top, device.rows) == (TOP, ROWS)
     return device
 

@@ -15,7 +15,7 @@ then also moves it sideways), in the point's ambient light (x the default indoor
 - ``fast no turn``: the device's pipeline with both unlit neighbours (device/scan/pairing.py,
   device.vision.fast step 0: the checks on a moved background) and the range gate (step 5), but
   the neighbours never turned to the lit frame (``turn_share`` inf);
-- ``fast``: the device's pipeline now (device/service/assembly.py PIPELINE): as ``fast no turn``,
+- ``fast``: the device's pipeline now (device/vision/pipelines.py DEVICE_VARIANT): as ``fast no turn``,
   and the unlit neighbours turned to the lit frame when the robot turns (device/vision/yaw.py).
 
 Measured against the truth at each column's light's time: gross errors (a valid range > 5 %
@@ -65,8 +65,8 @@ SWEEP = (
 VARIANTS = ("reference", "fast one-unlit", "fast no turn", "fast")
 #: the variants that take both unlit neighbours
 BOTH_NEIGHBOURS = {"fast no turn", "fast"}
-#: the scenes the variants are timed on: (yaw deg/s, speed m/s, ambient x indoor) of the office
-TIMED = {"still": (0, 0.0, 3), "yaw 90": (90, 0.0, 3), "speed 1.0": (0, 1.0, 3)}
+#: the sweep points the variants are timed on (the office in 3x light)
+TIMED = ("still", "yaw 90", "speed 1.0")
 FLICKER_HZ = 100.0
 
 
@@ -92,12 +92,24 @@ def sequence(cfg, scene, lit_frames: int, seed: int, options=None):
                            analog_gain=op.analog_gain, pulse_us=pulse_us, neighbours=True)
 
 
+def point_scene(label: str):
+    """The scene of the sweep point ``label`` (SWEEP), moving as the point says."""
+    from ..sim.scene import get_scene, with_motion
+
+    rows = {row[0]: row for row in SWEEP}
+    if label not in rows:
+        raise ValueError(f"no sweep point {label!r}; the points: {'; '.join(rows)}")
+    _, scene_name, yaw, speed, ambient, flicker, ahead = rows[label]
+    return with_motion(get_scene(scene_name), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient,
+                       flicker_hz=FLICKER_HZ, flicker_depth=flicker, sensor_ahead_m=ahead)
+
+
 def _pipelines(cfg):
-    from ..service.assembly import PIPELINE
+    from ..vision.pipelines import DEVICE_VARIANT
     from ..vision.pipelines import make_pipeline
 
     op = cfg.operating_point
-    device = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
+    device = make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m)
     return {"reference": make_pipeline("reference", cfg),
             "fast one-unlit": make_pipeline("fast-com-track", cfg, op.min_m, op.max_m),
             "fast no turn": _no_turn(device),
@@ -161,7 +173,6 @@ def measure(args) -> dict:
     import cv2
 
     from ..config import load_preset
-    from ..sim.scene import get_scene, with_motion
 
     cv2.setNumThreads(1)
     cfg = load_preset(args.preset)
@@ -171,9 +182,7 @@ def measure(args) -> dict:
     for label, scene_name, yaw, speed, ambient, flicker, ahead in SWEEP:
         if wanted is not None and label not in wanted:
             continue
-        scene = with_motion(get_scene(scene_name), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient,
-                            flicker_hz=FLICKER_HZ, flicker_depth=flicker, sensor_ahead_m=ahead)
-        pairs = sequence(cfg, scene, args.frames, args.seed)
+        pairs = sequence(cfg, point_scene(label), args.frames, args.seed)
         if label in TIMED:
             timed[label] = pairs[0]
         row = {"point": label, "scene": scene_name, "yaw_deg_s": yaw, "speed_m_s": speed, "ambient_x": ambient,
@@ -181,10 +190,9 @@ def measure(args) -> dict:
         for name, pipe in _pipelines(cfg).items():
             row[name] = score([(_process(name, pipe, p), p.truth) for p in pairs], cfg.operating_point.min_m)
         points.append(row)
-    for label, (yaw, speed, ambient) in TIMED.items():
+    for label in TIMED:
         if label not in timed:
-            scene = with_motion(get_scene("office"), yaw_rate_deg_s=yaw, speed_m_s=speed, ambient_scale=ambient)
-            timed[label] = sequence(cfg, scene, 1, args.seed)[0]
+            timed[label] = sequence(cfg, point_scene(label), 1, args.seed)[0]
     ms = {label: _ms_per_lit_frame(cfg, pair, args.repeats) for label, pair in timed.items()}
     return {"points": points, "ms_per_lit_frame": ms["still"], "ms_per_moving_lit_frame": ms["yaw 90"],
             "ms_per_driving_lit_frame": ms["speed 1.0"],

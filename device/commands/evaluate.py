@@ -8,7 +8,7 @@ share of all columns with a return, false returns on columns without one, gross 
 and the effective angular resolution.
 
 ``--recording FRAMES.npz --out OUT.npz``: runs one pipeline (default: the device's,
-device/service/assembly.py PIPELINE, with the configuration's [operating_point] depth limits)
+device/vision/pipelines.py DEVICE_VARIANT, with the configuration's [operating_point] depth limits)
 over a recording in the ReplayCamera format (device/camera/replay.py: frames in time order with
 their lit flags), each lit frame with its unlit neighbours as the device pairs them. OUT.npz
 holds, per scan in time order, every array indexed by image column (W = the image width):
@@ -102,13 +102,12 @@ def reprocess(args) -> dict:
     from ..camera.replay import ReplayCamera
     from ..scan.pairing import NeighbourPairing
     from ..scan.timing import column_times_ns
-    from ..service.assembly import PIPELINE
     from ..vision.evaluation import Score
-    from ..vision.pipelines import make_pipeline
+    from ..vision.pipelines import DEVICE_VARIANT, make_pipeline
 
     cfg = _config(args)
     op = cfg.operating_point
-    name = args.pipeline or PIPELINE
+    name = args.pipeline or DEVICE_VARIANT
     if "," in name or name == "all":
         raise ValueError(f"--recording runs one pipeline, got {name!r}")
     lo = op.min_m if args.min_range is None else args.min_range

@@ -37,7 +37,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-PIPELINE = "fast-com-track-gated"  # device/vision/pipelines.py VARIANTS
 COMMAND_LATENCY_S = 0.02  # worst request round trip to the co-MCU seen here (emulator pty: median 3 ms, max 20 ms)
 
 
@@ -158,14 +157,14 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
     from device.laser.synced import SyncedLaser
     from device.sim.timing import CameraTimingConfig
     from device.sync.control import SyncConfig
-    from device.vision.pipelines import make_pipeline
+    from device.vision.pipelines import DEVICE_VARIANT, make_pipeline
 
     cfg = sensor_config(setup.config_path, setup.preset)
     if setup.scan_rate_hz is not None:
         cfg = with_operating_point(cfg, scan_rate_hz=setup.scan_rate_hz)
     op = cfg.operating_point  # scan rate, exposure, gain, depth range ([operating_point])
     frame_duration_s = op.frame_duration_s
-    pipeline = make_pipeline(PIPELINE, cfg, op.min_m, op.max_m)
+    pipeline = make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m)
     count = setup.points or cfg.active_width or cfg.width
     scan = ScanPipeline(pipeline, count)
     row_min, row_max = roi_rows(pipeline.geometry)

@@ -11,9 +11,12 @@ from .reference import ReferencePipeline
 #: neighbouring columns), plus the centre of mass without the fit to show what the fit buys, and
 #: with a tracked region of interest (``-track``: rows near the previous frame's line, see
 #: :class:`device.vision.fast.FastParams`), and that with the range gate (``-gated``: the
-#: device's pipeline, device/service/assembly.py PIPELINE).
+#: device's pipeline, DEVICE_VARIANT).
 VARIANTS = ("reference",) + tuple(f"fast-{e}" for e in ESTIMATORS) + ("fast-com-raw", "fast-com-track",
                                                                       "fast-com-track-gated")
+#: The variant the device runs (device/service/assembly.py builds it with the operating point's
+#: depth limits, and hands it both unlit neighbours of each lit frame).
+DEVICE_VARIANT = "fast-com-track-gated"
 
 #: Rows searched each side of the previous frame's line by the ``-track`` variants.
 TRACK_MARGIN_ROWS = 24
