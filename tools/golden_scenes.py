@@ -6,8 +6,13 @@
 
 The scenes: every built-in scene plus four walls (distance x reflectivity), three frame pairs
 each, processed in order by every variant (so tracked bands carry over), then one pair with its
-lit rows withheld and one with lit and unlit swapped.  `compare` demands equality bit for bit
-(NaNs equal) of every array and exits 1 naming the first differences otherwise.
+lit rows withheld and one with lit and unlit swapped. And the moving scenes of MOTION (sweep points
+of `laserpi bench motion`: turning, driving, flicker, a person crossing, a textured wall), three
+lit frames each with both unlit neighbours, processed in order by the device's pipeline as the
+device runs it (its depth limits, the unlit frame before the lit one as well: step 0, the checks
+on a moved background and the turned neighbours, which a pair alone never reaches).  `compare`
+demands equality bit for bit (NaNs equal) of every array and exits 1 naming the first differences
+otherwise.
 """
 
 from __future__ import annotations
@@ -20,6 +25,12 @@ SCENES = ("wall", "room", "corridor", "clutter", "targets", "near", "far", "sunl
           "wall:distance=0.6,reflectivity=0.9", "wall:distance=2.5,reflectivity=0.1",
           "wall:distance=4,reflectivity=0.5", "wall:distance=1.2,reflectivity=0.3")
 FIELDS = ("column", "row", "angle", "range", "quality", "points", "status")
+#: sweep points of device/bench/motion.py SWEEP: turning (with the sensor ahead of the axis, in
+#: 10x light while driving, with flicker), driving, a person crossing, the textured wall
+MOTION = ("yaw 90", "yaw 180, 1 m/s, 10x", "flicker, yaw 90", "speed 1.0", "person, yaw 45, 0.1 m ahead",
+          "poster wall, yaw 14")
+#: the parts of a moving scene's frame triple, as stored: (lit, unlit after, lit rows, unlit before)
+MOTION_PARTS = ("lit", "unlit", "lit_rows", "unlit_before")
 
 
 def runs_of(pairs) -> list:
@@ -34,6 +45,25 @@ def scene_pairs(cfg, scene: str, pairs_per_scene: int = 3) -> list:
     from device.vision.evaluation import simulated_pairs
 
     return [(p.lit, p.unlit, p.lit_rows) for p in simulated_pairs(cfg, scene, pairs_per_scene, seed=3)]
+
+
+def motion_triples(cfg, point: str, lit_frames: int = 3) -> list:
+    """The sweep point's (lit, unlit after, lit rows, unlit before) of ``lit_frames`` lit frames."""
+    from device.bench.motion import point_scene, sequence
+
+    return [(p.lit, p.unlit, p.lit_rows, p.unlit_before) for p in sequence(cfg, point_scene(point), lit_frames, seed=3)]
+
+
+def measure_motion(cfg, point: str, triples, out: dict) -> None:
+    """The device's pipeline on a moving scene's ``triples`` into ``out`` under "point|pipeline|k|field"."""
+    from device.vision.pipelines import DEVICE_VARIANT, make_pipeline
+
+    op = cfg.operating_point
+    pipe = make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m)
+    for k, (lit, unlit, rows, before) in enumerate(triples):
+        meas = pipe.process(lit, unlit, lit_rows=rows, other_unlit=before)
+        for f in FIELDS:
+            out[f"{point}|{DEVICE_VARIANT}|{k}|{f}"] = np.asarray(getattr(meas, f))
 
 
 def measure(cfg, scene: str, runs, variants, out: dict) -> None:
@@ -57,6 +87,9 @@ def dump(path: str, pairs_per_scene: int = 3) -> None:
     for scene in SCENES:
         measure(cfg, scene, runs_of(scene_pairs(cfg, scene, pairs_per_scene)), VARIANTS, out)
         print(f"{scene}: {len(VARIANTS)} variants x {pairs_per_scene + 2} pairs", flush=True)
+    for point in MOTION:
+        measure_motion(cfg, point, motion_triples(cfg, point), out)
+        print(f"{point}: the device's pipeline x 3 lit frames with both neighbours", flush=True)
     np.savez_compressed(path, **out)
     print(f"wrote {len(out)} arrays to {path}")
 
