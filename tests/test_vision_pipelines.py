@@ -202,6 +202,42 @@ def test_partly_lit_frame_is_unlit_also_where_the_range_gate_rejects(wall2m):
     assert (gated.process(lit, unlit).status[dark] == ColumnStatus.REJECTED).any()
 
 
+@pytest.mark.parametrize("name", ["fast-com", "fast-com-track", "fast-com-track-gated"])
+def test_a_line_half_hidden_by_a_saturated_background_is_rejected(wall2m, name):
+    """A bright background saturates the sensor over the line's upper half in columns 600-699
+    (a lamp, a sunlit patch): there the laser cannot brighten the lit frame, the line's centre
+    of mass sees only its lower half (~1 px low, 5 % of the range at 2 m). REJECTED, not that."""
+    rows, _ = wall2m
+    lit, unlit = frame_pair(CFG, rows, seed=31)
+    for c in range(600, 700):
+        r = int(np.rint(rows[c]))
+        lit[r - 6 : r, c] = unlit[r - 6 : r, c] = 255
+    pipe = make_pipeline(name, CFG)
+    for _ in range(2):  # the tracked variants' second frame searches the band they track
+        m = pipe.process(lit, unlit)
+    assert np.all(m.status[600:700] == ColumnStatus.REJECTED) and not np.isfinite(m.range[600:700]).any()
+    away = np.r_[100:580, 720:1500]
+    assert m.valid[away].mean() > 0.99
+    np.testing.assert_allclose(m.row[away], rows[away], atol=0.3)
+
+
+def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
+    """Nothing in range, but columns 300-399 saturated over rows 150-199 (a window): a line there
+    would not show, so no "no return" (+inf: free space); also not with both unlit neighbours
+    (the device's pipeline). A lone saturated pixel of noise (column 900) hides no line."""
+    nothing = np.full(CFG.width, np.nan)
+    lit, unlit = frame_pair(CFG, nothing, seed=32)
+    lit[150:200, 300:400] = unlit[150:200, 300:400] = 255
+    lit[170, 900] = unlit[170, 900] = 255
+    for name in ("fast-com", "fast-com-track-gated"):
+        for other in (None, unlit):
+            m = pipes[name].process(lit, unlit, other_unlit=other) if other is not None else pipes[name].process(lit, unlit)
+            assert np.all(m.status[300:400] == ColumnStatus.REJECTED), name
+            assert np.isnan(m.range[300:400]).all()
+            rest = np.r_[0:290, 410:CFG.width]
+            assert np.all(m.status[rest] == ColumnStatus.NO_RETURN) and np.all(m.range[rest] == np.inf), name
+
+
 def test_pulse_in_the_wrong_frame_gives_no_ranges(wall2m, pipes):
     rows, _ = wall2m
     lit, unlit = frame_pair(CFG, rows, seed=12)

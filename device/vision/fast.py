@@ -129,6 +129,14 @@ Per frame pair (or triple):
    per row (the 1/z table's slope) it is the range's predicted relative 1 sigma; above
    ``max_range_sigma`` the column is REJECTED (NaN), never a guess (``columns.c``: ``Line``,
    ``fit_sigma``). A line next to rows the pulse missed is UNLIT rather than REJECTED (the cause).
+   A saturated background (a lamp, a sunlit patch, a long exposure in bright light): where the
+   background the lit frame is measured against is within ``min_peak`` of full scale, the laser
+   cannot brighten the lit frame by a line's least amplitude, so the sensor hides the line there.
+   A line with such a pixel among its centre-of-mass rows was measured on the rest of its profile
+   (its row pulled away from the hidden part: ~1 px, 5 % of the range at 2 m; a poster wall in 3x
+   light at a 40 ms exposure gave 38 % of its ranges > 5 % off), and a column with 3 such rows
+   in a row anywhere in the band (a line's height) cannot claim "no return" (+inf: free space to a
+   robot, where a wall can be hiding): both are REJECTED (``_saturated``).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
    In a turned frame (step 0), a depth edge is smeared: while a row is exposed, the turn sweeps
    the scene by the turn between the frames (the larger of the neighbours' registered shifts)
@@ -372,6 +380,7 @@ class FastPipeline:
         p = self.params
         moved = moved_raw = neighbours = lum_other = brought_in = turn_rad = None
         noise_background = residue_noise = None
+        bright = background  # the background as the sensor saw it, whatever step 0 makes of it (step 5)
         if other_unlit is not None:  # step 0
             lum_other = luminance(other_unlit, "other unlit", shape)
             other = lum_other[self.top : self.top + self.rows]
@@ -381,7 +390,7 @@ class FastPipeline:
                 background, other, moved, brought_in, turn_rad = self._turned(grid, lum_lit, lum_unlit, lum_other,
                                                                               background, other, moved)
             neighbours = (background, other)
-            background = turned_mean = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
+            background = turned_mean = bright = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
             if brought_in is not None and math.isfinite(p.resample_slack):
                 background = _within_a_row(lit_band, background, p.resample_slack)
             if moved.any():
@@ -456,6 +465,7 @@ class FastPipeline:
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
+        status = self._saturated(status, row, bright)
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         tri = self.geometry.triangulate(row)
@@ -468,6 +478,33 @@ class FastPipeline:
             _reject(self._mixed(tri.depth, found, turn_rad * exposure_share(lit, self.config.operating_point)),
                     status, found, row)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
+
+    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray) -> np.ndarray:
+        """Step 5's saturated background: ``status`` with REJECTED where ``bright`` (the band of
+        the background the lit frame is measured against) leaves the laser no room to show: a
+        line with such a pixel among its centre-of-mass rows, and "no return" in a column with 3
+        such rows in a row (a line's height: a line there would leave nothing in the column; a
+        lone pixel of noise that bright does not hide one)."""
+        import cv2
+
+        p = self.params
+        full = 255 - p.min_peak  # from here up the lit frame cannot stand min_peak above it
+        bright_columns = bright.max(axis=0) >= full
+        if not bright_columns.any():  # the common case: one reduction
+            return status
+        W = bright.shape[1]
+        hidden = bright_columns & (status == STATUS_U8[ColumnStatus.NO_RETURN])
+        if hidden.any():  # only such columns' span is eroded (a lamp's, a window's)
+            c = np.nonzero(hidden)[0]
+            c0, c1 = int(c[0]), int(c[-1]) + 1
+            hidden[c0:c1] &= cv2.erode(bright[:, c0:c1], np.ones((3, 1), np.uint8)).max(axis=0) >= full
+        ok = np.nonzero(bright_columns & (status == STATUS_U8[ColumnStatus.OK]))[0]
+        if ok.size:
+            h = p.half_width
+            rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
+                         self.rows - 1)
+            hidden[ok] = (bright.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
+        return np.where(hidden, STATUS_U8[ColumnStatus.REJECTED], status)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
         """Step 0: the columns where the neighbours' bands ``a`` and ``b`` differ (moved);
