@@ -222,19 +222,26 @@ def test_a_line_half_hidden_by_a_saturated_background_is_rejected(wall2m, name):
 
 
 def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
-    """Nothing in range, but columns 300-399 saturated over rows 150-199 (a window): a line there
-    would not show, so no "no return" (+inf: free space); also not with both unlit neighbours
-    (the device's pipeline). A lone saturated pixel of noise (column 900) hides no line."""
+    """Nothing in range, but columns 300-399 saturated over rows 150-199 (a window), and columns
+    1000-1099 over the rows nearer than the range (step 7's): a line there would not show, so no
+    "no return" (+inf: free space); also not with both unlit neighbours (the device's pipeline).
+    A lone saturated pixel of noise (column 900) hides no line."""
     nothing = np.full(CFG.width, np.nan)
     lit, unlit = frame_pair(CFG, nothing, seed=32)
     lit[150:200, 300:400] = unlit[150:200, 300:400] = 255
     lit[170, 900] = unlit[170, 900] = 255
+    fast = pipes["fast-com"]
+    assert fast.near_top > 0  # the near rows are below the band (the laser below the camera)
+    near = slice(max(fast.near_top, fast.top + fast.rows), fast.near_bottom)  # those outside the band too
+    assert near.stop - near.start > 100
+    lit[near, 1000:1100] = unlit[near, 1000:1100] = 255
+    hidden = np.r_[300:400, 1000:1100]
     for name in ("fast-com", "fast-com-track-gated"):
         for other in (None, unlit):
             m = pipes[name].process(lit, unlit, other_unlit=other) if other is not None else pipes[name].process(lit, unlit)
-            assert np.all(m.status[300:400] == ColumnStatus.REJECTED), name
-            assert np.isnan(m.range[300:400]).all()
-            rest = np.r_[0:290, 410:CFG.width]
+            assert np.all(m.status[hidden] == ColumnStatus.REJECTED), name
+            assert np.isnan(m.range[hidden]).all()
+            rest = np.r_[0:290, 410:990, 1110:CFG.width]
             assert np.all(m.status[rest] == ColumnStatus.NO_RETURN) and np.all(m.range[rest] == np.inf), name
 
 

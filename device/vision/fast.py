@@ -135,8 +135,9 @@ Per frame pair (or triple):
    A line with such a pixel among its centre-of-mass rows was measured on the rest of its profile
    (its row pulled away from the hidden part: ~1 px, 5 % of the range at 2 m; a poster wall in 3x
    light at a 40 ms exposure gave 38 % of its ranges > 5 % off), and a column with 3 such rows
-   in a row anywhere in the band (a line's height) cannot claim "no return" (+inf: free space to a
-   robot, where a wall can be hiding): both are REJECTED (``_saturated``).
+   in a row anywhere in the band (a line's height), or among the near rows of step 7, cannot
+   claim "no return" (+inf: free space to a robot, where a wall can be hiding): both are REJECTED
+   (``_saturated``).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
    In a turned frame (step 0), a depth edge is smeared: while a row is exposed, the turn sweeps
    the scene by the turn between the frames (the larger of the neighbours' registered shifts)
@@ -428,7 +429,7 @@ class FastPipeline:
         empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
         spans = _spans(empty, SPAN_JOIN) if self.near_bottom > self.near_top else []
         if len(spans):
-            close = np.zeros(W, bool)
+            close, near_hidden = np.zeros(W, bool), np.zeros(W, bool)
             for c0, c1 in spans:  # only these columns are read (a wall's dim ends: ~70 of 1664 columns)
                 # every other row: a line is at least two rows high
                 la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
@@ -438,6 +439,10 @@ class FastPipeline:
                 near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
                 # stricter than in range (twice the noise ratio): a false "too close" stops a robot
                 close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
+                # a saturated background there (step 5, _saturated: two of these rows in a row,
+                # a line's height) could hide a return nearer than the range
+                u = cv2.bitwise_and(ua, mask)
+                near_hidden[c0:c1] = np.minimum(u[:-1], u[1:]).max(axis=0, initial=0) >= 255 - p.min_peak
             close &= empty
             # the near rows are outside the band and not turned: there the neighbours moved as they are
             if moved_raw is not None and np.any(close & moved_raw):
@@ -450,6 +455,7 @@ class FastPipeline:
                 close &= ~moved_raw | (above & ~unseen)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
+            status[near_hidden & (status == STATUS_U8[ColumnStatus.NO_RETURN])] = STATUS_U8[ColumnStatus.REJECTED]
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
                                      moved, neighbours, lit_band, t0)
@@ -485,8 +491,6 @@ class FastPipeline:
         line with such a pixel among its centre-of-mass rows, and "no return" in a column with 3
         such rows in a row (a line's height: a line there would leave nothing in the column; a
         lone pixel of noise that bright does not hide one)."""
-        import cv2
-
         p = self.params
         full = 255 - p.min_peak  # from here up the lit frame cannot stand min_peak above it
         bright_columns = bright.max(axis=0) >= full
@@ -494,10 +498,11 @@ class FastPipeline:
             return status
         W = bright.shape[1]
         hidden = bright_columns & (status == STATUS_U8[ColumnStatus.NO_RETURN])
-        if hidden.any():  # only such columns' span is eroded (a lamp's, a window's)
+        if hidden.any():  # only such columns' span is read again (a lamp's, a window's)
             c = np.nonzero(hidden)[0]
-            c0, c1 = int(c[0]), int(c[-1]) + 1
-            hidden[c0:c1] &= cv2.erode(bright[:, c0:c1], np.ones((3, 1), np.uint8)).max(axis=0) >= full
+            span = slice(int(c[0]), int(c[-1]) + 1)
+            b = bright[:, span]
+            hidden[span] &= np.minimum(np.minimum(b[:-2], b[1:-1]), b[2:]).max(axis=0, initial=0) >= full
         ok = np.nonzero(bright_columns & (status == STATUS_U8[ColumnStatus.OK]))[0]
         if ok.size:
             h = p.half_width
