@@ -68,6 +68,7 @@ class ErrorCode(enum.IntEnum):
     CAMERA_FAULT = 4  # the camera stalled or failed: laser off, camera being restarted
     PIPELINE_FAULT = 5  # the image pipeline raised on the last frame pair: that scan was skipped
     SYNC_DEGRADED = 6  # no GPIO edge timestamps of the laser trigger: synchronised by PING alone, less accurately
+    SATURATED = 7  # bright light saturates the camera where the line is or could be: those rays are NaN
 
 
 class MessageError(ValueError):

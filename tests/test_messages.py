@@ -167,7 +167,7 @@ def test_health_counters_cut_short_are_refused_and_must_be_all_or_none():
 def test_error_codes_of_the_device_process_are_in_the_protocol():
     assert {e.name: e.value for e in m.ErrorCode} == {
         "SOURCE_FAILED": 1, "SYNC_LOST": 2, "LASER_FAULT": 3, "CAMERA_FAULT": 4, "PIPELINE_FAULT": 5,
-        "SYNC_DEGRADED": 6}
+        "SYNC_DEGRADED": 6, "SATURATED": 7}
 
 
 def test_settings_merge_keeps_unset_fields():

@@ -3,6 +3,7 @@ pipeline (tests/device_fakes.py). The real parts run end to end in tests/test_se
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -321,6 +322,36 @@ def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
     h2 = host.health()
     assert m.ErrorCode.PIPELINE_FAULT not in h2.errors and len(host.scans) >= n + 3
     assert h2.pipeline_errors == sup.health().source.pipeline_errors >= h.pipeline_errors
+    stop.set()
+    t.join(3)
+
+
+def test_health_message_reports_a_saturated_camera_while_it_lasts():
+    """A pipeline that found columns saturated by bright light (ScanPipeline counts them): error
+    SATURATED while its scans have any, cleared with the first scan without; scanning goes on."""
+    host_end, dev_end = pipe_pair()
+    rig = FakeRig()
+    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    good = sup.source.pipeline
+    bright = threading.Event()
+
+    def lamp_in_view(lit, dark, other_dark):
+        rays = good(lit, dark, other_dark)
+        return dataclasses.replace(rays, saturated_columns=120) if bright.is_set() else rays
+
+    sup.source.pipeline = lamp_in_view
+    host = Host(host_end)
+    host.send(m.Start())
+    host.pump(0.3)
+    assert m.ErrorCode.SATURATED not in host.health().errors
+    bright.set()
+    n = len(host.scans)
+    host.pump(0.3)
+    h = host.health()
+    assert m.ErrorCode.SATURATED in h.errors and h.state == m.DeviceState.SCANNING and len(host.scans) >= n + 3
+    bright.clear()
+    host.pump(0.3)
+    assert m.ErrorCode.SATURATED not in host.health().errors
     stop.set()
     t.join(3)
 

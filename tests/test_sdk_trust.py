@@ -328,6 +328,19 @@ def test_diagnostics_in_the_shape_of_diagnostic_status(rig):
         assert s.diagnostics()[1].level == 1
 
 
+def test_a_saturated_camera_is_a_warning_naming_it():
+    """SATURATED (some rays NaN: bright light in view) degrades the scans: WARN, not ERROR."""
+    import dataclasses
+
+    from host_sdk.diagnostics import WARN, device_status
+    from protocol import messages as m
+    from protocol.vectors.generate import VECTORS
+
+    health = dataclasses.replace(VECTORS["health"][1], state=m.DeviceState.SCANNING, errors=(m.ErrorCode.SATURATED,))
+    status = device_status(health, "LP-1")
+    assert status.level == WARN and "SATURATED" in status.message and status.values["errors"] == "SATURATED"
+
+
 # --- the pure parts, with hypothesis ------------------------------------------------------------
 from hypothesis import assume, given, settings, strategies as st  # noqa: E402
 

@@ -215,10 +215,29 @@ def test_a_line_half_hidden_by_a_saturated_background_is_rejected(wall2m, name):
     pipe = make_pipeline(name, CFG)
     for _ in range(2):  # the tracked variants' second frame searches the band they track
         m = pipe.process(lit, unlit)
-    assert np.all(m.status[600:700] == ColumnStatus.REJECTED) and not np.isfinite(m.range[600:700]).any()
+    assert np.all(m.status[600:700] == ColumnStatus.SATURATED) and not np.isfinite(m.range[600:700]).any()
     away = np.r_[100:580, 720:1500]
     assert m.valid[away].mean() > 0.99
     np.testing.assert_allclose(m.row[away], rows[away], atol=0.3)
+
+
+def test_a_scan_counts_the_columns_a_saturated_background_hides(wall2m):
+    """What the device reports in HEALTH (error SATURATED, device/scan/source.py) comes from here."""
+    from device.camera.frame import Frame
+    from device.scan.pipeline import ScanPipeline
+
+    rows, _ = wall2m
+    scan = ScanPipeline(make_pipeline("fast-com", CFG), 1640)
+    for patch in (False, True):
+        lit, unlit = frame_pair(CFG, rows, seed=33)
+        if patch:
+            for c in range(600, 700):
+                r = int(np.rint(rows[c]))
+                lit[r - 6 : r, c] = unlit[r - 6 : r, c] = 255
+        frame = lambda image, seq: Frame(image, seq, 10**9 + seq * 50_000_000, 9200.0, 50_000.0, 18_904.0, lit=seq == 1)  # noqa: E731
+        rays = scan(frame(lit, 1), frame(unlit, 2))
+        assert rays.saturated_columns == (100 if patch else 0)
+        assert np.isnan(rays.ranges).sum() >= (80 if patch else 0)
 
 
 def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
@@ -239,7 +258,7 @@ def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
     for name in ("fast-com", "fast-com-track-gated"):
         for other in (None, unlit):
             m = pipes[name].process(lit, unlit, other_unlit=other) if other is not None else pipes[name].process(lit, unlit)
-            assert np.all(m.status[hidden] == ColumnStatus.REJECTED), name
+            assert np.all(m.status[hidden] == ColumnStatus.SATURATED), name
             assert np.isnan(m.range[hidden]).all()
             rest = np.r_[0:290, 410:990, 1110:CFG.width]
             assert np.all(m.status[rest] == ColumnStatus.NO_RETURN) and np.all(m.range[rest] == np.inf), name

@@ -13,7 +13,7 @@ from device.camera.frame import Frame
 from device.model.scan_frame import MAX_JUMP_RATIO, angle_order, uniform_angles
 from device.scan.timing import column_times_ns, scan_timing
 from device.vision.kernel import columns_kernel
-from device.vision.measurements import bridged_gap
+from device.vision.measurements import STATUS_U8, ColumnStatus, bridged_gap
 
 if TYPE_CHECKING:
     from device.vision.measurements import Pipeline
@@ -22,13 +22,16 @@ if TYPE_CHECKING:
 class ScanRays:
     """Ranges (float32, REP 117) and quality (uint8) on every angle of the scan geometry, and
     when ray 0 was measured and the step per ray (device.scan.timing); ray_times_ns: each ray's
-    own time (float64 CLOCK_MONOTONIC ns, NaN: not measured; None: not timed one by one)."""
+    own time (float64 CLOCK_MONOTONIC ns, NaN: not measured; None: not timed one by one);
+    saturated_columns: image columns where bright light saturated the camera over the line or
+    where it could be (ColumnStatus.SATURATED: their rays are NaN)."""
 
     ranges: np.ndarray
     quality: np.ndarray
     first_ray_ns: int
     ray_interval_ns: int
     ray_times_ns: np.ndarray | None = None
+    saturated_columns: int = 0
 
 
 #: (lit, the nearest unlit neighbour, the other unlit neighbour or None) -> ScanRays.
@@ -64,4 +67,5 @@ class ScanPipeline:
                                    np.empty_like(order), ranges, quality, rows)
         ray_times = column_times_ns(lit, rows)  # NaN where the ray has no range (the kernel's row)
         timing = scan_timing(ray_times, column_times_ns(lit, self._middle_row))
-        return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns, ray_times)
+        return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns, ray_times,
+                        int(np.count_nonzero(meas.status == STATUS_U8[ColumnStatus.SATURATED])))

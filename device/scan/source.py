@@ -23,7 +23,9 @@ both neighbours, device/scan/pairing.py) into one scan, and it never raises out 
   are not neighbours;
 * a pipeline exception: that scan is skipped and counted, the error is logged;
 * a laser synchronised without the trigger line's GPIO edges (``sync_degraded``, PING only):
-  error SYNC_DEGRADED for as long as the process runs.
+  error SYNC_DEGRADED for as long as the process runs;
+* bright light saturating the camera where the line is or could be (``ScanRays.saturated_columns``:
+  those rays are NaN, never "no return"): error SATURATED while a scan has such columns.
 
 The scan then gets the host's settings: the region of interest, ``min_quality`` and the median
 filter (protocol/median.py).
@@ -241,6 +243,7 @@ class SensorSource:
         finally:
             self.counters.cpu_pipeline_s += time.thread_time() - cpu
         self._errors.discard(m.ErrorCode.PIPELINE_FAULT)
+        self._saturated(rays.saturated_columns, lit.seq)
         s = self._settings
         sl = slice(s.roi_first, s.roi_first + s.roi_count)
         ranges, quality = ranges[sl], quality[sl]
@@ -254,6 +257,18 @@ class SensorSource:
         times = None if rays.ray_times_ns is None else rays.ray_times_ns[sl]
         return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first,
                           ray_interval_ns=rays.ray_interval_ns, ray_times_ns=times)
+
+    def _saturated(self, columns: int, seq: int) -> None:
+        """Error SATURATED while the last scan had columns where bright light saturated the
+        camera (their rays NaN), logged when it begins and ends."""
+        was = m.ErrorCode.SATURATED in self._errors
+        if columns and not was:
+            log.warning("lit frame %d: bright light saturates the camera in %d image columns; their rays are NaN "
+                        "(a lamp, a window or sunlight in view, or too long an exposure)", seq, columns)
+            self._errors.add(m.ErrorCode.SATURATED)
+        elif not columns and was:
+            log.info("lit frame %d: the camera is no longer saturated", seq)
+            self._errors.discard(m.ErrorCode.SATURATED)
 
     # failures
     def _camera_failed(self, why: str) -> None:

@@ -136,8 +136,8 @@ Per frame pair (or triple):
    (its row pulled away from the hidden part: ~1 px, 5 % of the range at 2 m; a poster wall in 3x
    light at a 40 ms exposure gave 38 % of its ranges > 5 % off), and a column with 3 such rows
    in a row anywhere in the band (a line's height), or among the near rows of step 7, cannot
-   claim "no return" (+inf: free space to a robot, where a wall can be hiding): both are REJECTED
-   (``_saturated``).
+   claim "no return" (+inf: free space to a robot, where a wall can be hiding): both are SATURATED
+   (NaN; ``_saturated``; the device reports it in HEALTH, error SATURATED).
 6. Triangulation by the per-column ray table, post-calibration (docs/thesis-notes.md N8), scan angle/range.
    In a turned frame (step 0), a depth edge is smeared: while a row is exposed, the turn sweeps
    the scene by the turn between the frames (the larger of the neighbours' registered shifts)
@@ -455,7 +455,7 @@ class FastPipeline:
                 close &= ~moved_raw | (above & ~unseen)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
-            status[near_hidden & (status == STATUS_U8[ColumnStatus.NO_RETURN])] = STATUS_U8[ColumnStatus.REJECTED]
+            status[near_hidden & (status == STATUS_U8[ColumnStatus.NO_RETURN])] = STATUS_U8[ColumnStatus.SATURATED]
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
                                      moved, neighbours, lit_band, t0)
@@ -486,7 +486,7 @@ class FastPipeline:
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
     def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray) -> np.ndarray:
-        """Step 5's saturated background: ``status`` with REJECTED where ``bright`` (the band of
+        """Step 5's saturated background: ``status`` with SATURATED where ``bright`` (the band of
         the background the lit frame is measured against) leaves the laser no room to show: a
         line with such a pixel among its centre-of-mass rows, and "no return" in a column with 3
         such rows in a row (a line's height: a line there would leave nothing in the column; a
@@ -509,7 +509,7 @@ class FastPipeline:
             rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
                          self.rows - 1)
             hidden[ok] = (bright.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
-        return np.where(hidden, STATUS_U8[ColumnStatus.REJECTED], status)
+        return np.where(hidden, STATUS_U8[ColumnStatus.SATURATED], status)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
         """Step 0: the columns where the neighbours' bands ``a`` and ``b`` differ (moved);

@@ -32,13 +32,16 @@ class ColumnStatus(enum.IntEnum):
     INVALID_PIXEL = 5  # backward projection failed for the line's pixel  [NaN]
     UNLIT = 6  # the column's rows were not lit by the pulse, or the laser lit the "unlit" frame  [NaN]
     REJECTED = 7  # a line was found but failed a consistency check (width, ambiguity)  [NaN]
+    SATURATED = 8  # bright light saturated the camera where the line is, or could be  [NaN]
 
 
 #: ColumnStatus values as numpy scalars for the per-frame array operations (numpy converts an
 #: IntEnum member on every use: ~4 us a comparison on a scan, against ~1.5 us).
 STATUS_U8 = {s: np.uint8(s) for s in ColumnStatus}
 
-_RANGE_OF_STATUS = np.array([np.nan, np.inf, -np.inf, np.inf, np.nan, np.nan, np.nan, np.nan])
+#: each status's REP 117 range where no range was measured (statuses are 0, 1, ...)
+_RANGE_OF_STATUS = np.array([{ColumnStatus.NO_RETURN: np.inf, ColumnStatus.TOO_CLOSE: -np.inf,
+                              ColumnStatus.TOO_FAR: np.inf}.get(s, np.nan) for s in ColumnStatus])
 _FROM_RANGE_STATUS = np.zeros(max(RangeStatus) + 1, dtype=np.uint8)  # RangeStatus -> ColumnStatus
 for _r, _c in (
     (RangeStatus.OK, ColumnStatus.OK),
