@@ -183,8 +183,8 @@ class SyncedLaser:
             if controller is None or self.comcu is None:
                 raise LaserError("lost", "laser not started")
             try:
-                est = controller.clock()
-                interval = self.ping_interval_gpio_s if est is not None and est.source == "gpio" else self.ping_interval_s
+                # the map of the last frame's step: the fit again here would cost as much as the step's own
+                interval = self.ping_interval_gpio_s if controller.clock_source == "gpio" else self.ping_interval_s
                 if self._now() - self._last_ping >= interval:
                     self._ping(controller)
                 edges = self.comcu.edges()

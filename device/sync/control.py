@@ -264,6 +264,8 @@ class SyncController:
         self._last_pair_ns: int | None = None
         self._now_ns = 0
         self.events: list[tuple[int, str]] = []  # (Pi ns, what happened): resets, restarts, locks
+        #: the source ("gpio", "ping") of the clock map the last control step placed pulses with, or None
+        self.clock_source: str | None = None
         self.refusals = 0
 
     # --- inputs --------------------------------------------------------------------------------
@@ -343,6 +345,7 @@ class SyncController:
             self.train = None  # a new train is placed on the new frame phase
         self._update_pairs()
         est = self.clock()
+        self.clock_source = None if est is None else est.source
         if est is None or not self.camera.ready:
             return self._label(frame, None, "no clock map yet" if est is None else "camera line not ready")
         if est.n_samples >= 16 and abs(est.drift_ppm) > cfg.max_drift_ppm:
