@@ -10,6 +10,7 @@ import pytest
 from device.laser.comcu import HEARTBEAT_SEQ
 from device.sim.hardware import SimulatedHardware, answers_a_request, ended_frames
 from protocol import mcu
+from protocol.framing import MAX_PAYLOAD_MCU, decode_frame
 
 
 def wire(msg, seq: int) -> bytes:
@@ -86,6 +87,35 @@ def test_answered_requests_leave_the_clock_stepping_in_whole_quanta(hardware):
         assert 0 <= hardware.now_ns() - hardware.limit_ns <= 8 * 1e9 / hardware.cpu_hz + 1
         # a request while held is answered (the answer window lets the MCU's time run on)
         assert comcu.ping().mcu_ticks > 0 and hardware.now_ns() > hardware.limit_ns
+    finally:
+        comcu.port.close()
+
+
+def test_the_pis_uart_hands_over_the_co_mcus_bytes_as_a_pl011_does(hardware):
+    """The co-MCU's replies reach the Pi's reader as its PL011 receiver hands them over: in pieces
+    of PL011_RX_TRIGGER_BYTES (its FIFO's interrupt level), the last piece of a reply after the
+    line fell silent (PL011_RX_TIMEOUT_BITS); not byte by byte as the emulator sends them."""
+    import math
+    import os
+    import select
+
+    from device.sim.hardware import PL011_RX_TRIGGER_BYTES
+
+    comcu = hardware.open_comcu()
+    comcu.ping()  # the boot announcement and whatever came before are read
+    fd = comcu.port.fileno()
+    try:
+        for seq in range(1, 9):
+            os.write(fd, b"\x00" + wire(mcu.Ping(), seq))
+            pieces = []
+            while not pieces or not pieces[-1].endswith(b"\x00"):
+                assert select.select([fd], [], [], 2.0)[0], "no answer"
+                pieces.append(os.read(fd, 4096))
+            reply = b"".join(pieces)
+            assert isinstance(mcu.decode_message(decode_frame(reply.strip(b"\x00"), max_payload=MAX_PAYLOAD_MCU)), mcu.Pong)
+            assert len(reply) > PL011_RX_TRIGGER_BYTES
+            assert all(len(p) >= PL011_RX_TRIGGER_BYTES for p in pieces[:-1]), [len(p) for p in pieces]
+            assert len(pieces) <= math.ceil(len(reply) / PL011_RX_TRIGGER_BYTES), [len(p) for p in pieces]
     finally:
         comcu.port.close()
 

@@ -23,12 +23,24 @@ from pathlib import Path
 
 import numpy as np
 
-from device.laser.comcu import open_comcu
+from device.laser.comcu import BAUDRATE, open_comcu
 from device.laser.synced import HEARTBEAT_S
 from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, SteppedMcuPort, build_emulator
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 from protocol.ports import open_raw_pty
+
+
+#: The Pi's UART receiver, the PL011 of the BCM283x (its uart0: raspberrypi/linux
+#: arch/arm/boot/dts/bcm283x.dtsi gives it arm,primecell-periphid 0x00241011, revision 2, so
+#: drivers/tty/serial/amba-pl011.c get_fifosize_arm sizes its FIFOs at 16 bytes; the BCM2835 ARM
+#: Peripherals manual, 13.1, says 16 too), interrupts the kernel when its receive FIFO reaches
+#: half of that (amba-pl011.c vendor_arm: .ifls = UART011_IFLS_RX4_8), or when bytes wait and none
+#: came for 32 bit periods (the receive timeout interrupt: ARM PrimeCell UART (PL011) TRM, DDI 0183,
+#: UARTRTINTR); the driver's handler drains the FIFO into the tty, which wakes the reader once. So a
+#: Pi's reader gets a co-MCU reply of up to 15 bytes in one or two pieces, not a byte at a time.
+PL011_RX_TRIGGER_BYTES = 8
+PL011_RX_TIMEOUT_BITS = 32
 
 
 def ended_frames(partial: bytearray, data: bytes) -> list[bytes]:
@@ -121,6 +133,9 @@ class SimulatedHardware:
         self._master, self._slave, self.tty_path = open_raw_pty()
         os.set_blocking(self._master, False)
         self._pending_to_pi = bytearray()
+        self._rx_fifo = bytearray()  # the MCU's bytes in the Pi's UART receiver, not yet handed over
+        self._rx_last_ns = 0  # when the newest of them arrived (simulated time)
+        self._rx_timeout_ns = PL011_RX_TIMEOUT_BITS * 1_000_000_000 // BAUDRATE
         self._t_base_ns = time.monotonic_ns()
         self._lag_ns = 0  # how far simulated time has fallen behind the wall clock for good
         self.reset_mcu()
@@ -179,10 +194,17 @@ class SimulatedHardware:
                     self._answer_until_ns = self.now_ns() + self.answer_window_ns
 
     def _mcu_to_pi(self) -> None:
-        """What the MCU sent goes to the Pi's end of the UART (kept while the pty is full)."""
+        """What the MCU sent goes to the Pi's end of the UART as the Pi's UART hands it over
+        (PL011_RX_TRIGGER_BYTES, PL011_RX_TIMEOUT_BITS; kept while the pty is full). A request
+        counts as answered when its answer reaches the Pi: until then the clock steps finely."""
+        now = self.now_ns()
         n = self.mcu.in_waiting
         if n:
-            out = self.mcu.read(n)
+            self._rx_fifo += self.mcu.read(n)
+            self._rx_last_ns = now
+        if self._rx_fifo and (len(self._rx_fifo) >= PL011_RX_TRIGGER_BYTES or now - self._rx_last_ns >= self._rx_timeout_ns):
+            out = bytes(self._rx_fifo)
+            self._rx_fifo.clear()
             self._pending_to_pi += out
             answers = sum(map(answers_a_request, ended_frames(self._partial_from_mcu, out)))
             self._requests_in_flight = max(0, self._requests_in_flight - answers)
@@ -237,6 +259,7 @@ class SimulatedHardware:
             self._rise = None
             self._requests_in_flight, self._answer_until_ns = 0, 0  # the old MCU answers none of them
             self._partial_from_mcu.clear()
+            self._rx_fifo.clear()
             self.resets += 1
         if old is not None:
             old.close()
