@@ -264,6 +264,29 @@ def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
             assert np.all(m.status[rest] == ColumnStatus.NO_RETURN) and np.all(m.range[rest] == np.inf), name
 
 
+def test_no_return_stands_where_saturation_could_hide_no_line_in_range(pipes):
+    """Saturated rows that cannot hide a line: beyond each column's region of interest (a lamp
+    nearer the horizon than the farthest range: a line there is out of range anyway), and two
+    rows in a row (lower than a line) keep "no return"; three in a row, touching the band's edge,
+    do not."""
+    fast = pipes["fast-com"]
+    nothing = np.full(CFG.width, np.nan)
+    lit, unlit = frame_pair(CFG, nothing, seed=34)
+    far = np.nonzero(fast.lo >= 10)[0][:100]  # columns with 10 band rows beyond their range
+    assert far.size == 100
+    for c in far:
+        lit[fast.top : fast.top + fast.lo[c], c] = unlit[fast.top : fast.top + fast.lo[c], c] = 255
+    inside = np.nonzero(fast.lo == 0)[0]  # columns whose range begins at the band's first row
+    assert inside.size >= 100
+    two, edge = inside[:50], inside[-50:]
+    r = fast.top + (fast.lo[two] + fast.hi[two]) // 2
+    lit[r, two] = unlit[r, two] = lit[r + 1, two] = unlit[r + 1, two] = 255
+    lit[fast.top : fast.top + 3, edge] = unlit[fast.top : fast.top + 3, edge] = 255
+    m = fast.process(lit, unlit)
+    assert np.all(m.status[far] == ColumnStatus.NO_RETURN) and np.all(m.status[two] == ColumnStatus.NO_RETURN)
+    assert np.all(m.status[edge] == ColumnStatus.SATURATED)
+
+
 def test_pulse_in_the_wrong_frame_gives_no_ranges(wall2m, pipes):
     rows, _ = wall2m
     lit, unlit = frame_pair(CFG, rows, seed=12)

@@ -25,7 +25,8 @@ both neighbours, device/scan/pairing.py) into one scan, and it never raises out 
 * a laser synchronised without the trigger line's GPIO edges (``sync_degraded``, PING only):
   error SYNC_DEGRADED for as long as the process runs;
 * bright light saturating the camera where the line is or could be (``ScanRays.saturated_columns``:
-  those rays are NaN, never "no return"): error SATURATED while a scan has such columns.
+  those rays are NaN, never "no return"): error SATURATED from a scan with such columns until
+  ``SATURATED_CLEAR_SCANS`` scans in a row have none.
 
 The scan then gets the host's settings: the region of interest, ``min_quality`` and the median
 filter (protocol/median.py).
@@ -51,6 +52,9 @@ from protocol.median import median_filter
 from protocol.server import ScanGeometry, SourceScan, SourceStatus
 
 log = logging.getLogger(__name__)
+
+#: Scans in a row without saturated columns that clear error SATURATED (0.5 s at 10 scans/s).
+SATURATED_CLEAR_SCANS = 5
 
 
 # --- counters --------------------------------------------------------------------------------
@@ -101,6 +105,7 @@ class SensorSource:
         self._last_seq: int | None = None
         self._pairing = NeighbourPairing()
         self._errors: set[int] = {m.ErrorCode.SYNC_DEGRADED} if sync_degraded else set()
+        self._unsaturated_scans = 0  # scans in a row without saturated columns (_saturated)
 
     # ScanSource
     def geometry(self) -> ScanGeometry:
@@ -233,6 +238,7 @@ class SensorSource:
             rays = self.pipeline(lit, dark, other_dark)
             ranges = np.asarray(rays.ranges, dtype=np.float32)
             quality = np.asarray(rays.quality, dtype=np.uint8)
+            saturated = int(rays.saturated_columns)
             if ranges.shape != (n,) or quality.shape != (n,):
                 raise ValueError(f"pipeline returned {ranges.shape} ranges and {quality.shape} qualities for {n} angles")
         except Exception as exc:
@@ -243,7 +249,7 @@ class SensorSource:
         finally:
             self.counters.cpu_pipeline_s += time.thread_time() - cpu
         self._errors.discard(m.ErrorCode.PIPELINE_FAULT)
-        self._saturated(rays.saturated_columns, lit.seq)
+        self._saturated(saturated, lit.seq)
         s = self._settings
         sl = slice(s.roi_first, s.roi_first + s.roi_count)
         ranges, quality = ranges[sl], quality[sl]
@@ -259,14 +265,17 @@ class SensorSource:
                           ray_interval_ns=rays.ray_interval_ns, ray_times_ns=times)
 
     def _saturated(self, columns: int, seq: int) -> None:
-        """Error SATURATED while the last scan had columns where bright light saturated the
-        camera (their rays NaN), logged when it begins and ends."""
+        """Error SATURATED from a scan with columns where bright light saturated the camera
+        (their rays NaN, anywhere in the field of view) until SATURATED_CLEAR_SCANS scans in a
+        row had none (a lamp at the edge of saturation does not flap it, nor the log), logged
+        when it begins and ends."""
         was = m.ErrorCode.SATURATED in self._errors
+        self._unsaturated_scans = 0 if columns else self._unsaturated_scans + 1
         if columns and not was:
             log.warning("lit frame %d: bright light saturates the camera in %d image columns; their rays are NaN "
                         "(a lamp, a window or sunlight in view, or too long an exposure)", seq, columns)
             self._errors.add(m.ErrorCode.SATURATED)
-        elif not columns and was:
+        elif was and self._unsaturated_scans >= SATURATED_CLEAR_SCANS:
             log.info("lit frame %d: the camera is no longer saturated", seq)
             self._errors.discard(m.ErrorCode.SATURATED)
 

@@ -31,14 +31,16 @@ from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 from protocol.ports import open_raw_pty
 
 
-#: The Pi's UART receiver, the PL011 of the BCM283x (its uart0: raspberrypi/linux
-#: arch/arm/boot/dts/bcm283x.dtsi gives it arm,primecell-periphid 0x00241011, revision 2, so
-#: drivers/tty/serial/amba-pl011.c get_fifosize_arm sizes its FIFOs at 16 bytes; the BCM2835 ARM
-#: Peripherals manual, 13.1, says 16 too), interrupts the kernel when its receive FIFO reaches
-#: half of that (amba-pl011.c vendor_arm: .ifls = UART011_IFLS_RX4_8), or when bytes wait and none
-#: came for 32 bit periods (the receive timeout interrupt: ARM PrimeCell UART (PL011) TRM, DDI 0183,
-#: UARTRTINTR); the driver's handler drains the FIFO into the tty, which wakes the reader once. So a
-#: Pi's reader gets a co-MCU reply of up to 15 bytes in one or two pieces, not a byte at a time.
+#: The Pi's UART receiver, the PL011 of the BCM2835/BCM2837 (Pi Zero 2 W, Pi 3: their uart0 in
+#: raspberrypi/linux arch/arm/boot/dts/bcm283x.dtsi, in newer trees under arch/arm/boot/dts/broadcom/,
+#: has arm,primecell-periphid 0x00241011, revision 2, so drivers/tty/serial/amba-pl011.c
+#: get_fifosize_arm sizes its FIFOs at 16 bytes; the BCM2835 ARM Peripherals manual, 13.1, says 16
+#: too), interrupts the kernel when its receive FIFO reaches half of that (amba-pl011.c vendor_arm:
+#: .ifls = UART011_IFLS_RX4_8), or when bytes wait and none came for 32 bit periods (the receive
+#: timeout interrupt: ARM PrimeCell UART (PL011) TRM, DDI 0183, UARTRTINTR); the driver's handler
+#: drains the FIFO into the tty, which wakes the reader once. So a Pi's reader gets a co-MCU reply
+#: of ~20 bytes in three pieces, not a byte at a time. (A Pi 4's BCM2711 PL011 is r1p5, 32 bytes
+#: deep, interrupting at 16: "ARM: dts: bcm2711: PL011 UARTs are actually r1p5"; not modelled.)
 PL011_RX_TRIGGER_BYTES = 8
 PL011_RX_TIMEOUT_BITS = 32
 
@@ -163,10 +165,13 @@ class SimulatedHardware:
                 self._lag_ns += target - now - self.step_ns
                 target = now + self.step_ns
             limit = self.limit_ns
-            end = target if limit is None else min(target, max(limit, self._answer_until_ns))
+            # bytes in the Pi's UART receiver are handed over after its timeout, held or not
+            rx_due = self._rx_last_ns + self._rx_timeout_ns if self._rx_fifo else 0
+            end = target if limit is None else min(target, max(limit, self._answer_until_ns, rx_due))
             # each step is a round trip to the emulator's process: at least min_step_ns of simulated
-            # time, unless the Pi waits for an answer or the step reaches the limit
-            quantum = 0 if self._requests_in_flight or end < target else self.min_step_ns
+            # time, unless the Pi waits for an answer or for the receiver's timeout, or the step
+            # reaches the limit
+            quantum = 0 if self._requests_in_flight or rx_due or end < target else self.min_step_ns
             if end - now <= quantum:
                 # wait for the wall clock, or at once for bytes from the Pi
                 select.select([self._master], [], [], min(0.002, max((now - end + quantum) * 1e-9, 0.0005)))

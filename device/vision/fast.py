@@ -428,8 +428,9 @@ class FastPipeline:
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
         empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
         spans = _spans(empty, SPAN_JOIN) if self.near_bottom > self.near_top else []
+        near_hidden = np.zeros(W, bool)  # step 5's saturated background, among these rows
         if len(spans):
-            close, near_hidden = np.zeros(W, bool), np.zeros(W, bool)
+            close = np.zeros(W, bool)
             for c0, c1 in spans:  # only these columns are read (a wall's dim ends: ~70 of 1664 columns)
                 # every other row: a line is at least two rows high
                 la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
@@ -455,7 +456,6 @@ class FastPipeline:
                 close &= ~moved_raw | (above & ~unseen)
             if close.any():
                 status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
-            status[near_hidden & (status == STATUS_U8[ColumnStatus.NO_RETURN])] = STATUS_U8[ColumnStatus.SATURATED]
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
                                      moved, neighbours, lit_band, t0)
@@ -471,7 +471,7 @@ class FastPipeline:
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
-        status = self._saturated(status, row, bright)
+        status = self._saturated(status, row, bright, near_hidden)
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         tri = self.geometry.triangulate(row)
@@ -485,30 +485,36 @@ class FastPipeline:
                     status, found, row)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
-    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray) -> np.ndarray:
+    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray, near_hidden: np.ndarray) -> np.ndarray:
         """Step 5's saturated background: ``status`` with SATURATED where ``bright`` (the band of
-        the background the lit frame is measured against) leaves the laser no room to show: a
-        line with such a pixel among its centre-of-mass rows, and "no return" in a column with 3
-        such rows in a row (a line's height: a line there would leave nothing in the column; a
-        lone pixel of noise that bright does not hide one)."""
+        the background the lit frame is measured against) leaves the laser no room to show, within
+        each column's region of interest (beyond it a line would be out of range anyway): a line
+        with such a pixel among its centre-of-mass rows, and "no return" in a column with 3 such
+        rows in a row (a line's height: a line there would leave nothing in the column; a lone
+        pixel of noise that bright does not hide one) or where ``near_hidden`` (step 7's rows
+        nearer than the range saturated). After the unlit step: a column the pulse missed stays
+        UNLIT (the cause)."""
+        import cv2
+
         p = self.params
         full = 255 - p.min_peak  # from here up the lit frame cannot stand min_peak above it
+        none = status == STATUS_U8[ColumnStatus.NO_RETURN]
+        hidden = near_hidden & none
         bright_columns = bright.max(axis=0) >= full
-        if not bright_columns.any():  # the common case: one reduction
-            return status
-        W = bright.shape[1]
-        hidden = bright_columns & (status == STATUS_U8[ColumnStatus.NO_RETURN])
-        if hidden.any():  # only such columns' span is read again (a lamp's, a window's)
-            c = np.nonzero(hidden)[0]
-            span = slice(int(c[0]), int(c[-1]) + 1)
-            b = bright[:, span]
-            hidden[span] &= np.minimum(np.minimum(b[:-2], b[1:-1]), b[2:]).max(axis=0, initial=0) >= full
-        ok = np.nonzero(bright_columns & (status == STATUS_U8[ColumnStatus.OK]))[0]
-        if ok.size:
-            h = p.half_width
-            rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
-                         self.rows - 1)
-            hidden[ok] = (bright.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
+        if bright_columns.any():  # else (the common case) one reduction
+            seen = cv2.bitwise_and(bright, self.mask)  # each column's region of interest
+            W = bright.shape[1]
+            c = np.nonzero(bright_columns & none)[0]
+            if c.size:  # only such columns' span is read again (a lamp's, a window's)
+                span = slice(int(c[0]), int(c[-1]) + 1)
+                b = seen[:, span]
+                hidden[span] |= none[span] & (np.minimum(np.minimum(b[:-2], b[1:-1]), b[2:]).max(axis=0, initial=0) >= full)
+            ok = np.nonzero(bright_columns & (status == STATUS_U8[ColumnStatus.OK]))[0]
+            if ok.size:
+                h = p.half_width
+                rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
+                             self.rows - 1)
+                hidden[ok] = (seen.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
         return np.where(hidden, STATUS_U8[ColumnStatus.SATURATED], status)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
