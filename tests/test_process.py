@@ -297,9 +297,7 @@ def test_health_message_reports_a_comcu_reset_until_the_laser_is_resynchronised(
 
 
 def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
-    host_end, dev_end = pipe_pair()
-    rig = FakeRig()
-    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    sup, stop, t, host = scanning_host(FakeRig())
     good = sup.source.pipeline
     failing = threading.Event()
 
@@ -309,9 +307,6 @@ def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
         return good(lit, dark, other_dark)
 
     sup.source.pipeline = flaky
-    host = Host(host_end)
-    host.send(m.Start())
-    host.pump(0.3)
     failing.set()
     host.pump(0.3)
     h = host.health()
@@ -328,10 +323,9 @@ def test_health_message_reports_pipeline_failures_and_the_code_clears_after():
 
 def test_health_message_reports_a_saturated_camera_while_it_lasts():
     """A pipeline that found columns saturated by bright light (ScanPipeline counts them): error
-    SATURATED while its scans have any, cleared with the first scan without; scanning goes on."""
-    host_end, dev_end = pipe_pair()
-    rig = FakeRig()
-    sup, stop, t = run_supervised(lambda: dev_end, rig)
+    SATURATED from its first scan with any until SATURATED_CLEAR_SCANS scans in a row have none;
+    scanning goes on."""
+    sup, stop, t, host = scanning_host(FakeRig())
     good = sup.source.pipeline
     bright = threading.Event()
 
@@ -340,9 +334,6 @@ def test_health_message_reports_a_saturated_camera_while_it_lasts():
         return dataclasses.replace(rays, saturated_columns=120) if bright.is_set() else rays
 
     sup.source.pipeline = lamp_in_view
-    host = Host(host_end)
-    host.send(m.Start())
-    host.pump(0.3)
     assert m.ErrorCode.SATURATED not in host.health().errors
     bright.set()
     n = len(host.scans)

@@ -92,6 +92,18 @@ def run(out_dir: Path) -> None:
     np.savez(out_dir / f"{platform.machine()}.npz", **out)
 
 
+def _apart(x: np.ndarray, y: np.ndarray, relative: bool) -> float | None:
+    """The largest difference of ``x`` and ``y``'s finite values (relative to ``x``'s, or
+    absolute), 0 if none is finite; None where their NaN and infinite values differ."""
+    finite = np.isfinite(x)
+    if not (np.array_equal(finite, np.isfinite(y)) and np.array_equal(x[~finite], y[~finite], equal_nan=True)):
+        return None
+    diff = np.abs(x[finite] - y[finite])
+    if relative:
+        diff = diff / np.maximum(np.abs(x[finite]), np.finfo(float).tiny)
+    return float(diff.max()) if diff.size else 0.0
+
+
 def _motion_frame(a, b, frame: str) -> tuple[list[str], dict]:
     """How the moving scene's lit frame ``frame`` ("point|variant|k") differs on aarch64: what
     exceeds the bounds (module docstring), and the largest differences."""
@@ -107,16 +119,12 @@ def _motion_frame(a, b, frame: str) -> tuple[list[str], dict]:
     bounds = {"row": MOTION_ROW_TOL_PX, "quality": 1.0, "angle": MOTION_ANGLE_TOL_RAD, "points": MOTION_RTOL,
               "range": MOTION_RTOL}
     for f, bound in bounds.items():
-        u, v = x[f][same], y[f][same]
-        finite = np.isfinite(u)
-        if not (np.array_equal(finite, np.isfinite(v)) and np.array_equal(u[~finite], v[~finite], equal_nan=True)):
+        apart = _apart(x[f][same], y[f][same], relative=f in ("points", "range"))
+        if apart is None:
             out.append(f"{frame}|{f}: other NaN or infinite values")
             continue
-        diff = np.abs(u[finite] - v[finite])
-        if f in ("points", "range"):  # relative
-            diff = diff / np.maximum(np.abs(u[finite]), np.finfo(float).tiny)
-        stats[f] = float(diff.max()) if diff.size else 0.0
-        if stats[f] > bound:
+        stats[f] = apart
+        if apart > bound:
             out.append(f"{frame}|{f}: {stats[f]:.3g} apart (at most {bound:g})")
     return out, stats
 
@@ -137,12 +145,9 @@ def compare(out_dir: Path) -> int:
             same = same and np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
             exact += same
         elif same:  # NaN and infinite values alike, finite ones within the tolerance
-            finite = np.isfinite(x)
-            same = np.array_equal(finite, np.isfinite(y)) and np.array_equal(x[~finite], y[~finite], equal_nan=True)
-            if same and finite.any():
-                rel = float(np.max(np.abs(x[finite] - y[finite]) / np.maximum(np.abs(x[finite]), np.finfo(float).tiny)))
-                worst = max(worst, rel)
-                same = rel <= SCAN_PLANE_RTOL
+            rel = _apart(x, y, relative=True)
+            same = rel is not None and rel <= SCAN_PLANE_RTOL
+            worst = max(worst, rel or 0.0)
         if not same:
             differ.append(key)
     moved, stats = [], []

@@ -105,8 +105,7 @@ def point_scene(label: str):
 
 
 def _pipelines(cfg):
-    from ..vision.pipelines import DEVICE_VARIANT
-    from ..vision.pipelines import make_pipeline
+    from ..vision.pipelines import DEVICE_VARIANT, make_pipeline
 
     op = cfg.operating_point
     device = make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m)
