@@ -58,10 +58,13 @@ Layout (schema_version 1; SI units unless the key names another unit)::
 
     [operating_point]  # how `laserpi serve` runs the sensor
     scan_rate_hz = 10.0    # scans/s: a lit and an unlit frame each (docs/thesis-notes.md N10); at most [laser] rate_hz
-    exposure_us = 9200.0   # every frame's exposure, shorter than a frame (1 / (2 scan_rate_hz))
+    exposure_us = 10000.0  # every frame's exposure, shorter than a frame (1 / (2 scan_rate_hz));
+                           # a whole number of 10 ms: lamps on 50 Hz mains flicker at 100 Hz
     analog_gain = 4.0      # IMX219 analogue gain, 1..10.67
     min_m = 0.4            # depths the line is searched for: their rows are the region of
     max_m = 3.2            # interest (and the pulse covers their readout)
+    flicker_hz = [100.0, 120.0]  # the lighting's flicker the frames must cancel (twice the mains
+                                 # frequency; [] outdoors or under DC light): device/model/flicker.py
 
     [pi]               # optional: how this sensor is wired to its Raspberry Pi
     gpio_edge = "gpiochip0:17"  # the laser trigger line's GPIO (CHIP:LINE) for edge-timestamp sync;
@@ -92,6 +95,7 @@ from pathlib import Path
 from typing import Any
 
 from .camera.modes import IMX219_ANALOG_GAIN_MAX, IMX219_EXPOSURE_MARGIN_LINES, MODE5, ImageWindow, sensor_mode_named
+from .model import flicker
 from .model.camera import CameraModel, Intrinsics, lens_model, lens_model_named
 from .model.triangulation import DegeneratePlaneError, LaserPlane, TriangulationParams, plane_from_params
 
@@ -132,13 +136,19 @@ class OperatingPoint:
     """How ``laserpi serve`` runs the sensor: scans per second (a lit and an unlit frame each,
     docs/thesis-notes.md N10), every frame's exposure and analogue gain, and the depths the line is searched
     for, whose rows form the region of interest (narrower than ``RangeLimits``, the
-    triangulation's filter)."""
+    triangulation's filter), and the flicker of the ambient light (Hz) that the difference of a
+    lit and an unlit frame must not keep: lamps on 50 Hz and 60 Hz mains by default, [] where the
+    sensor works under none (outdoors, DC lighting). The exposure or the frame period must be a
+    whole number of each one's period (device/model/flicker.py): the default 10 ms exposure is
+    one of 100 Hz, and the frame periods of 10, 12, 15 and 20 scans/s are whole numbers of 120
+    Hz's."""
 
     scan_rate_hz: float = 10.0
-    exposure_us: float = 9200.0
+    exposure_us: float = 10000.0
     analog_gain: float = 4.0
     min_m: float = 0.4
     max_m: float = 3.2
+    flicker_hz: tuple[float, ...] = flicker.MAINS_FLICKER_HZ
 
     @property
     def frame_duration_s(self) -> float:
@@ -354,6 +364,18 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
                           f"at {op.scan_rate_hz:g} scans/s) less {IMX219_EXPOSURE_MARGIN_LINES} lines")
     if not 1.0 <= op.analog_gain <= IMX219_ANALOG_GAIN_MAX:
         raise ConfigError(f"{where}: analog_gain = {op.analog_gain:g} is outside the IMX219's 1..{IMX219_ANALOG_GAIN_MAX:.2f}")
+    left = flicker.uncancelled(op.exposure_us * 1e-6, frame_s, op.flicker_hz)
+    if left:
+        ok = flicker.cancelling_exposures_s(frame_s, longest_s, op.flicker_hz)
+        fix = (f"an exposure_us of {' or '.join(f'{e * 1e6:.0f}' for e in ok[:3])} cancels it" if ok else
+               f"no exposure within a frame cancels {' and '.join(f'{f:g}' for f in op.flicker_hz)} Hz at this rate "
+               "(10, 12, 15 and 20 scans/s with a 10000 us exposure do)")
+        raise ConfigError(
+            f"{where}: exposure_us = {op.exposure_us:g} at {op.scan_rate_hz:g} scans/s (frames {frame_s * 1e6:.0f} us "
+            f"apart) leaves {' and '.join(f'{f:g} Hz' for f, _ in left)} flicker of mains lighting in the difference of a "
+            f"lit and an unlit frame, up to {max(r for _, r in left):.0%} of the lamps' modulation "
+            f"(device/model/flicker.py): {fix}; or set flicker_hz to the light the sensor works under "
+            "([] for none)")
 
 
 def with_operating_point(cfg: SensorConfig, **changes: float) -> SensorConfig:
@@ -364,12 +386,27 @@ def with_operating_point(cfg: SensorConfig, **changes: float) -> SensorConfig:
     return dataclasses.replace(cfg, operating_point=op)
 
 
+def _positive_floats(table: dict[str, Any], where: str, key: str, default: tuple[float, ...]) -> tuple[float, ...]:
+    v = _take(table, where, key, list, default=list(default))
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in v):
+        raise ConfigError(f"{where}: '{key}' must be a list of positive numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+#: how a field is read, by the type of its default: a positive number, or a list of them
+_FIELD_READERS = {
+    float: lambda t, where, f, default: _take(t, where, f, float, default=default, positive=True),
+    tuple: _positive_floats,
+}
+
+
 def _read_dataclass(doc: dict[str, Any], name: str, cls: type) -> Any:
     t = _table(doc, name, required=False)
     if t is None:
         return cls()
     defaults = cls()
-    values = {f: _take(t, f"[{name}]", f, float, default=getattr(defaults, f), positive=True) for f in cls.__dataclass_fields__}
+    values = {f: _FIELD_READERS[type(getattr(defaults, f))](t, f"[{name}]", f, getattr(defaults, f))
+              for f in cls.__dataclass_fields__}
     _no_extra(t, f"[{name}]")
     return cls(**values)
 
@@ -436,7 +473,7 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
     doc["laser_plane"] = {"a": a, "b": b, "c_m": c, "beta_deg": math.degrees(cfg.beta_rad)}
     for name in ("laser", "optics", "range", "operating_point"):
         obj = getattr(cfg, name)
-        doc[name] = {f: getattr(obj, f) for f in obj.__dataclass_fields__}
+        doc[name] = {f: _document_value(getattr(obj, f)) for f in obj.__dataclass_fields__}
     if cfg.gpio_edge is not None:
         doc["pi"] = {"gpio_edge": cfg.gpio_edge}
     if cfg.post_calibration is not None:
@@ -449,6 +486,11 @@ def config_to_dict(cfg: SensorConfig) -> dict[str, Any]:
             "z_scale_m": p.z_scale_m,
         }
     return doc
+
+
+def _document_value(v: Any) -> Any:
+    """A field as the TOML document holds it: a tuple as a list."""
+    return list(v) if isinstance(v, tuple) else v
 
 
 def _toml_value(v: Any) -> str:

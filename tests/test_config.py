@@ -114,22 +114,25 @@ def test_crops_that_do_not_fit_their_mode_name_the_field(mutate, message):
         config_from_dict(doc, "sensor.toml")
 
 
-def test_files_without_an_operating_point_get_the_constants_device_sensor_had():
+def test_files_without_an_operating_point_get_the_defaults():
+    """The constants device/sensor had, but a 10 ms exposure (9.2 ms before): a whole period of
+    100 Hz mains flicker, so that it cancels at 15 and 20 scans/s too (device/model/flicker.py)."""
     from device.config import OperatingPoint
 
     doc = _doc()
     assert "operating_point" not in doc
     assert config_from_dict(doc, "old.toml").operating_point == OperatingPoint(
-        scan_rate_hz=10.0, exposure_us=9200.0, analog_gain=4.0, min_m=0.4, max_m=3.2)
+        scan_rate_hz=10.0, exposure_us=10000.0, analog_gain=4.0, min_m=0.4, max_m=3.2, flicker_hz=(100.0, 120.0))
 
 
 def test_operating_point_round_trips(tmp_path):
     from device.config import OperatingPoint
 
     doc = _doc()
-    doc["operating_point"] = {"scan_rate_hz": 5.0, "exposure_us": 20000, "analog_gain": 8.0, "min_m": 0.3, "max_m": 2.0}
+    doc["operating_point"] = {"scan_rate_hz": 5.0, "exposure_us": 20000, "analog_gain": 8.0, "min_m": 0.3, "max_m": 2.0,
+                              "flicker_hz": [100]}
     cfg = config_from_dict(doc, "s.toml")
-    assert cfg.operating_point == OperatingPoint(5.0, 20000.0, 8.0, 0.3, 2.0)
+    assert cfg.operating_point == OperatingPoint(5.0, 20000.0, 8.0, 0.3, 2.0, (100.0,))
     save_config(cfg, tmp_path / "s.toml")
     assert load_config(tmp_path / "s.toml").operating_point == cfg.operating_point
 
@@ -146,6 +149,11 @@ def test_operating_point_round_trips(tmp_path):
     (lambda d: d.__setitem__("operating_point", {"min_m": 3.0, "max_m": 2.0}), r"\[operating_point\]: max_m"),
     (lambda d: d.__setitem__("operating_point", {"exposure_us": -5.0}), "positive"),
     (lambda d: d.__setitem__("operating_point", {"gain": 4.0}), "unknown key"),
+    (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 7.0, "exposure_us": 9200.0}),
+     r"exposure_us = 9200 at 7 scans/s .* leaves 100 Hz and 120 Hz flicker"),
+    (lambda d: d.__setitem__("operating_point", {"flicker_hz": 100.0}), "'flicker_hz' must be a list"),
+    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [100.0, -120.0]}), "'flicker_hz' must be a list of positive"),
+    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [True]}), "'flicker_hz' must be a list of positive"),
 ])
 def test_bad_operating_points_name_the_field(mutate, message):
     doc = _doc()

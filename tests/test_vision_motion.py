@@ -4,13 +4,14 @@ cannot be trusted, the static accuracy with both unlit neighbours, and reprocess
 import dataclasses
 import json
 import math
+import re
 
 import numpy as np
 import pytest
 
 from device.bench.motion import _no_turn, _pipelines, _process, score, sequence
 from device.cli import main
-from device.config import load_preset
+from device.config import load_preset, with_operating_point
 from device.sim.render import RenderOptions
 from device.sim.scene import get_scene, with_motion
 from device.vision.evaluation import FramePair, nearest_true_range, run_pipeline, simulated_pairs
@@ -19,6 +20,11 @@ from device.vision.pipelines import make_pipeline
 
 CFG = load_preset("thesis-calibrated")
 MIN_M = CFG.operating_point.min_m
+#: The operating point these tests' cases were found at: the 9.2 ms exposure before it became 10 ms
+#: (a whole period of 100 Hz mains flicker, device/model/flicker.py). The cases are properties of
+#: those frames (a phantom a check stops, a target a check meets): at 10 ms these seeds do not all
+#: show them, so the tests marked so keep the frames, and the pipeline, they were found on.
+CFG_9MS = with_operating_point(CFG, exposure_us=9200.0)
 #: The renderer's moving background on a 4 px grid, bilinearly interpolated (its default before
 #: issue 16's 1 px frames, device/sim/render.py step 9): the grid is fixed to the sensor, so a
 #: texture's sharp edge changes its shape as it moves, a change of the background between the
@@ -80,16 +86,17 @@ def test_a_still_wall_is_measured_as_accurately_with_both_neighbours(distance, m
 
 
 def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
+    # (CFG_9MS: the frames this case was found on)
     # still office, 3x light: dim lines far away (1 row is 5-8 % of range there), a depth edge
     # bridged by the fit, an outlier beside a shadow gap reporting the fit
     from device.vision.pipelines import DEVICE_VARIANT
 
-    pairs = sequence(CFG, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
-    op = CFG.operating_point
+    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
+    op = CFG_9MS.operating_point
     assert DEVICE_VARIANT == "fast-com-track-gated"  # the device runs the gate
-    ungated = make_pipeline("fast-com-track", CFG, op.min_m, op.max_m)
+    ungated = make_pipeline("fast-com-track", CFG_9MS, op.min_m, op.max_m)
     off = score([(_process("fast", ungated, p), p.truth) for p in pairs], MIN_M)
-    gated = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
+    gated = make_pipeline(DEVICE_VARIANT, CFG_9MS, op.min_m, op.max_m)
     assert gated.params.max_range_sigma == 0.015
     on = score([(_process("fast", gated, p), p.truth) for p in pairs], MIN_M)
     assert off["gross_fraction"] > 0.002 and off["false_returns"] > 0  # the gate off: the issue's failure
@@ -98,6 +105,7 @@ def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
 
 
 def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
+    # (CFG_9MS: the frames this case was found on)
     # 1 m/s towards the office in 3x light: horizontal edges cross the rows between the unlit
     # frames, and each leaves a bright band in the difference that looks like a line at ~0.7 m
     # (the wall is at 2.3-2.5 m). A change a few rows high counts as motion (block by block, not
@@ -109,9 +117,9 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
 
     # (seed 2 of the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows them;
     # on seed 0's coarse frames the column-mean test alone has caught them since moved_level 0.9)
-    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2, COARSE)
-    op = CFG.operating_point
-    device = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
+    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 2, COARSE)
+    op = CFG_9MS.operating_point
+    device = make_pipeline(DEVICE_VARIANT, CFG_9MS, op.min_m, op.max_m)
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
     now = score(measured, MIN_M)
     # no phantom line (the issue's target beside it: at most 0.1 % gross errors; one column of
@@ -121,9 +129,9 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
     # two checks stop them, each alone: the block test, and the neighbours' agreement beside
     # moved columns (test_driving_forward_an_edge_that_moved_a_row_beside_moved_columns_is_no_line)
     for off in ({"moved_block_level": math.inf}, {"agree_reach_columns": 0}):
-        alone = FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
+        alone = FastPipeline(CFG_9MS, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
         assert _phantoms([(_process("fast", alone, p), p.truth) for p in pairs]) == 0
-    without = FastPipeline(CFG, dataclasses.replace(device.params, moved_block_level=math.inf, agree_reach_columns=0),
+    without = FastPipeline(CFG_9MS, dataclasses.replace(device.params, moved_block_level=math.inf, agree_reach_columns=0),
                            op.min_m, op.max_m)
     assert _phantoms([(_process("fast", without, p), p.truth) for p in pairs]) >= 5
     # driving straight is no turn (device/vision/yaw.py's residue test): the neighbours are
@@ -133,15 +141,15 @@ def test_driving_forward_leaves_no_phantom_line_from_a_moved_edge():
         assert np.array_equal(m.status, u.status) and np.array_equal(m.range, u.range, equal_nan=True)
 
 
-def _device_and_without(off: dict):
+def _device_and_without(off: dict, cfg=CFG):
     import dataclasses
 
     from device.vision.pipelines import DEVICE_VARIANT
     from device.vision.fast import FastPipeline
 
-    op = CFG.operating_point
-    device = make_pipeline(DEVICE_VARIANT, CFG, op.min_m, op.max_m)
-    return device, FastPipeline(CFG, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
+    op = cfg.operating_point
+    device = make_pipeline(DEVICE_VARIANT, cfg, op.min_m, op.max_m)
+    return device, FastPipeline(cfg, dataclasses.replace(device.params, **off), op.min_m, op.max_m)
 
 
 def test_turning_in_bright_light_keeps_much_of_the_wall(still_office):
@@ -164,6 +172,7 @@ def test_turning_in_bright_light_keeps_much_of_the_wall(still_office):
 
 
 def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbours_disagree():
+    # (CFG_9MS: the frames this case was found on)
     # 90 deg/s in 10x light (seed 0): the turned neighbours agree but for a fraction of a row at
     # sharp horizontal edges, where one's resampling put the edge apart from the other's; there
     # the lit frame shows one-row bright ridges that pass for lines. With the turned background
@@ -171,9 +180,9 @@ def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbour
     # line must stand agree_ratio x above that disagreement: without it, 18 columns > 5 % off.
     # With the safeguards, the check still keeps the rows a turn smears over a depth edge (the
     # desk before the back wall) out at other points of `laserpi bench motion` (BENCHMARKS.md)
-    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
-    device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0})
-    _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0})
+    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
+    device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0}, CFG_9MS)
+    _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0}, CFG_9MS)
     for pipe in (device, as_read):
         assert score([(_process("fast", pipe, p), p.truth) for p in pairs], MIN_M)["gross_fraction"] <= 0.001
     assert score([(_process("fast", without, p), p.truth) for p in pairs], MIN_M)["gross"] >= 5
@@ -249,6 +258,34 @@ def test_evaluate_reprocesses_a_recording_per_image_column(tmp_path, capsys):
     assert main(["evaluate", "--recording", str(sim / "frames.npz"), "--out", str(out), "--pipeline", "reference"]) == 0
     z = np.load(out)
     assert np.all(z["status"][:, 1::2] == 255) and np.any(z["status"][:, ::2] == ColumnStatus.OK)
+
+
+def test_mains_flicker_at_20_scans_per_second_needs_a_whole_period_of_exposure(tmp_path, capsys):
+    """100 Hz lamps (50 Hz mains) at 20 scans/s: frames 25 ms apart are 2.5 flicker periods, so an
+    unlit neighbour's rows see the opposite phase of the lit frame's (device/model/flicker.py). A
+    9.2 ms exposure keeps 17 % of the lamps' modulation in the difference and lines are lost (and
+    evaluate says why); the 10 ms exposure the configuration now asks for cancels it: as many
+    lines as without flicker."""
+    from device.config import dumps_config, load_preset
+    from device.design.report import sensor_at_rate
+
+    at20, _ = sensor_at_rate(load_preset("thesis-calibrated"), 20.0)
+    config = tmp_path / "at20.toml"
+    config.write_text(dumps_config(at20))
+    valid = {}
+    for exposure_us, depth in ((9200, 0.0), (9200, 0.4), (10000, 0.0), (10000, 0.4)):
+        sim = tmp_path / f"e{exposure_us}-{depth}"
+        assert main(["simulate", "--scene", "office", "--config", str(config), "--frames", "5", "--out", str(sim),
+                     "--frame-duration-us", "25000", "--exposure-us", str(exposure_us), "--analog-gain", "4",
+                     "--ambient-scale", "3", "--flicker-hz", "100", "--flicker-depth", str(depth)]) == 0
+        capsys.readouterr()
+        assert main(["evaluate", "--recording", str(sim / "frames.npz"), "--config", str(config), "--truth",
+                     str(sim / "truth.npz")]) == 0
+        out = capsys.readouterr().out
+        assert ("100 Hz flicker of mains lighting is not cancelled" in out) == (exposure_us == 9200)
+        valid[exposure_us, depth] = float(re.search(r"valid ([0-9.]+) of", out).group(1))
+    assert valid[9200, 0.4] < 0.75 * valid[9200, 0.0]
+    assert valid[10000, 0.4] == pytest.approx(valid[10000, 0.0], abs=0.01)
 
 
 def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
@@ -412,6 +449,7 @@ def test_a_person_crossing_before_a_still_robot_is_judged_without_the_agreement_
 
 
 def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
+    # (CFG_9MS: the frames this case was found on)
     import dataclasses
 
     from device.vision.fast import FastPipeline
@@ -424,10 +462,10 @@ def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():
     # (the renderer's coarse frames, COARSE: on its 1 px frames no seed 0-3 shows such a pedestal)
     # (without the turn, which makes these frames still ones: the threshold is for motion no turn
     # explains; and without the neighbours' agreement beside moved columns, which stops it too)
-    pairs = sequence(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1, COARSE)
-    device, before = (_no_turn(p) for p in _device_and_without({"moved_level": 1.0}))
-    device, before = (FastPipeline(CFG, dataclasses.replace(p.params, agree_reach_columns=0), MIN_M, CFG.operating_point.max_m)
-                      for p in (device, before))
+    pairs = sequence(CFG_9MS, with_motion(get_scene("person"), yaw_rate_deg_s=45, ambient_scale=3), 3, 1, COARSE)
+    device, before = (_no_turn(p) for p in _device_and_without({"moved_level": 1.0}, CFG_9MS))
+    device, before = (FastPipeline(CFG_9MS, dataclasses.replace(p.params, agree_reach_columns=0), MIN_M,
+                                   CFG_9MS.operating_point.max_m) for p in (device, before))
     assert device.params.moved_level < 0.95
     assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["false_returns"] == 0
     assert score([(_process("fast", before, p), p.truth) for p in pairs], MIN_M)["false_returns"] >= 3

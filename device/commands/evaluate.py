@@ -156,12 +156,22 @@ def reprocess(args) -> dict:
     if args.out:
         np.savez_compressed(args.out, **out)
     result = {"variant": name, "recording": args.recording, "scans": n, "frames_without_lit_flag": unknown,
-              "out": args.out}
+              "out": args.out, "flicker_kept": _flicker_kept(neighbours[0].lit, op.flicker_hz)}
     if truth is not None:
         result.update(score.summary())
         result["valid_fraction_within_2_5m"] = score.valid_fraction_within(2.5)
         result["resolution_deg"] = getattr(pipe, "resolution_deg", float("nan"))
     return result
+
+
+def _flicker_kept(lit, flicker_hz) -> list[dict]:
+    """The mains flicker a recording's frames keep in the difference of a lit and an unlit frame
+    (device/model/flicker.py), from its exposure and frame period: frames the device would not take
+    (device/config.py refuses such an [operating_point]), but a recording may come from elsewhere."""
+    from ..model.flicker import uncancelled
+
+    return [{"hz": f, "residue": r}
+            for f, r in uncancelled(lit.exposure_us * 1e-6, lit.frame_duration_us * 1e-6, flicker_hz)]
 
 
 def _load_truth(path: str, cfg) -> dict:
@@ -220,6 +230,10 @@ def _report_recording(result: dict, as_json: bool) -> int:
           + (f" -> {result['out']}" if result["out"] else "")
           + (f"; {result['frames_without_lit_flag']} frame(s) without a lit flag skipped"
              if result["frames_without_lit_flag"] else ""))
+    for k in result["flicker_kept"]:
+        print(f"warning: its {k['hz']:g} Hz flicker of mains lighting is not cancelled between lit and unlit frames "
+              f"(up to {k['residue']:.0%} of the lamps' modulation: exposure and frame period are not whole numbers "
+              "of its period, device/model/flicker.py); under such lamps lines are lost")
     if "valid_fraction" in result:
         _print_score(result)
     return 0
