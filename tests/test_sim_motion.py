@@ -194,6 +194,27 @@ def test_a_moving_background_moves_between_frames_and_a_still_one_does_not():
     np.testing.assert_array_equal(still.render(t1, rng(0))[0], still.render(t2, rng(0))[0])
 
 
+def test_motion_blur_is_a_smear_not_a_few_sharp_copies():
+    """A camera integrates its exposure continuously: turning at 90 deg/s the poster wall's image
+    moves ~9 px in 10 ms, so its sharp edges become ramps of that width (steps of about a ninth of
+    the edge per column). Cut into slices 4 px apart (the renderer's default before) the edges
+    stayed sharp copies: the largest steps along a row kept two thirds of the still image's; where
+    the pitched view moved a horizontal edge across a row, the copies made a one-row ridge that
+    passed for a laser line (device/sim/render.py step 9)."""
+    opts = RenderOptions().without("noise", "speckle")
+    scene = with_motion(get_scene("poster-wall"), ambient_scale=10)
+    t = FrameTiming(T0 + 50_000_000, 10000.0, LINE_NS)
+    still = SceneRenderer(CFG, scene, options=opts, time_zero_ns=T0).render(t, np.random.default_rng(0))[0]
+    turning = SceneRenderer(CFG, with_motion(scene, yaw_rate_deg_s=90), options=opts, time_zero_ns=T0)
+    assert turning._slices(0.01) >= 9  # the image moves at most a pixel from one slice to the next
+    moving = turning.render(t, np.random.default_rng(0))[0]
+
+    def steps(image):  # the largest steps along the rows (99.9th percentile)
+        return np.percentile(np.abs(np.diff(image.astype(float), axis=1)), 99.9)
+
+    assert steps(still) > 150 and steps(moving) < 0.3 * steps(still)
+
+
 def test_scene_files_take_motion_flicker_and_texture_contrast():
     doc = {"ambient_scale": 3.0, "flicker_hz": 120.0, "flicker_depth": 0.2,
            "motion": {"yaw_rate_deg_s": 90.0, "speed_m_s": 0.5, "sensor_ahead_m": 0.1},

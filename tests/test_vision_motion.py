@@ -172,7 +172,6 @@ def test_turning_in_bright_light_keeps_much_of_the_wall(still_office):
 
 
 def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbours_disagree():
-    # (CFG_9MS: the frames this case was found on)
     # 90 deg/s in 10x light (seed 0): the turned neighbours agree but for a fraction of a row at
     # sharp horizontal edges, where one's resampling put the edge apart from the other's; there
     # the lit frame shows one-row bright ridges that pass for lines. With the turned background
@@ -180,9 +179,9 @@ def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbour
     # line must stand agree_ratio x above that disagreement: without it, 18 columns > 5 % off.
     # With the safeguards, the check still keeps the rows a turn smears over a depth edge (the
     # desk before the back wall) out at other points of `laserpi bench motion` (BENCHMARKS.md)
-    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
-    device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0}, CFG_9MS)
-    _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0}, CFG_9MS)
+    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
+    device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0})
+    _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0})
     for pipe in (device, as_read):
         assert score([(_process("fast", pipe, p), p.truth) for p in pairs], MIN_M)["gross_fraction"] <= 0.001
     assert score([(_process("fast", without, p), p.truth) for p in pairs], MIN_M)["gross"] >= 5
@@ -417,23 +416,32 @@ def test_a_saturated_line_on_a_moved_background_is_kept():
 def test_too_close_needs_the_return_against_both_neighbours():
     # a wall 4 cm away (below the sensor's minimum range) while turning at 90 deg/s: it is
     # "too close" (-inf) in its columns; a moved edge in the near rows, brighter in the lit frame
-    # than in one neighbour only, is not (before: 36-42 such columns a frame here)
+    # than in one neighbour only, is not (before: 36-42 such columns a frame here). Beside the
+    # wall's ends the turn swept its edge over a few columns during the exposure: the near wall
+    # was there for part of it (under half of the line's light: the truth says no return), and
+    # those may say "too close"; no column farther away may
     from device.vision.measurements import ColumnStatus
 
     pairs = sequence(CFG, with_motion(get_scene("near"), yaw_rate_deg_s=90, ambient_scale=3), 2, 0)
     device, _ = _device_and_without({})
+    sweep_rad = math.radians(90) * CFG.operating_point.exposure_us * 1e-6
+    reach = math.ceil(sweep_rad / np.nanmedian(np.abs(np.diff(device.geometry.column_angle))))
+    assert 5 <= reach <= 20
     for p in pairs:
         meas = _process("fast", device, p)
         truly = nearest_true_range(p.truth, meas.column) < MIN_M
         close = meas.status == ColumnStatus.TOO_CLOSE
-        assert np.sum(close & truly) >= 0.95 * truly.sum() and np.sum(close & ~truly) <= 5
-        assert score([(meas, p.truth)], MIN_M)["false_too_close"] == np.sum(close & ~truly)
+        assert np.sum(close & truly) >= 0.95 * truly.sum()
+        wall, false = np.flatnonzero(truly), np.flatnonzero(close & ~truly)
+        assert false.size <= reach and all(np.min(np.abs(wall - c)) <= reach // 2 for c in false)
+        assert score([(meas, p.truth)], MIN_M)["false_too_close"] == false.size
 
 
 def test_a_person_crossing_before_a_still_robot_is_judged_without_the_agreement_check():
     # 16-17 % of the columns moved, under agree_share: the still wall beside the person keeps
     # its lines as at rest, however strict the check would be. At agree_ratio 6 the check,
-    # applied beside the person, takes a few of them (12 columns of these 3 frames). At the
+    # applied beside the person, takes a few of them (4 columns of these 3 frames with the
+    # renderer's continuous motion blur, 12 with its sharp copies before). At the
     # device's ratio it would take none of these either now: the 0-7 columns a frame over
     # seeds 0-4 it took before were fragments of the wall between gated columns, which now
     # continue their run (test_a_line_seen_but_not_measured_continues_its_run_in_a_turned_frame)
@@ -445,7 +453,7 @@ def test_a_person_crossing_before_a_still_robot_is_judged_without_the_agreement_
         m, w = _process("fast", device, p), _process("fast", without, p)
         assert np.array_equal(m.status, w.status) and np.array_equal(m.range, w.range, equal_nan=True)
     assert sum(int(np.sum(_process("fast", everywhere, p).status != _process("fast", device, p).status))
-               for p in pairs) >= 5
+               for p in pairs) >= 3
 
 
 def test_a_background_that_moved_by_just_under_a_level_counts_as_moved():

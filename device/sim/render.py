@@ -56,7 +56,12 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
 9. *Motion* (issue 16, device/sim/motion.py: the sensor on a robot, moving objects). A scene
    in which something moves is rendered per frame instead of from the static caches. The
    background: each row's exposure window is cut into ``n`` equal time slices (so that the image
-   moves at most ``RenderOptions.motion_blur_px`` between two: motion blur), and in each slice
+   moves at most ``RenderOptions.motion_blur_px`` between two: motion blur, as continuous as the
+   pixels resolve it; at 4 px, the default before, a camera's smooth blur came out as a few sharp
+   copies: a 4-column stripe texture stayed crisp while the robot turned, and where the pitched
+   view moved a horizontal edge across a row, the copies mixed into a bright one-row ridge that
+   the unlit neighbours do not show: a phantom line at 0.83 m before a wall at 2.85 m,
+   BENCHMARKS.md "Motion"), and in each slice
    every row is cast from where the sensor was at that row's own time (the rolling shutter: each
    row sees the scene where it was then; translation gives depth-dependent parallax), against
    the objects where they were (a block of rows per object position: an object moves < 2 mm
@@ -146,8 +151,8 @@ class RenderOptions:
     isp_denoise: float = 0.0  # ISP spatial denoise: blend towards a 3x3 Gaussian, 0 (off) .. 1
     isp_sharpen: float = 0.0  # ISP sharpening: unsharp-mask amount (5x5 Gaussian), 0 (off) .. 2
     motion_step: int = 1  # moving scenes: background rays every N pixels, per frame (step 9)
-    motion_blur_px: float = 4.0  # moving scenes: the image moves at most this far between two time slices ...
-    max_time_slices: int = 12  # ... with at most this many slices per exposure (and per pulse)
+    motion_blur_px: float = 1.0  # moving scenes: the image moves at most this far between two time slices (step 9) ...
+    max_time_slices: int = 32  # ... with at most this many slices per exposure (and per pulse)
 
     def __post_init__(self) -> None:
         if not 0 <= self.speckle_contrast <= 1:
