@@ -347,6 +347,13 @@ def _read_pi(t: dict[str, Any] | None) -> str | None:
 
 def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWindow) -> None:
     where, mode = "[operating_point]", window.mode
+    # a file's numbers are checked as they are read (_take); with_operating_point's here
+    for name in ("scan_rate_hz", "exposure_us", "analog_gain", "min_m", "max_m"):
+        v = getattr(op, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{where}: '{name}' must be a finite positive number, got {v!r}")
+    if not isinstance(op.flicker_hz, tuple) or not all(_finite_positive(f) for f in op.flicker_hz):
+        raise ConfigError(f"{where}: 'flicker_hz' must be a list of finite positive numbers, got {op.flicker_hz!r}")
     if not op.max_m > op.min_m:
         raise ConfigError(f"{where}: max_m ({op.max_m}) must exceed min_m ({op.min_m})")
     if op.scan_rate_hz > laser.rate_hz:
@@ -367,9 +374,10 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
     left = flicker.uncancelled(op.exposure_us * 1e-6, frame_s, op.flicker_hz)
     if left:
         ok = flicker.cancelling_exposures_s(frame_s, longest_s, op.flicker_hz)
+        need = " and ".join(f"{f:g}" for f in flicker.not_cancelled_by_period(frame_s, op.flicker_hz))
         fix = (f"an exposure_us of {' or '.join(f'{e * 1e6:.0f}' for e in ok[:3])} cancels it" if ok else
-               f"no exposure within a frame cancels {' and '.join(f'{f:g}' for f in op.flicker_hz)} Hz at this rate "
-               "(10, 12, 15 and 20 scans/s with a 10000 us exposure do)")
+               f"no exposure within a frame cancels {need} Hz at this rate (a rate whose frame period is a whole "
+               "number of their periods, or an exposure of a whole number of each, does)")
         raise ConfigError(
             f"{where}: exposure_us = {op.exposure_us:g} at {op.scan_rate_hz:g} scans/s (frames {frame_s * 1e6:.0f} us "
             f"apart) leaves {' and '.join(f'{f:g} Hz' for f, _ in left)} flicker of mains lighting in the difference of a "
@@ -378,18 +386,24 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
             "([] for none)")
 
 
-def with_operating_point(cfg: SensorConfig, **changes: float) -> SensorConfig:
+def with_operating_point(cfg: SensorConfig, **changes: Any) -> SensorConfig:
     """``cfg`` with ``[operating_point]`` fields changed (``laserpi serve --scan-rate-hz``), checked
     as a file's are: ConfigError naming the field otherwise."""
+    if isinstance(changes.get("flicker_hz"), list):
+        changes["flicker_hz"] = tuple(changes["flicker_hz"])  # as a file's list is read
     op = dataclasses.replace(cfg.operating_point, **changes)
     _check_operating_point(op, cfg.laser, cfg.window)
     return dataclasses.replace(cfg, operating_point=op)
 
 
+def _finite_positive(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
 def _positive_floats(table: dict[str, Any], where: str, key: str, default: tuple[float, ...]) -> tuple[float, ...]:
     v = _take(table, where, key, list, default=list(default))
-    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in v):
-        raise ConfigError(f"{where}: '{key}' must be a list of positive numbers, got {v!r}")
+    if not all(_finite_positive(x) for x in v):
+        raise ConfigError(f"{where}: '{key}' must be a list of finite positive numbers, got {v!r}")
     return tuple(float(x) for x in v)
 
 

@@ -152,8 +152,8 @@ def test_operating_point_round_trips(tmp_path):
     (lambda d: d.__setitem__("operating_point", {"scan_rate_hz": 7.0, "exposure_us": 9200.0}),
      r"exposure_us = 9200 at 7 scans/s .* leaves 100 Hz and 120 Hz flicker"),
     (lambda d: d.__setitem__("operating_point", {"flicker_hz": 100.0}), "'flicker_hz' must be a list"),
-    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [100.0, -120.0]}), "'flicker_hz' must be a list of positive"),
-    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [True]}), "'flicker_hz' must be a list of positive"),
+    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [100.0, -120.0]}), "'flicker_hz' must be a list of finite positive"),
+    (lambda d: d.__setitem__("operating_point", {"flicker_hz": [True]}), "'flicker_hz' must be a list of finite positive"),
 ])
 def test_bad_operating_points_name_the_field(mutate, message):
     doc = _doc()

@@ -45,18 +45,27 @@ def test_whole_periods_cancel_every_harmonic():
 
 
 def test_near_whole_numbers():
-    """Hard cases: the sensor sets exposure in whole lines, so 10 ms comes out within half a line;
-    the mains drifts by a tenth of a percent, rarely by more. Both stay well inside MAX_RESIDUE, and a tenth of a
-    period off does not."""
-    for e in (529 * LINE_S, 10e-3 - LINE_S / 2, 10e-3 + LINE_S / 2):
-        assert residue(e, 25e-3, 100.0) < 0.2 * MAX_RESIDUE
+    """Hard cases: the sensor exposes whole lines and libcamera truncates the time to them, so an
+    exposure comes out up to a line short; the mains drifts by a tenth of a percent, rarely by
+    more. Within MAX_RESIDUE where the exposure cancels; where the frame period does, the drift
+    grows with the periods a frame holds. A tenth of a period off is far outside."""
+    assert residue(529 * LINE_S, 25e-3, 100.0) < 0.01 * MAX_RESIDUE  # 10 ms is 529.0 lines
+    for e in (10e-3 - LINE_S, 10e-3 - LINE_S / 2, 10e-3 + LINE_S / 2):
+        assert residue(e, 25e-3, 100.0) < 0.4 * MAX_RESIDUE
     assert residue(10e-3, 25e-3, 100.1) < 0.3 * MAX_RESIDUE  # 50.05 Hz: the grid's usual band
     assert residue(10e-3, 25e-3, 100.4) < MAX_RESIDUE  # 50.2 Hz: rare
+    assert residue(10e-3, 50e-3, 120.04) < 0.3 * MAX_RESIDUE  # 120 Hz by the 50 ms frames, 60.02 Hz mains
+    assert MAX_RESIDUE < residue(10e-3, 50e-3, 120.24) < 1.5 * MAX_RESIDUE  # 60.12 Hz: 6 periods a frame
     assert residue(9e-3, 25e-3, 100.0) > 10 * MAX_RESIDUE
     assert residue(1e-9, 25e-3, 100.0) == pytest.approx(2.0, rel=1e-6)  # a short exposure keeps it all
-    for bad in ((0.0, 25e-3, 100.0), (10e-3, -1.0, 100.0), (10e-3, 25e-3, 0.0), (math.nan, 25e-3, 100.0)):
+    for bad in ((0.0, 25e-3, 100.0), (10e-3, -1.0, 100.0), (10e-3, 25e-3, 0.0), (math.nan, 25e-3, 100.0),
+                (10e-3, math.inf, 100.0)):
         with pytest.raises(ValueError):
             residue(*bad)
+    for bad in ((25e-3, 24e-3, (math.nan,)), (0.0, 24e-3, (100.0,)), (25e-3, math.inf, (100.0,)),
+                (25e-3, 24e-3, (-100.0,))):
+        with pytest.raises(ValueError):
+            cancelling_exposures_s(*bad)
 
 
 def test_which_exposures_cancel():
@@ -82,6 +91,15 @@ def test_the_configuration_refuses_an_exposure_that_keeps_flicker():
     with pytest.raises(ConfigError, match=r"at 18 scans/s .* leaves 120 Hz .* "
                                           r"no exposure within a frame cancels 100 and 120 Hz"):
         with_operating_point(at20, scan_rate_hz=18.0)
-    # where no mains lighting is, or only 50 Hz mains
+    # 7 scans/s (71.4 ms frames) cancels neither: 10 ms leaves 120 Hz, and only 50 ms cancels both
+    with pytest.raises(ConfigError, match=r"10000 at 7 scans/s .* leaves 120 Hz .* an exposure_us of 50000 cancels it"):
+        with_operating_point(at20, scan_rate_hz=7.0, exposure_us=10000.0)
+    # where no mains lighting is, or only 50 Hz mains; a list as a file's
     assert with_operating_point(at20, exposure_us=9200.0, flicker_hz=()).operating_point.exposure_us == 9200.0
-    assert with_operating_point(at20, scan_rate_hz=18.0, flicker_hz=(100.0,)).operating_point.scan_rate_hz == 18.0
+    assert with_operating_point(at20, scan_rate_hz=18.0, flicker_hz=[100.0]).operating_point.flicker_hz == (100.0,)
+    # what a file could not say cannot come in through with_operating_point either
+    for bad, field in (({"flicker_hz": (math.nan,)}, "flicker_hz"), ({"flicker_hz": 100.0}, "flicker_hz"),
+                       ({"flicker_hz": (0.0,)}, "flicker_hz"), ({"exposure_us": 0.0}, "exposure_us"),
+                       ({"exposure_us": -5.0, "flicker_hz": ()}, "exposure_us"), ({"analog_gain": math.nan}, "analog_gain")):
+        with pytest.raises(ConfigError, match=f"'{field}' must be"):
+            with_operating_point(at20, **bad)

@@ -206,7 +206,8 @@ def test_motion_blur_is_a_smear_not_a_few_sharp_copies():
     t = FrameTiming(T0 + 50_000_000, 10000.0, LINE_NS)
     still = SceneRenderer(CFG, scene, options=opts, time_zero_ns=T0).render(t, np.random.default_rng(0))[0]
     turning = SceneRenderer(CFG, with_motion(scene, yaw_rate_deg_s=90), options=opts, time_zero_ns=T0)
-    assert turning._slices(0.01) >= 9  # the image moves at most a pixel from one slice to the next
+    # the image moves at most a pixel from one slice to the next
+    assert image_speed_px_s(turning.scene, CFG.camera.intrinsics.fx) * 0.01 / turning._slices(0.01) <= 1.0
     moving = turning.render(t, np.random.default_rng(0))[0]
 
     def steps(image):  # the largest steps along the rows (99.9th percentile)

@@ -2,11 +2,13 @@
 
 Lamps on AC mains (incandescent and halogen, fluorescent tubes, many LED drivers) modulate their
 light at twice the mains frequency: 100 Hz on 50 Hz mains, 120 Hz on 60 Hz (the lamp's power
-follows the square of the voltage; libcamera's AeFlickerPeriod control, src/libcamera/
-control_ids_core.yaml, takes 10000 us and 8333 us for the two, and its AGC avoids flicker by
-exposure times that are whole multiples of that period). The device runs the camera at a manual
-exposure (device/camera/picamera2_camera.py), so that rule is the configuration's here
-(device/config.py ``[operating_point] flicker_hz``).
+follows the square of the voltage). libcamera's AeFlickerPeriod (src/libcamera/
+control_ids_core.yaml) cancels "50Hz mains flicker" with 10000 us and 60 Hz with 8333 us, and its
+AeFlickerMode: "Although implementation dependent, many algorithms for "flicker avoidance" work by
+restricting this exposure time to integer multiples of the cycle period, wherever possible."
+Those act through the AGC; the device
+runs the camera at a manual exposure (device/camera/picamera2_camera.py), so the rule is the
+configuration's here (device/config.py ``[operating_point] flicker_hz``).
 
 Model. A component of the ambient light at frequency ``f`` with modulation depth ``m`` (of the
 lamps' mean) adds to a row exposed over ``[t - E, t]`` the share ``m sinc(f E) cos(2 pi f t')``
@@ -26,6 +28,14 @@ periods a frame, and a 9.2 ms exposure leaves 17 % of the lamps' modulation in l
 neighbour (issue 18's rate, found on simulated frames: BENCHMARKS.md "Mains flicker at 15 and 20
 scans/s"); a 10 ms exposure cancels it.
 
+Near whole numbers. The sensor exposes whole lines (IMX219 register 0x015a, raspberrypi/linux
+drivers/media/i2c/imx219.c; libcamera's CamHelper::exposureLines, src/ipa/rpi/cam_helper/
+cam_helper.cpp, truncates the requested time to lines), so an exposure comes out up to a line
+(18.9 us in mode 5) short: 10 ms is 529.0 lines, and a line short would leave 0.4 % at 100 Hz.
+The mains drifts (50 +- 0.05 Hz is the usual band): where the exposure cancels, a 0.1 % drift
+leaves 0.2 %; where the frame period does, it grows with the periods a frame holds (6 of 120 Hz
+at 10 scans/s: 1.2 % of the modulation for 60.12 Hz mains, 0.2 % for 60.02 Hz).
+
 Pure functions, no I/O.
 """
 
@@ -38,8 +48,7 @@ from typing import Sequence
 MAINS_FLICKER_HZ = (100.0, 120.0)
 #: The flicker a lit frame's difference may keep, as a share of the lamps' modulation depth
 #: (lit minus one neighbour, the larger of the two residues): 1 %, a level or two of a bright
-#: background under a lamp modulated in full. An exposure within half a line (18.9 us) of a whole
-#: number of 10 ms periods leaves at most ~0.2 %.
+#: background under a lamp modulated in full.
 MAX_RESIDUE = 0.01
 
 
@@ -51,10 +60,23 @@ def sinc(x: float) -> float:
 def residue(exposure_s: float, frame_period_s: float, flicker_hz: float) -> float:
     """Flicker at ``flicker_hz`` left in a lit frame minus one unlit neighbour ``frame_period_s``
     away, as a share of the lamps' modulation depth (module docstring): ``2 |sinc(f E)| |sin(pi f T)|``."""
-    if not (exposure_s > 0 and frame_period_s > 0 and flicker_hz > 0):
+    if not all(x > 0 and math.isfinite(x) for x in (exposure_s, frame_period_s, flicker_hz)):
         raise ValueError(f"exposure, frame period and flicker frequency must be positive, got "
                          f"{exposure_s}, {frame_period_s}, {flicker_hz}")
     return 2.0 * abs(sinc(flicker_hz * exposure_s)) * abs(math.sin(math.pi * flicker_hz * frame_period_s))
+
+
+def _check_frequencies(flicker_hz: Sequence[float]) -> None:
+    if not all(f > 0 and math.isfinite(f) for f in flicker_hz):  # False for NaN
+        raise ValueError(f"flicker frequencies must be finite and positive, got {list(flicker_hz)}")
+
+
+def not_cancelled_by_period(frame_period_s: float, flicker_hz: Sequence[float]) -> list[float]:
+    """Those of ``flicker_hz`` that the frame period does not cancel (the exposure must)."""
+    if not (frame_period_s > 0 and math.isfinite(frame_period_s)):
+        raise ValueError(f"the frame period must be finite and positive, got {frame_period_s}")
+    _check_frequencies(flicker_hz)
+    return [float(f) for f in flicker_hz if 2.0 * abs(math.sin(math.pi * f * frame_period_s)) > MAX_RESIDUE]
 
 
 def uncancelled(exposure_s: float, frame_period_s: float, flicker_hz: Sequence[float]) -> list[tuple[float, float]]:
@@ -67,7 +89,9 @@ def cancelling_exposures_s(frame_period_s: float, longest_s: float, flicker_hz: 
     """The exposures up to ``longest_s`` with which none of ``flicker_hz`` is left, shortest first
     (each a whole number of the periods the frame period does not cancel; [] where it cancels all
     of them, or no exposure up to ``longest_s`` does)."""
-    need = [f for f in flicker_hz if 2.0 * abs(math.sin(math.pi * f * frame_period_s)) > MAX_RESIDUE]
+    if not (longest_s > 0 and math.isfinite(longest_s)):
+        raise ValueError(f"the longest exposure must be finite and positive, got {longest_s}")
+    need = not_cancelled_by_period(frame_period_s, flicker_hz)
     if not need:
         return []
     base = 1.0 / min(need)  # a whole number of the longest period, checked against the others
