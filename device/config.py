@@ -349,8 +349,7 @@ def _check_operating_point(op: OperatingPoint, laser: LaserSpec, window: ImageWi
     where, mode = "[operating_point]", window.mode
     # a file's numbers are checked as they are read (_take); with_operating_point's here
     for name in ("scan_rate_hz", "exposure_us", "analog_gain", "min_m", "max_m"):
-        v = getattr(op, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        if not _finite_positive(v := getattr(op, name)):
             raise ConfigError(f"{where}: '{name}' must be a finite positive number, got {v!r}")
     if not isinstance(op.flicker_hz, tuple) or not all(_finite_positive(f) for f in op.flicker_hz):
         raise ConfigError(f"{where}: 'flicker_hz' must be a list of finite positive numbers, got {op.flicker_hz!r}")

@@ -61,7 +61,7 @@ def residue(exposure_s: float, frame_period_s: float, flicker_hz: float) -> floa
     """Flicker at ``flicker_hz`` left in a lit frame minus one unlit neighbour ``frame_period_s``
     away, as a share of the lamps' modulation depth (module docstring): ``2 |sinc(f E)| |sin(pi f T)|``."""
     if not all(x > 0 and math.isfinite(x) for x in (exposure_s, frame_period_s, flicker_hz)):
-        raise ValueError(f"exposure, frame period and flicker frequency must be positive, got "
+        raise ValueError(f"exposure, frame period and flicker frequency must be finite and positive, got "
                          f"{exposure_s}, {frame_period_s}, {flicker_hz}")
     return 2.0 * abs(sinc(flicker_hz * exposure_s)) * abs(math.sin(math.pi * flicker_hz * frame_period_s))
 
@@ -94,12 +94,6 @@ def cancelling_exposures_s(frame_period_s: float, longest_s: float, flicker_hz: 
     need = not_cancelled_by_period(frame_period_s, flicker_hz)
     if not need:
         return []
-    base = 1.0 / min(need)  # a whole number of the longest period, checked against the others
-    out = []
-    k = 1
-    while k * base <= longest_s * (1 + 1e-12):
-        e = k * base
-        if not uncancelled(e, frame_period_s, need):
-            out.append(e)
-        k += 1
-    return out
+    base = 1.0 / min(need)  # whole numbers of the longest period, checked against the others
+    candidates = (k * base for k in range(1, math.floor(longest_s / base * (1 + 1e-12)) + 1))
+    return [e for e in candidates if not uncancelled(e, frame_period_s, need)]
