@@ -103,3 +103,18 @@ def test_the_configuration_refuses_an_exposure_that_keeps_flicker():
                        ({"exposure_us": -5.0, "flicker_hz": ()}, "exposure_us"), ({"analog_gain": math.nan}, "analog_gain")):
         with pytest.raises(ConfigError, match=f"'{field}' must be"):
             with_operating_point(at20, **bad)
+
+
+def test_evaluate_names_the_flicker_any_of_a_recordings_frames_keeps():
+    """A recording whose exposure changed part way: the frames at 9.2 ms and 25 ms apart keep 100
+    Hz flicker, those at 10 ms none; evaluate reports the frequency once, at its largest share."""
+    from device.camera.frame import Frame
+    from device.commands.evaluate import _flicker_kept
+
+    def lit(exposure_us, frame_us=25000.0):
+        return Frame(np.zeros((2, 2), np.uint8), 0, 10**9, exposure_us, frame_us, 18903.5, lit=True)
+
+    assert _flicker_kept([lit(10000.0), lit(10000.0)], MAINS_FLICKER_HZ) == []
+    kept = _flicker_kept([lit(10000.0), lit(9200.0), lit(9500.0)], MAINS_FLICKER_HZ)
+    assert [k["hz"] for k in kept] == [100.0] and kept[0]["residue"] == pytest.approx(residue(9.2e-3, 25e-3, 100.0))
+    assert _flicker_kept([lit(9200.0, 50000.0)], MAINS_FLICKER_HZ) == []  # 10 scans/s: the frame period cancels

@@ -156,7 +156,7 @@ def reprocess(args) -> dict:
     if args.out:
         np.savez_compressed(args.out, **out)
     result = {"variant": name, "recording": args.recording, "scans": n, "frames_without_lit_flag": unknown,
-              "out": args.out, "flicker_kept": _flicker_kept(neighbours[0].lit, op.flicker_hz)}
+              "out": args.out, "flicker_kept": _flicker_kept([f.lit for f in neighbours], op.flicker_hz)}
     if truth is not None:
         result.update(score.summary())
         result["valid_fraction_within_2_5m"] = score.valid_fraction_within(2.5)
@@ -164,14 +164,18 @@ def reprocess(args) -> dict:
     return result
 
 
-def _flicker_kept(lit, flicker_hz) -> list[dict]:
+def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
     """The mains flicker a recording's frames keep in the difference of a lit and an unlit frame
-    (device/model/flicker.py), from its exposure and frame period: frames the device would not take
-    (device/config.py refuses such an [operating_point]), but a recording may come from elsewhere."""
+    (device/model/flicker.py), from each lit frame's exposure and frame period (metadata), the
+    largest share per frequency: frames the device would not take (device/config.py refuses such an
+    [operating_point]), but a recording may come from elsewhere."""
     from ..model.flicker import uncancelled
 
-    return [{"hz": f, "residue": r}
-            for f, r in uncancelled(lit.exposure_us * 1e-6, lit.frame_duration_us * 1e-6, flicker_hz)]
+    kept: dict[float, float] = {}
+    for exposure_us, frame_us in {(f.exposure_us, f.frame_duration_us) for f in lit_frames}:
+        for hz, r in uncancelled(exposure_us * 1e-6, frame_us * 1e-6, flicker_hz):
+            kept[hz] = max(kept.get(hz, 0.0), r)
+    return [{"hz": hz, "residue": r} for hz, r in sorted(kept.items())]
 
 
 def _load_truth(path: str, cfg) -> dict:
