@@ -25,7 +25,7 @@ their NaN and infinite values alike, at most MOTION_STATUS_MAX columns of anothe
 others the rows within MOTION_ROW_TOL_PX, the points and ranges within MOTION_RTOL (relative),
 the angles within MOTION_ANGLE_TOL_RAD (absolute: they pass through 0) and the qualities (peak
 levels) within one level. Measured (BENCHMARKS.md "20 scans per second", ARM): 0.014 px, 8.6e-4
-and one status.
+and one status on the 9.2 ms frames; 0.014 px, 7.6e-4 and none on the 10 ms, smeared ones.
 """
 
 from __future__ import annotations

@@ -6,9 +6,9 @@ follows the square of the voltage). libcamera's AeFlickerPeriod (src/libcamera/
 control_ids_core.yaml) cancels "50Hz mains flicker" with 10000 us and 60 Hz with 8333 us, and its
 AeFlickerMode: "Although implementation dependent, many algorithms for "flicker avoidance" work by
 restricting this exposure time to integer multiples of the cycle period, wherever possible."
-Those act through the AGC; the device
-runs the camera at a manual exposure (device/camera/picamera2_camera.py), so the rule is the
-configuration's here (device/config.py ``[operating_point] flicker_hz``).
+Those act through the AGC; the device runs the camera at a manual exposure
+(device/camera/picamera2_camera.py), so the rule is the configuration's here (device/config.py
+``[operating_point] flicker_hz``).
 
 Model. A component of the ambient light at frequency ``f`` with modulation depth ``m`` (of the
 lamps' mean) adds to a row exposed over ``[t - E, t]`` the share ``m sinc(f E) cos(2 pi f t')``

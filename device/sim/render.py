@@ -53,35 +53,33 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
 
 8. *Flicker* (device/sim/motion.py): the ambient light of a row is its irradiance's mean over
    that row's own exposure window, so the flicker's phase changes from row to row.
-9. *Motion* (issue 16, device/sim/motion.py: the sensor on a robot, moving objects). A scene
-   in which something moves is rendered per frame instead of from the static caches. The
-   background: each row's exposure window is cut into ``n`` equal time slices (so that the image
-   moves at most ``RenderOptions.motion_blur_px`` between two: motion blur, as continuous as the
-   pixels resolve it, up to ``max_time_slices``: 32 px of motion in an exposure, 180 deg/s at the
-   operating point's 10 ms; beyond that the slices lie further apart. With slices 4 px of image
-   motion apart, the default before, a camera's smooth blur came out as a few sharp copies: a
-   4-column stripe texture stayed crisp while the robot turned, and where the pitched view moved a
-   horizontal edge across a row, the copies mixed into a bright one-row ridge that the unlit
-   neighbours do not show: a phantom line at 0.83 m before a wall at 2.85 m, BENCHMARKS.md
-   "Motion"), and in each slice
-   every row is cast from where the sensor was at that row's own time (the rolling shutter: each
-   row sees the scene where it was then; translation gives depth-dependent parallax), against
-   the objects where they were (a block of rows per object position: an object moves < 2 mm
-   in that time); a ray every ``motion_step`` pixels (default every pixel, as a sensor samples
-   it: a coarser grid, bilinearly interpolated, is fixed to the sensor while the texture moves
-   over it, so a texture's sharp edge changes its shape from frame to frame. No background model
-   removes that residue: with the unlit neighbours turned to the lit frame it left 13-39 columns
-   > 5 % off per point of `laserpi bench motion` at 4 px, 10-20 at 2 px, 0-4 at 1 px,
-   BENCHMARKS.md "Motion"). The laser: the
-   time the pulse lights the frame is cut into slices likewise; in each the laser curve is cast
-   from the sensor's pose then, with its own speckle (speckle decorrelates as the spot moves over
-   the surface: with slices a pixel of image motion apart, about twice per grain of the coherent
-   model, 2.44 lambda N = 3.9 um or 1.8 px: somewhat more averaging than a camera gets, where
-   slices 4 px apart gave half as much as it gets), and lights each row for that row's overlap with the slice. The truth of a column
-   is the mean over the slices weighted by that light (the centroid of the smeared line: what a
-   perfect pipeline measures), with its time (``FrameTruth.time_ns``); a column lit in less than
-   half of that light by a surface has no return. Glossy ghosts are not rendered for a moving
-   scene.
+9. *Motion* (issue 16, device/sim/motion.py: the sensor on a robot, moving objects). A scene in
+   which something moves is rendered per frame instead of from the static caches. The background:
+   each row's exposure window is cut into ``n`` equal time slices (so that the image moves at most
+   ``RenderOptions.motion_blur_px`` between two: motion blur, as continuous as the pixels resolve
+   it, up to ``max_time_slices``: 32 px of motion in an exposure (the operating point's fastest,
+   180 deg/s at 1 m/s, moves ~30 px in its 10 ms); beyond that the slices lie further apart. With
+   slices 4 px of image motion apart, the default before, a camera's smooth blur came out as a few
+   sharp copies: a 4-column stripe texture stayed crisp while the robot turned, and where the
+   pitched view moved a horizontal edge across a row, the copies mixed into a bright one-row ridge
+   that the unlit neighbours do not show: a phantom line at 0.83 m before a wall at 2.85 m,
+   BENCHMARKS.md "Motion"), and in each slice every row is cast from where the sensor was at that
+   row's own time (the rolling shutter: each row sees the scene where it was then; translation
+   gives depth-dependent parallax), against the objects where they were (a block of rows per object
+   position: an object moves < 2 mm in that time); a ray every ``motion_step`` pixels (default
+   every pixel, as a sensor samples it: a coarser grid, bilinearly interpolated, is fixed to the
+   sensor while the texture moves over it, so a texture's sharp edge changes its shape from frame
+   to frame. No background model removes that residue: with the unlit neighbours turned to the lit
+   frame it left 13-39 columns > 5 % off per point of `laserpi bench motion` at 4 px, 10-20 at 2
+   px, 0-4 at 1 px, BENCHMARKS.md "Motion"). The laser: the time the pulse lights the frame is cut
+   into slices likewise; in each the laser curve is cast from the sensor's pose then, with its own
+   speckle (speckle decorrelates as the spot moves over the surface: with slices a pixel of image
+   motion apart, about twice per grain of the coherent model, 2.44 lambda N = 3.9 um or 1.8 px:
+   somewhat more averaging than a camera gets, where slices 4 px apart gave half as much as it
+   gets), and lights each row for that row's overlap with the slice. The truth of a column is the
+   mean over the slices weighted by that light (the centroid of the smeared line: what a perfect
+   pipeline measures), with its time (``FrameTruth.time_ns``); a column lit in less than half of
+   that light by a surface has no return. Glossy ghosts are not rendered for a moving scene.
 
 Each effect can be switched off in :class:`RenderOptions`; an effect a scene does not use
 (no gloss, no ambient, no pulse, no motion) costs nothing.
