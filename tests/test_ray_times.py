@@ -49,7 +49,7 @@ class FrameLoop:
         time.sleep(max(wait, 0.0))
         self.next_at += FRAME_US * 1e-6
         self.seq += 1
-        image = self.pair.lit if self.seq % 2 else (self.pair.unlit if self.seq % 4 else self.pair.unlit_before)
+        image = (self.pair.lit if self.seq % 2 else (self.pair.unlit if self.seq % 4 else self.pair.unlit_before)).image
         return Frame(image, self.seq, time.monotonic_ns(), EXPOSURE_US, FRAME_US, self.line_ns, readout_offset_rows=155)
 
 

@@ -81,7 +81,7 @@ def test_a_scans_rays_are_timed_from_the_rows_their_line_was_found_in():
     pair = simulated_pairs(cfg, "wall:distance=2,angle=20", 1, neighbours=True)[0]
     line_ns, t = cfg.window.mode.line_time_ns, 10**9
     frames = [Frame(img, seq, t + (seq - 1) * 50_000_000, 40000.0, 50000.0, line_ns)
-              for seq, img in ((0, pair.unlit_before), (1, pair.lit), (2, pair.unlit))]
+              for seq, img in ((0, pair.unlit_before.image), (1, pair.lit.image), (2, pair.unlit.image))]
     pipe = make_pipeline("fast-com", cfg)
     scan = ScanPipeline(pipe, 400)
     rays = scan(frames[1], frames[2], frames[0])

@@ -46,6 +46,32 @@ MOTION_ROW_TOL_PX = 0.02
 MOTION_RTOL = 2e-3
 MOTION_ANGLE_TOL_RAD = 1e-5
 MOTION_STATUS_MAX = 2
+#: a Frame's metadata stored beside its image in frames.npz (the turn reads the rolling shutter
+#: from the timestamps and line time: device/vision/fast.py readout_shares); lit: -1 unknown
+FRAME_META = ("seq", "sensor_timestamp_ns", "exposure_us", "frame_duration_us", "line_time_ns", "readout_offset_rows",
+              "lit")
+
+
+def _stored(key: str, x) -> dict:
+    """``x`` (a Frame or an array) as frames.npz keeps it: a Frame's image under ``key`` and its
+    metadata under ``key|frame``."""
+    from device.camera.frame import Frame
+
+    if not isinstance(x, Frame):
+        return {key: x}
+    meta = [-1 if x.lit is None else int(x.lit) if f == "lit" else getattr(x, f) for f in FRAME_META]
+    return {key: x.image, f"{key}|frame": np.array(meta, np.float64)}
+
+
+def _loaded(stored, key: str):
+    """What _stored kept under ``key``: the Frame again, or the array."""
+    from device.camera.frame import Frame
+
+    if f"{key}|frame" not in stored.files:
+        return stored[key]
+    seq, stamp, exposure, duration, line, offset, lit = stored[f"{key}|frame"]
+    return Frame(stored[key], int(seq), int(stamp), float(exposure), float(duration), float(line),
+                 None if lit < 0 else bool(lit), int(offset))
 
 
 def frames(out_dir: Path) -> None:
@@ -56,14 +82,16 @@ def frames(out_dir: Path) -> None:
     stored, out = {}, {}
     for scene in SCENES:
         pairs = scene_pairs(cfg, scene)
-        for k, (lit, unlit, rows) in enumerate(pairs):
-            stored.update({f"{scene}|{k}|lit": lit, f"{scene}|{k}|unlit": unlit, f"{scene}|{k}|lit_rows": rows})
+        for k, pair in enumerate(pairs):
+            for part, x in zip(("lit", "unlit", "lit_rows"), pair):
+                stored.update(_stored(f"{scene}|{k}|{part}", x))
         measure(cfg, scene, runs_of(pairs), VARIANTS, out)
         print(f"{scene}: {len(pairs)} pairs, {len(VARIANTS)} variants", flush=True)
     for point in MOTION:
         triples = motion_triples(cfg, point)
         for k, triple in enumerate(triples):
-            stored.update({f"{point}|{k}|{part}": x for part, x in zip(MOTION_PARTS, triple)})
+            for part, x in zip(MOTION_PARTS, triple):
+                stored.update(_stored(f"{point}|{k}|{part}", x))
         measure_motion(cfg, point, triples, out)
         print(f"{point}: {len(triples)} lit frames with both neighbours, the device's pipeline", flush=True)
     np.savez(out_dir / "frames.npz", **stored)
@@ -81,12 +109,12 @@ def run(out_dir: Path) -> None:
     out = {}
     for scene in SCENES:
         count = sum(1 for key in stored.files if key.startswith(f"{scene}|") and key.endswith("|lit"))
-        pairs = [tuple(stored[f"{scene}|{k}|{part}"] for part in ("lit", "unlit", "lit_rows")) for k in range(count)]
+        pairs = [tuple(_loaded(stored, f"{scene}|{k}|{part}") for part in ("lit", "unlit", "lit_rows")) for k in range(count)]
         measure(cfg, scene, runs_of(pairs), VARIANTS, out)
         print(f"{scene}: {count} pairs, {len(VARIANTS)} variants on {platform.machine()}", flush=True)
     for point in MOTION:
         count = sum(1 for key in stored.files if key.startswith(f"{point}|") and key.endswith("|lit"))
-        triples = [tuple(stored[f"{point}|{k}|{part}"] for part in MOTION_PARTS) for k in range(count)]
+        triples = [tuple(_loaded(stored, f"{point}|{k}|{part}") for part in MOTION_PARTS) for k in range(count)]
         measure_motion(cfg, point, triples, out)
         print(f"{point}: {count} lit frames with both neighbours, the device's pipeline on {platform.machine()}", flush=True)
     np.savez(out_dir / f"{platform.machine()}.npz", **out)

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..camera.frame import Frame
 from ..config import SensorConfig
 from ..sim.truth import FrameTruth
 from .measurements import ColumnMeasurements
@@ -70,11 +71,14 @@ def nearest_true_range(truth: FrameTruth, columns: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FramePair:
-    lit: np.ndarray
-    unlit: np.ndarray
+    """Simulated frames (device.camera.frame.Frame: their timestamps and line time, which the
+    fast pipeline's turn needs for the rolling shutter) and the lit frame's truth."""
+
+    lit: Frame
+    unlit: Frame
     truth: FrameTruth  # of the lit frame
     lit_rows: np.ndarray  # (H,) rows the pulse lit in the lit frame
-    unlit_before: np.ndarray | None = None  # the unlit frame before the lit one (``neighbours=True``)
+    unlit_before: Frame | None = None  # the unlit frame before the lit one (``neighbours=True``)
 
 
 #: Operating point of the simulated camera: the simulator's defaults (device/sim/render.py,
@@ -114,12 +118,12 @@ def simulated_pairs(config: SensorConfig, scene_spec, count: int, seed: int = 0,
                                          isp=isp))
     cam.start()
     pairs = []
-    before = cam.capture_with_truth()[0].image if neighbours else None
+    before = cam.capture_with_truth()[0] if neighbours else None
     for _ in range(count):
         lit, truth = cam.capture_with_truth()
         unlit, _ = cam.capture_with_truth()
-        pairs.append(FramePair(lit.image, unlit.image, truth, truth.lit_rows, before))
-        before = unlit.image if neighbours else None
+        pairs.append(FramePair(lit, unlit, truth, truth.lit_rows, before))
+        before = unlit if neighbours else None
     return pairs
 
 

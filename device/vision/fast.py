@@ -50,15 +50,17 @@ Per frame pair (or triple):
    When the robot turns, a quarter (``turn_share``) of the columns or more moved: each unlit
    neighbour is then turned to the lit frame first (device/vision/yaw.py: a yaw is a shift of
    the azimuth, found against the lit frame and read back through the lens model, up to
-   ``max_turn_deg``), and kept where a turn explains the change and leaves fewer than half of
-   those columns moved. The frame is then judged as a still one, the columns that count as moved
-   since the turn as above: a column only one neighbour saw (the image's side the turn brought
-   in) against that one, and counted as moved; one neither saw is REJECTED (a line or "no
-   return" there). The near rows of step 7 are not turned: there the neighbours count as they
-   moved. A turned neighbour is resampled: a sharp edge the image drew within a row (an edge
-   the lens leaves sharp, or a renderer's point-sampled pixels) comes back up to half a row from
-   where the lit frame has it, a short horizontal residue as high as half the edge (a phantom
-   line: 6-8 columns at 14-45 deg/s where a wall meets the floor). So the lit frame is held
+   ``max_turn_deg``, each ray where its row of the neighbour was read under the rolling shutter,
+   from the Frames' timing: :func:`readout_shares`), and kept where a turn explains the change
+   and leaves fewer than half of those columns moved. The frame is then judged as a still one,
+   the columns that count as moved since the turn as above: a column only one neighbour saw
+   (the image's side the turn brought in) against that one, and counted as moved; one neither
+   saw is REJECTED (a line or "no return" there). The near rows of step 7 are not turned:
+   there the neighbours count as they moved. A turned neighbour is resampled: a sharp edge the
+   image drew within a row (an edge the lens leaves sharp, or a renderer's point-sampled
+   pixels) comes back up to half a row from where the lit frame has it, a short horizontal
+   residue as high as half the edge (a phantom line: 6-8 columns at 14-45 deg/s where a wall
+   meets the floor). So the lit frame is held
    against the turned neighbours' mean allowed a row's misplacement: each pixel against the
    nearest value between the least and the greatest of the mean over its row and the rows above
    and below, that range narrowed by ``resample_slack`` levels each side (sensor noise alone
@@ -388,8 +390,9 @@ class FastPipeline:
             grid = self._yaw_grid if math.isfinite(p.turn_share) else None  # built at the first call with both
             moved = moved_raw = self._moved(background, other, background)
             if grid is not None and moved.mean() >= p.turn_share:
+                shares = readout_shares(lit, (unlit, other_unlit))
                 background, other, moved, brought_in, turn_rad = self._turned(grid, lum_lit, lum_unlit, lum_other,
-                                                                              background, other, moved)
+                                                                              background, other, moved, shares)
             neighbours = (background, other)
             background = turned_mean = bright = cv2.addWeighted(background, 0.5, other, 0.5, 0.0)
             if brought_in is not None and math.isfinite(p.resample_slack):
@@ -548,28 +551,33 @@ class FastPipeline:
         return np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
 
     def _turned(self, grid, lum_lit: np.ndarray, lum_unlit: np.ndarray, lum_other: np.ndarray, background: np.ndarray,
-                other: np.ndarray, moved: np.ndarray):
+                other: np.ndarray, moved: np.ndarray, shares: tuple[float, float] | None):
         """Step 0 when ``turn_share`` of the columns moved: the neighbours read into the lit frame's
-        band under the turn that matches each (device/vision/yaw.py), where a turn explains how
+        band under the turn that matches each (device/vision/yaw.py; ``shares``: their
+        readout_shares, the rolling shutter), where a turn explains how
         they differ and leaves fewer than half of the ``moved`` columns moved; else the bands as
         they were. Columns a neighbour did not see (the turn brought them in from outside the
         image) keep the raw bands and count as moved. Returns (band of the unlit frame, band of
         the other, moved, the columns brought in, the larger of the two turns in rad; the last
-        two None where the bands were not turned)."""
-        regs = register(grid, lum_lit, (lum_unlit, lum_other))
-        if regs is None:
+        two None where the bands were not turned). Of a periodic texture's aliases the next is
+        tried where one leaves half of them moved (yaw.register ``accept``)."""
+        judged = []
+
+        def explains(regs) -> bool:
+            a, b = regs[0].band, regs[1].band
+            only_a, only_b = regs[0].seen & ~regs[1].seen, regs[1].seen & ~regs[0].seen
+            b[:, only_a] = a[:, only_a]
+            a[:, only_b] = b[:, only_b]
+            brought_in = ~(regs[0].seen | regs[1].seen)
+            for turned, raw in ((a, background), (b, other)):
+                turned[:, brought_in] = raw[:, brought_in]
+            turned_moved = self._moved(a, b, background) | brought_in | only_a | only_b
+            judged[:] = [a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)]
+            return turned_moved.sum() < 0.5 * moved.sum()
+
+        if register(grid, lum_lit, (lum_unlit, lum_other), shares, explains) is None:
             return background, other, moved, None, None
-        a, b = regs[0].band, regs[1].band
-        only_a, only_b = regs[0].seen & ~regs[1].seen, regs[1].seen & ~regs[0].seen
-        b[:, only_a] = a[:, only_a]
-        a[:, only_b] = b[:, only_b]
-        brought_in = ~(regs[0].seen | regs[1].seen)
-        for turned, raw in ((a, background), (b, other)):
-            turned[:, brought_in] = raw[:, brought_in]
-        turned_moved = self._moved(a, b, background) | brought_in | only_a | only_b
-        if turned_moved.sum() >= 0.5 * moved.sum():
-            return background, other, moved, None, None
-        return a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)
+        return tuple(judged)
 
     def _mixed(self, depth: np.ndarray, found: np.ndarray, sweep_rad: float) -> np.ndarray:
         """Step 6's mixtures of two surfaces in a turned frame (module docstring): the turn swept
@@ -842,6 +850,21 @@ def exposure_share(frame, op) -> float:
     if isinstance(frame, Frame):
         return frame.exposure_us / frame.frame_duration_us
     return op.exposure_us * 1e-6 / op.frame_duration_s
+
+
+def readout_shares(lit, neighbours) -> tuple[float, ...] | None:
+    """One row's readout time over the time from ``lit`` to each of its unlit ``neighbours``, as
+    device/vision/yaw.py register turns a ray by the rows it moved (the rolling shutter): from
+    the Frames' own line time and SensorTimestamps (row r of a frame is read at its timestamp +
+    (readout offset + r) line times, the same offset in every frame of a mode:
+    device/camera/frame.py); 0 for a neighbour with the lit frame's timestamp (no time between
+    them to correct by). None where any of them is a bare image, which carries no timing: its
+    rows are then taken as read at one instant (the device, a recording and the simulator hand
+    the pipeline Frames)."""
+    if not (isinstance(lit, Frame) and all(isinstance(n, Frame) for n in neighbours)):
+        return None
+    gaps = [n.sensor_timestamp_ns - lit.sensor_timestamp_ns for n in neighbours]
+    return tuple(lit.line_time_ns / gap if gap else 0.0 for gap in gaps)
 
 
 def between_surfaces(depth: np.ndarray, valid: np.ndarray, half: int, jump: float, tol: float) -> np.ndarray:

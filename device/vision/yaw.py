@@ -15,9 +15,11 @@ column of the band and spread to the others by linear interpolation (the displac
 makes changes slowly across the image). Each neighbour gets its own shift, so a yaw rate that
 changes between the frames is followed. A texture periodic along the azimuth (tiles, shelves, a
 checkerboard) matches itself a whole period away nearly as well as at the turn: of such aliases
-the smallest turn is taken (ALIAS_SCORE), the right one while the turn between two frames is
-under half the period; beyond that a wrong alias leaves the columns it cannot explain moved,
-and the checks on a moved background reject lines there, never guess them.
+the smallest turn is tried first (ALIAS_SCORE), the right one while the turn between two frames
+is under half the period; beyond that it is a wrong one, which leaves the rows the rolling
+shutter read later unexplained (below), the pipeline refuses it, and the next is tried
+(MAX_ALIASES). Where none is taken the checks on a moved background judge the frame: they
+reject lines there, never guess them.
 
 What a rotation about the camera does not explain stays: the parallax of driving forward,
 something moving in the scene, a texture coming in from outside the image
@@ -35,11 +37,19 @@ step 0 judges the registered neighbours as it judges the raw ones.
 The rolling shutter: the three frames read their rows at the same times after their starts (the
 line time is the mode's line length over its pixel rate, and frames follow at the frame length:
 device/camera/modes.py, from the kernel's driver raspberrypi/linux drivers/media/i2c/imx219.c,
-which no frame of a running mode changes), so the yaw between a lit row and its neighbour's row
-is the same for every row at a constant yaw rate over the 100 ms; the row a ray lands on moves
-by a fraction of a row, not by the readout. A yaw rate that changes leaves the rows' turns
-unequal: by the acceleration x the readout between them x the 50 ms between the frames; over
-the band at the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
+which no frame of a running mode changes), so the yaw between a row of the lit frame and the
+same row of a neighbour is the same for every row at a constant yaw rate. But a turn does not
+keep a ray in its row: the camera looks down at the laser plane through a wide lens, and a ray
+the turn moves sideways lands rows higher or lower in the neighbour (at the operating point's
+band, 3-6 rows at the median and 7-16 at the 90th percentile for 2.25-4.5 deg, 13 and 56 for 9
+deg). That row was read that many line times later or earlier, while the sensor went on
+turning: at 180 deg/s, 56 rows of 18.9 us are 0.19 deg, two pixels. So the read-back turns each
+ray by the shift times (1 + rows it moved x ``readout_share``, one row's readout as a share of
+the time between the frames; register), the rows it moved taken from the plain shift's map (the
+correction moves them by a fraction of a row more). The search itself reads the shift at the
+rows' mean move, 1-3 rows: 0.1 % of it. A yaw rate that changes leaves the rows' turns unequal:
+by the acceleration x the readout between them x the 50 ms between the frames; over the band at
+the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
 
 What it costs (BENCHMARKS.md "Motion"): ~4-5 ms per turning lit frame here in the pipeline for
 both neighbours (the three grid reads and the searches ~2 ms, each read-back ~1.2 ms), ~1 ms
@@ -76,12 +86,15 @@ MIN_PEAK = 0.7
 #: apart: a texture periodic along the azimuth (tiles, shelves, a checkerboard) matches itself
 #: shifted by a whole period nearly as well as at the turn, and which alias scores a few
 #: thousandths higher is chance (the image's ends, noise, the rolling shutter). The smallest
-#: turn among them is taken: the right one while the turn between two frames is under half the
-#: texture's period. On the frames of ``laserpi bench motion`` (seeds 0-1, 14-180 deg/s, the
-#: poster wall) the best peak stands 0.23-0.64 above the next; a checkerboard of 0.15 m squares
-#: at 2 m, turning at 90 deg/s, put its aliases within 0.024 of each other, and the one a
-#: period further scored highest.
+#: turn among them is tried first: the right one while the turn between two frames is under half
+#: the texture's period. On the frames of ``laserpi bench motion`` (84 registrations: seeds 0-1,
+#: 14-180 deg/s, the poster wall, the person, driving) the best peak stands 0.21 or more above
+#: the next; a checkerboard of 0.15 m squares at 2 m, turning at 90 deg/s, put its aliases
+#: within 0.024 of each other, and the one a period further scored highest.
 ALIAS_SCORE = 0.05
+#: At most this many aliases are tried, smallest turn first, where the caller refuses one
+#: (register ``accept``): each costs a fine search and a read-back (~2-3 ms here).
+MAX_ALIASES = 3
 #: Where a map has no pixel (NaN: a ray outside the image), this coordinate instead: cv2.remap
 #: reads its border value there on every platform (a NaN coordinate's conversion is undefined).
 OUTSIDE = -1e4
@@ -208,16 +221,24 @@ def _directions(pixels: np.ndarray, camera: CameraModel, frame: ScanFrame):
             un.valid)
 
 
-def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | None:
+def register(grid: YawGrid, lit: np.ndarray, neighbours, readout_shares=None, accept=None) -> list[Registered] | None:
     """Each of ``neighbours`` (whole uint8 images) read into the band of ``lit`` under the turn
-    that matches it best (a copy of its own band where that is under MIN_SHIFT cells); None where
+    that matches it best (a copy of its own band where that is under MIN_SHIFT cells), each ray
+    turned ``readout_shares`` (one per neighbour: one row's readout time over the time from the
+    lit frame to that neighbour, negative for one before it; None: 0, a global shutter) of the
+    turn more per row the turn moved it down (the rolling shutter, module docstring); None where
     no turn can be told (no texture: a flat or dark scene) or a turn does not explain how the
     neighbours differ: turned, they still differ by more than MAX_TURN_RESIDUE of what they did
     (driving straight: the parallax spreads the scene out from the middle, which a best shift
     matches only a little: on the frames of ``laserpi bench motion``, seeds 0-4, 0.81-0.89 of
     the difference stays at 0.5-1 m/s, 0.05-0.18 turning at 14-180 deg/s, 0.14-0.25 with a
     person crossing too, 0.36-0.42 turning at 180 deg/s and driving at 1 m/s in 10x light).
-    That test is made on the coarse shifts, before the fine search."""
+    That test is made on the coarse shifts, before the fine search. ``accept`` (the list of
+    Registered -> bool; None: any) judges a registration: where it refuses one, the next of the
+    neighbours' aliases (ALIAS_SCORE) by the size of the turn is tried, up to MAX_ALIASES of them
+    (a turn beyond half a periodic texture's period: the smallest alias is a wrong one, which
+    leaves the rows the rolling shutter turned further unexplained); None where it refuses
+    all."""
     import cv2
 
     on = lambda x: cv2.remap(x, grid.search_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(np.float32)  # noqa: E731
@@ -225,25 +246,38 @@ def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | N
     h, w = a.shape[0] // COARSE, a.shape[1] // COARSE  # >= 1: yaw_grid refuses a smaller grid
     small_a, *smalls = (cv2.resize(x[: h * COARSE, : w * COARSE], (w, h), interpolation=cv2.INTER_AREA)
                         for x in (a, *grids))
-    coarse = [_coarse_shift(small_a, small_b, grid.max_shift // COARSE) for small_b in smalls]
-    if any(s is None for s in coarse) or _residue(smalls, coarse) > MAX_TURN_RESIDUE:
+    aliases = [_coarse_shifts(small_a, small_b, grid.max_shift // COARSE) for small_b in smalls]
+    if not all(aliases):
         return None
-    shifts = [_fine_shift(a, b, round(s * COARSE), grid.max_shift) for b, s in zip(grids, coarse)]
-    if any(s is None for s in shifts):
-        return None
+    for rank in range(min(MAX_ALIASES, max(map(len, aliases)))):
+        coarse = [s[min(rank, len(s) - 1)] for s in aliases]  # a neighbour with fewer keeps its last
+        if _residue(smalls, coarse) > MAX_TURN_RESIDUE:
+            continue
+        shifts = [_fine_shift(a, b, round(s * COARSE), grid.max_shift) for b, s in zip(grids, coarse)]
+        if any(s is None for s in shifts):
+            continue
+        out = _read_back(grid, neighbours, shifts, readout_shares)
+        if accept is None or accept(out):
+            return out
+    return None
+
+
+def _read_back(grid: YawGrid, neighbours, shifts, readout_shares) -> list[Registered]:
+    """Each of ``neighbours`` read into the band under its turn ``shifts`` (cells; register)."""
+    import cv2
+
     out = []
-    for neighbour, shift in zip(neighbours, shifts):
+    for neighbour, shift, share in zip(neighbours, shifts, readout_shares or (0.0,) * len(neighbours)):
         if abs(shift) < MIN_SHIFT:
             out.append(Registered(neighbour[grid.top : grid.top + grid.rows].copy(), np.ones(neighbour.shape[1], bool),
                                   shift * grid.cell_rad))
             continue
         # where each band pixel's ray lies in the neighbour: composed on every COMPOSE_STEP-th
         # row and column, and its displacement, which changes slowly, spread to the others
-        m = grid.compose_cells.copy()
-        m[..., 0] += shift
-        cv2.patchNaNs(m, OUTSIDE)
-        source = cv2.remap(grid.to_image, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                           borderValue=math.nan)
+        source = _composed(grid, np.full(grid.compose_cells.shape[:2], shift, np.float32))
+        if share:  # the rolling shutter: the rows each ray moved, read that much later
+            moved_rows = np.nan_to_num(source[..., 1] - grid.compose_pixels[..., 1])
+            source = _composed(grid, (shift * (1.0 + share * moved_rows)).astype(np.float32))
         cv2.patchNaNs(source, OUTSIDE)  # and what it spreads to reads outside too
         rows, width = grid.band_pixels.shape[:2]
         at = cv2.add(cv2.resize(source - grid.compose_pixels, (width, rows), interpolation=cv2.INTER_LINEAR),
@@ -252,6 +286,17 @@ def register(grid: YawGrid, lit: np.ndarray, neighbours) -> list[Registered] | N
         band = cv2.remap(neighbour, at, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         out.append(Registered(band, seen, shift * grid.cell_rad))
     return out
+
+
+def _composed(grid: YawGrid, shift: np.ndarray) -> np.ndarray:
+    """(n_rows, n_columns, 2) the neighbour's pixel (x, y) of every composed band pixel's ray
+    turned by ``shift`` (cells, per composed pixel); NaN where it has none in the image."""
+    import cv2
+
+    m = grid.compose_cells.copy()
+    m[..., 0] += shift
+    cv2.patchNaNs(m, OUTSIDE)
+    return cv2.remap(grid.to_image, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=math.nan)
 
 
 def _seen(grid: YawGrid, source: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -288,25 +333,21 @@ def _residue(grids, shifts) -> float:
     return float(np.mean(np.abs(turned[0] - turned[1])[ok])) / raw if raw > 0 else math.inf
 
 
-def _coarse_shift(small_a: np.ndarray, small_b: np.ndarray, reach: int) -> float | None:
-    """The shift s (cells of these grids, to a fraction of one) with small_b[:, j + s] ~
+def _coarse_shifts(small_a: np.ndarray, small_b: np.ndarray, reach: int) -> list[float]:
+    """The shifts s (cells of these grids, to a fraction of one) with small_b[:, j + s] ~
     small_a[:, j]: the best normalised correlation of ``small_a``'s middle (``reach`` cells in from
-    each side) along ``small_b``, the smallest shift among its aliases (ALIAS_SCORE), the peak's
-    parabola; None where it has no peak (a flat grid), a weak one (under MIN_PEAK) or none but at
+    each side) along ``small_b`` and its aliases (ALIAS_SCORE), smallest first, each at its peak's
+    parabola; none where it has no peak (a flat grid), a weak one (under MIN_PEAK) or none but at
     the end of the searched range (it may lie beyond)."""
     import cv2
 
     c = small_a.shape[1]
     score = cv2.matchTemplate(small_b, small_a[:, reach : c - reach], cv2.TM_CCOEFF_NORMED)[0]
-    if not np.all(np.isfinite(score)) or np.ptp(score) <= 0:
-        return None
-    top = float(score.max())
+    if not np.all(np.isfinite(score)) or np.ptp(score) <= 0 or score.max() < MIN_PEAK:
+        return []
     inner = score[1:-1]
-    peaks = 1 + np.flatnonzero((inner >= score[:-2]) & (inner >= score[2:]) & (inner >= top - ALIAS_SCORE))
-    if top < MIN_PEAK or not peaks.size:
-        return None
-    best = int(peaks[np.argmin(np.abs(peaks - reach))])
-    return best - reach + _parabola(score[best - 1 : best + 2])
+    peaks = 1 + np.flatnonzero((inner >= score[:-2]) & (inner >= score[2:]) & (inner >= score.max() - ALIAS_SCORE))
+    return [int(k) - reach + _parabola(score[k - 1 : k + 2]) for k in sorted(peaks, key=lambda k: abs(int(k) - reach))]
 
 
 def _fine_shift(a: np.ndarray, b: np.ndarray, k0: int, max_shift: int) -> float | None:
