@@ -59,7 +59,7 @@ def _stored(key: str, x) -> dict:
 
     if not isinstance(x, Frame):
         return {key: x}
-    meta = [-1 if x.lit is None else int(x.lit) if f == "lit" else getattr(x, f) for f in FRAME_META]
+    meta = [(-1 if x.lit is None else int(x.lit)) if f == "lit" else getattr(x, f) for f in FRAME_META]
     return {key: x.image, f"{key}|frame": np.array(meta, np.float64)}
 
 

@@ -37,7 +37,8 @@ step 0 judges the registered neighbours as it judges the raw ones.
 The rolling shutter: the three frames read their rows at the same times after their starts (the
 line time is the mode's line length over its pixel rate, and frames follow at the frame length:
 device/camera/modes.py, from the kernel's driver raspberrypi/linux drivers/media/i2c/imx219.c,
-which no frame of a running mode changes), so the yaw between a row of the lit frame and the
+which no frame of a running mode changes at the device's frame lengths: libcamera lengthens the
+line only beyond the mode's longest frame, ~1.2 s for the IMX219, CamHelper::getBlanking), so the yaw between a row of the lit frame and the
 same row of a neighbour is the same for every row at a constant yaw rate. But a turn does not
 keep a ray in its row: the camera looks down at the laser plane through a wide lens, and a ray
 the turn moves sideways lands rows higher or lower in the neighbour (at the operating point's
@@ -46,10 +47,12 @@ deg). That row was read that many line times later or earlier, while the sensor 
 turning: at 180 deg/s, 56 rows of 18.9 us are 0.19 deg, two pixels. So the read-back turns each
 ray by the shift times (1 + rows it moved x ``readout_share``, one row's readout as a share of
 the time between the frames; register), the rows it moved taken from the plain shift's map (the
-correction moves them by a fraction of a row more). The search itself reads the shift at the
-rows' mean move, 1-3 rows: 0.1 % of it. A yaw rate that changes leaves the rows' turns unequal:
-by the acceleration x the readout between them x the 50 ms between the frames; over the band at
-the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03 deg, a quarter of a cell.
+correction moves them by a fraction of a row more). The search itself finds the shift at the
+mean move of the rows it matched (-0.7 to +1.7 rows at 4.5 deg, -0.3 to +4.5 at 9 deg: up to
+0.17 % of the shift, 0.15 px at 180 deg/s), which is divided out first. A yaw rate that
+changes leaves the rows' turns unequal: by the acceleration x the readout between them x the 50
+ms between the frames; over the band at the operating point (160 rows, 3 ms) at 3 rad/s^2, 0.03
+deg, a quarter of a cell.
 
 What it costs (BENCHMARKS.md "Motion"): ~4-5 ms per turning lit frame here in the pipeline for
 both neighbours (the three grid reads and the searches ~2 ms, each read-back ~1.2 ms), ~1 ms
@@ -272,6 +275,8 @@ def _read_back(grid: YawGrid, neighbours, shifts, readout_shares) -> list[Regist
             out.append(Registered(neighbour[grid.top : grid.top + grid.rows].copy(), np.ones(neighbour.shape[1], bool),
                                   shift * grid.cell_rad))
             continue
+        if share:  # the search matched rows that moved by their mean, read that much later
+            shift /= 1.0 + share * _mean_rows_moved(grid, shift)
         # where each band pixel's ray lies in the neighbour: composed on every COMPOSE_STEP-th
         # row and column, and its displacement, which changes slowly, spread to the others
         source = _composed(grid, np.full(grid.compose_cells.shape[:2], shift, np.float32))
@@ -286,6 +291,16 @@ def _read_back(grid: YawGrid, neighbours, shifts, readout_shares) -> list[Regist
         band = cv2.remap(neighbour, at, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         out.append(Registered(band, seen, shift * grid.cell_rad))
     return out
+
+
+def _mean_rows_moved(grid: YawGrid, shift: float) -> float:
+    """The mean of the rows a turn of ``shift`` cells moves the rays the fine search matched (its
+    template: the search rows' cells ``max_shift`` in from each side, _fine_shift), in the
+    image: the rolling shutter's share of the shift it found (module docstring)."""
+    m, n, k = grid.max_shift, grid.search_map.shape[1], int(round(shift))
+    here, there = grid.search_map[:, m : n - m, 1], grid.search_map[:, m + k : n - m + k, 1]
+    inside = (here > OUTSIDE / 2) & (there > OUTSIDE / 2)
+    return float(np.mean((there - here)[inside])) if inside.any() else 0.0
 
 
 def _composed(grid: YawGrid, shift: np.ndarray) -> np.ndarray:
@@ -336,17 +351,21 @@ def _residue(grids, shifts) -> float:
 def _coarse_shifts(small_a: np.ndarray, small_b: np.ndarray, reach: int) -> list[float]:
     """The shifts s (cells of these grids, to a fraction of one) with small_b[:, j + s] ~
     small_a[:, j]: the best normalised correlation of ``small_a``'s middle (``reach`` cells in from
-    each side) along ``small_b`` and its aliases (ALIAS_SCORE), smallest first, each at its peak's
-    parabola; none where it has no peak (a flat grid), a weak one (under MIN_PEAK) or none but at
-    the end of the searched range (it may lie beyond)."""
+    each side) along ``small_b`` and its aliases (ALIAS_SCORE, none under MIN_PEAK), smallest
+    first, each at its peak's parabola; none where it has no peak (a flat grid), a weak one (under
+    MIN_PEAK) or one at the end of the searched range (it may lie beyond)."""
     import cv2
 
     c = small_a.shape[1]
     score = cv2.matchTemplate(small_b, small_a[:, reach : c - reach], cv2.TM_CCOEFF_NORMED)[0]
-    if not np.all(np.isfinite(score)) or np.ptp(score) <= 0 or score.max() < MIN_PEAK:
+    if not np.all(np.isfinite(score)) or np.ptp(score) <= 0:
         return []
-    inner = score[1:-1]
-    peaks = 1 + np.flatnonzero((inner >= score[:-2]) & (inner >= score[2:]) & (inner >= score.max() - ALIAS_SCORE))
+    best = int(np.argmax(score))
+    if score[best] < MIN_PEAK or not 0 < best < score.size - 1:
+        return []
+    inner = score[1:-1]  # local maxima (the first of a plateau) no lower than the bar
+    bar = max(MIN_PEAK, float(score[best]) - ALIAS_SCORE)
+    peaks = 1 + np.flatnonzero((inner > score[:-2]) & (inner >= score[2:]) & (inner >= bar))
     return [int(k) - reach + _parabola(score[k - 1 : k + 2]) for k in sorted(peaks, key=lambda k: abs(int(k) - reach))]
 
 
