@@ -12,7 +12,7 @@ from device.bench.motion import _no_turn
 from device.config import load_preset
 from device.model.camera import pixel_grid, project_points, undistort_robust
 from device.model.scan_frame import scan_frame
-from device.vision.yaw import COMPOSE_STEP, NoTurnToSearch, register, yaw_grid
+from device.vision.yaw import COMPOSE_STEP, NoTurnToSearch, registrations, yaw_grid
 
 CFG = load_preset("thesis-calibrated")
 FRAME = scan_frame(CFG.plane)
@@ -37,6 +37,11 @@ def rays():
     az = np.arctan2(d[:, 1], d[:, 0]).reshape(pixels.shape[:2])
     el = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])).reshape(pixels.shape[:2])
     return az, el
+
+
+def register(grid, lit, neighbours, readout_shares=None):
+    """The registration of the smallest turn (yaw.registrations' first), None where there is none."""
+    return next(registrations(grid, lit, neighbours, readout_shares), None)
 
 
 def texture(az, el, seed=0):
@@ -234,10 +239,16 @@ def _device():
     return device
 
 
+def _line(device):
+    """The laser line drawn mid-range: each column's row, and its (height, width) levels (LINE at
+    the peak)."""
+    line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
+    return line_row, LINE * np.exp(-((np.arange(CFG.height)[:, None] - line_row[None, :]) ** 2) / 2)
+
+
 def _lit(rays, device, columns=slice(None)):
     """The lit frame: the texture with a laser line of LINE levels drawn in ``columns``, mid-range."""
-    line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
-    line = LINE * np.exp(-((np.arange(CFG.height)[:, None] - line_row[None, :]) ** 2) / 2)
+    _, line = _line(device)
     drawn = np.zeros(CFG.width, bool)
     drawn[columns] = True
     return np.clip(image(rays) + np.where(drawn, line, 0), 0, 255).astype(np.uint8)
@@ -297,8 +308,7 @@ def test_the_pipeline_keeps_a_turning_checkerboard_as_it_keeps_a_still_one(rays,
     device = _device()
     square, turn = math.radians(2.0), math.radians(turn_deg)
     lens = lambda im: cv2.GaussianBlur(im, (0, 0), 1.0)  # noqa: E731
-    line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
-    line = LINE * np.exp(-((np.arange(CFG.height)[:, None] - line_row[None, :]) ** 2) / 2)
+    line_row, line = _line(device)
     lit = np.clip(lens(image(rays, square_rad=square)) + line, 0, 255).astype(np.uint8)
     inside = slice(100, CFG.active_width - 100)
     results = []
@@ -325,16 +335,15 @@ def _rolling_checkerboard(rays, device, rate_rad_s, square_rad, seed=0):
     az, el = rays
     line_ns = CFG.window.mode.line_time_ns
     read_at = np.arange(DRAWN)[:, None] * line_ns * 1e-9
-    line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
-    line = LINE * np.exp(-((np.arange(CFG.height)[:, None] - line_row[None, :]) ** 2) / 2)
+    _, line = _line(device)
     rng = np.random.default_rng(seed)
 
     def frame(seq):
         t = (seq - 1) * 0.05
         out = np.zeros((CFG.height, CFG.width), np.uint8)
         out[:DRAWN] = checker(az + rate_rad_s * (t + read_at), el, square_rad)
-        image = cv2.GaussianBlur(out, (0, 0), 1.0) + rng.normal(0, 2, out.shape) + (line if seq == 1 else 0)
-        return Frame(np.clip(np.rint(image), 0, 255).astype(np.uint8), seq, 10**9 + seq * 50_000_000,
+        seen = cv2.GaussianBlur(out, (0, 0), 1.0) + rng.normal(0, 2, out.shape) + (line if seq == 1 else 0)
+        return Frame(np.clip(np.rint(seen), 0, 255).astype(np.uint8), seq, 10**9 + seq * 50_000_000,
                      CFG.operating_point.exposure_us, 50000.0, line_ns, seq == 1)
 
     return frame(1), frame(2), frame(0)
@@ -379,10 +388,9 @@ def _turning_past_a_floor_edge(rays, device, turn_deg, distance_m):
     """The device's measurements of the lit frame with the line in DRAWN_LINE, the sensor turning
     steadily by ``turn_deg`` per frame step past the floor's edge (floor_edge)."""
     lit = floor_edge(rays, 0.0, distance_m)
-    line_row = (device.geometry.roi_lo + device.geometry.roi_hi) / 2
+    line_row, line = _line(device)
     drawn = np.zeros(CFG.width, bool)
     drawn[DRAWN_LINE] = True
-    line = LINE * np.exp(-((np.arange(CFG.height)[:, None] - line_row[None, :]) ** 2) / 2)
     lit = np.clip(lit + np.where(drawn, line, 0), 0, 255).astype(np.uint8)
     t = math.radians(turn_deg)
     return device.process(lit, floor_edge(rays, t, distance_m), LIT_ROWS, other_unlit=floor_edge(rays, -t, distance_m)), line_row
@@ -423,27 +431,27 @@ def test_each_safeguard_against_a_resampled_edge_is_needed(rays, off):
 
 
 def test_a_turn_that_leaves_most_columns_moved_is_not_used(rays, mocker):
-    """Where the turned neighbours still differ in half of the columns that moved (here: the
-    registration's bands replaced by noise), the pipeline refuses the registration (register's
-    ``accept``, which would try the next alias), and the frame is judged with its neighbours as
-    they were, bit for bit."""
+    """Where the turned neighbours still differ in half of the columns that moved (here: every
+    registration's bands replaced by noise), the pipeline refuses the registration and asks for
+    the next alias (yaw.registrations), and where it refuses them all, the frame is judged with
+    its neighbours as they were, bit for bit."""
     from device.vision import fast
     from device.vision.yaw import Registered
 
     device = _device()
     lit, before, after = _lit(rays, device), image(rays, math.radians(-2)), image(rays, math.radians(2))
     rng = np.random.default_rng(0)
-    noise = [Registered(rng.integers(0, 255, (ROWS, CFG.width), dtype=np.uint8), np.ones(CFG.width, bool), s)
-             for s in (-0.03, 0.03)]
-    verdicts = []
+    offered = []
 
-    def register(grid, lit, neighbours, shares, accept):
-        verdicts.append(accept(noise))
-        return noise if verdicts[-1] else None
+    def registrations(grid, lit, neighbours, shares):
+        for _ in range(2):
+            offered.append(1)
+            yield [Registered(rng.integers(0, 255, (ROWS, CFG.width), dtype=np.uint8), np.ones(CFG.width, bool), s)
+                   for s in (-0.03, 0.03)]
 
-    mocker.patch.object(fast, "register", side_effect=register)
+    mocker.patch.object(fast, "registrations", side_effect=registrations)
     meas = device.process(lit, after, LIT_ROWS, other_unlit=before)
-    assert verdicts == [False]
+    assert len(offered) == 2
     plain = _no_turn(device).process(lit, after, LIT_ROWS, other_unlit=before)
     assert np.array_equal(meas.status, plain.status) and np.array_equal(meas.range, plain.range, equal_nan=True)
 

@@ -193,7 +193,7 @@ from .geometry import column_geometry
 from .measurements import STATUS_U8, ColumnMeasurements, ColumnStatus, finish, luminance
 from .kernel import columns_kernel
 from .peaks import ESTIMATORS, ColumnPeaks, clamp, refine_com_padded, refine_peaks, rows_read
-from .yaw import NoTurnToSearch, register, yaw_grid
+from .yaw import NoTurnToSearch, registrations, yaw_grid
 
 log = logging.getLogger(__name__)
 
@@ -560,10 +560,8 @@ class FastPipeline:
         image) keep the raw bands and count as moved. Returns (band of the unlit frame, band of
         the other, moved, the columns brought in, the larger of the two turns in rad; the last
         two None where the bands were not turned). Of a periodic texture's aliases the next is
-        tried where one leaves half of them moved (yaw.register ``accept``)."""
-        judged = []
-
-        def explains(regs) -> bool:
+        tried where one leaves half of them moved (yaw.registrations)."""
+        for regs in registrations(grid, lum_lit, (lum_unlit, lum_other), shares):
             a, b = regs[0].band, regs[1].band
             only_a, only_b = regs[0].seen & ~regs[1].seen, regs[1].seen & ~regs[0].seen
             b[:, only_a] = a[:, only_a]
@@ -572,12 +570,9 @@ class FastPipeline:
             for turned, raw in ((a, background), (b, other)):
                 turned[:, brought_in] = raw[:, brought_in]
             turned_moved = self._moved(a, b, background) | brought_in | only_a | only_b
-            judged[:] = [a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)]
-            return turned_moved.sum() < 0.5 * moved.sum()
-
-        if register(grid, lum_lit, (lum_unlit, lum_other), shares, explains) is None:
-            return background, other, moved, None, None
-        return tuple(judged)
+            if turned_moved.sum() < 0.5 * moved.sum():
+                return a, b, turned_moved, brought_in, max(abs(r.shift_rad) for r in regs)
+        return background, other, moved, None, None
 
     def _mixed(self, depth: np.ndarray, found: np.ndarray, sweep_rad: float) -> np.ndarray:
         """Step 6's mixtures of two surfaces in a turned frame (module docstring): the turn swept
@@ -854,7 +849,7 @@ def exposure_share(frame, op) -> float:
 
 def readout_shares(lit, neighbours) -> tuple[float, ...] | None:
     """One row's readout time over the time from ``lit`` to each of its unlit ``neighbours``, as
-    device/vision/yaw.py register turns a ray by the rows it moved (the rolling shutter): from
+    device/vision/yaw.py registrations turns a ray by the rows it moved (the rolling shutter): from
     the Frames' own line time and SensorTimestamps (row r of a frame is read at its timestamp +
     (readout offset + r) line times, the same offset in every frame of a mode:
     device/camera/frame.py); 0 for a neighbour with the lit frame's timestamp (no time between

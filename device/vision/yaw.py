@@ -46,7 +46,7 @@ band, 3-6 rows at the median and 7-16 at the 90th percentile for 2.25-4.5 deg, 1
 deg). That row was read that many line times later or earlier, while the sensor went on
 turning: at 180 deg/s, 56 rows of 18.9 us are 0.19 deg, two pixels. So the read-back turns each
 ray by the shift times (1 + rows it moved x ``readout_share``, one row's readout as a share of
-the time between the frames; register), the rows it moved taken from the plain shift's map (the
+the time between the frames; registrations), the rows it moved taken from the plain shift's map (the
 correction moves them by a fraction of a row more). The search itself finds the shift at the
 mean move of the rows it matched (-0.7 to +1.7 rows at 4.5 deg, -0.3 to +4.5 at 9 deg: up to
 0.17 % of the shift, 0.15 px at 180 deg/s), which is divided out first. A yaw rate that
@@ -65,6 +65,7 @@ Pure arrays and OpenCV, no I/O: the grid is built from the configuration's lens 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,7 +80,7 @@ FINE_REACH = COARSE
 #: A neighbour shifted by less than this (cells) is read as it is: a turn that small (a robot
 #: starting or ending one) moves nothing by a pixel, and resampling would only blur it.
 MIN_SHIFT = 0.5
-#: The turn found must leave at most this share of how the two neighbours differ (register).
+#: The turn found must leave at most this share of how the two neighbours differ (registrations).
 MAX_TURN_RESIDUE = 0.7
 #: ... and each neighbour's grid must correlate with the lit frame's at least this well at its
 #: best coarse shift (0.86-0.998 over the frames of ``laserpi bench motion``; a turn beyond the
@@ -96,7 +97,7 @@ MIN_PEAK = 0.7
 #: within 0.024 of each other, and the one a period further scored highest.
 ALIAS_SCORE = 0.05
 #: At most this many aliases are tried, smallest turn first, where the caller refuses one
-#: (register ``accept``): each costs a fine search and a read-back (~2-3 ms here).
+#: (registrations): each costs a fine search and a read-back (~2-3 ms here).
 MAX_ALIASES = 3
 #: Where a map has no pixel (NaN: a ray outside the image), this coordinate instead: cv2.remap
 #: reads its border value there on every platform (a NaN coordinate's conversion is undefined).
@@ -224,24 +225,23 @@ def _directions(pixels: np.ndarray, camera: CameraModel, frame: ScanFrame):
             un.valid)
 
 
-def register(grid: YawGrid, lit: np.ndarray, neighbours, readout_shares=None, accept=None) -> list[Registered] | None:
+def registrations(grid: YawGrid, lit: np.ndarray, neighbours, readout_shares=None) -> Iterator[list[Registered]]:
     """Each of ``neighbours`` (whole uint8 images) read into the band of ``lit`` under the turn
-    that matches it best (a copy of its own band where that is under MIN_SHIFT cells), each ray
-    turned ``readout_shares`` (one per neighbour: one row's readout time over the time from the
-    lit frame to that neighbour, negative for one before it; None: 0, a global shutter) of the
-    turn more per row the turn moved it down (the rolling shutter, module docstring); None where
-    no turn can be told (no texture: a flat or dark scene) or a turn does not explain how the
-    neighbours differ: turned, they still differ by more than MAX_TURN_RESIDUE of what they did
-    (driving straight: the parallax spreads the scene out from the middle, which a best shift
-    matches only a little: on the frames of ``laserpi bench motion``, seeds 0-4, 0.81-0.89 of
-    the difference stays at 0.5-1 m/s, 0.05-0.18 turning at 14-180 deg/s, 0.14-0.25 with a
-    person crossing too, 0.36-0.42 turning at 180 deg/s and driving at 1 m/s in 10x light).
-    That test is made on the coarse shifts, before the fine search. ``accept`` (the list of
-    Registered -> bool; None: any) judges a registration: where it refuses one, the next of the
-    neighbours' aliases (ALIAS_SCORE) by the size of the turn is tried, up to MAX_ALIASES of them
-    (a turn beyond half a periodic texture's period: the smallest alias is a wrong one, which
-    leaves the rows the rolling shutter turned further unexplained); None where it refuses
-    all."""
+    that matches it (a copy of its own band where that is under MIN_SHIFT cells), each ray turned
+    ``readout_shares`` (one per neighbour: one row's readout time over the time from the lit frame
+    to that neighbour, negative for one before it; None: 0, a global shutter) of the turn more per
+    row the turn moved it down (the rolling shutter, module docstring); one such list per alias of
+    the turn (ALIAS_SCORE), the smallest turn first, up to MAX_ALIASES: a caller takes the first
+    it accepts (beyond half a periodic texture's period the smallest alias is a wrong one, which
+    leaves the rows the rolling shutter turned further unexplained). Nothing where no turn can be
+    told (no texture: a flat or dark scene) or a turn does not explain how the neighbours differ:
+    turned, they still differ by more than MAX_TURN_RESIDUE of what they did (driving straight:
+    the parallax spreads the scene out from the middle, which a best shift matches only a little:
+    on the frames of ``laserpi bench motion``, seeds 0-4, 0.81-0.89 of the difference stays at
+    0.5-1 m/s, 0.05-0.18 turning at 14-180 deg/s, 0.14-0.25 with a person crossing too, 0.36-0.42
+    turning at 180 deg/s and driving at 1 m/s in 10x light). That test is made on the coarse
+    shifts, before the fine search. The grids and the search are made at the first request, each
+    read-back at its own."""
     import cv2
 
     on = lambda x: cv2.remap(x, grid.search_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(np.float32)  # noqa: E731
@@ -251,22 +251,18 @@ def register(grid: YawGrid, lit: np.ndarray, neighbours, readout_shares=None, ac
                         for x in (a, *grids))
     aliases = [_coarse_shifts(small_a, small_b, grid.max_shift // COARSE) for small_b in smalls]
     if not all(aliases):
-        return None
+        return
     for rank in range(min(MAX_ALIASES, max(map(len, aliases)))):
         coarse = [s[min(rank, len(s) - 1)] for s in aliases]  # a neighbour with fewer keeps its last
         if _residue(smalls, coarse) > MAX_TURN_RESIDUE:
             continue
         shifts = [_fine_shift(a, b, round(s * COARSE), grid.max_shift) for b, s in zip(grids, coarse)]
-        if any(s is None for s in shifts):
-            continue
-        out = _read_back(grid, neighbours, shifts, readout_shares)
-        if accept is None or accept(out):
-            return out
-    return None
+        if all(s is not None for s in shifts):
+            yield _read_back(grid, neighbours, shifts, readout_shares)
 
 
 def _read_back(grid: YawGrid, neighbours, shifts, readout_shares) -> list[Registered]:
-    """Each of ``neighbours`` read into the band under its turn ``shifts`` (cells; register)."""
+    """Each of ``neighbours`` read into the band under its turn ``shifts`` (cells; registrations)."""
     import cv2
 
     out = []
