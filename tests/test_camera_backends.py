@@ -6,7 +6,7 @@ import pytest
 from device.camera.base import Camera, CameraError, CaptureTimeout, EndOfRecording
 from device.camera.frame import Frame
 from device.camera.picamera2_camera import Picamera2Camera
-from device.camera.replay import ReplayCamera, save_recording
+from device.camera.replay import ReplayCamera, save_npz, save_recording
 from device.config import load_preset
 from device.sim.camera import SimulatedCamera
 from device.sim.pulses import NoPulses, PulseTrain, frame_aligned_train
@@ -97,7 +97,7 @@ def test_simulated_camera_is_dark_without_pulses_and_partial_when_the_pulse_is_s
 @pytest.mark.parametrize("kind", ["npz", "folder"])
 def test_replay_round_trip(tmp_path, kind):
     rng = np.random.default_rng(0)
-    frames = [Frame(rng.integers(0, 256, (30, 40), dtype=np.uint8), k, 10**9 + k * 5000, 400.0, 5000.0, LINE_NS,
+    frames = [Frame(rng.integers(0, 256, (30, 40), dtype=np.uint8), k, 10**9 + k * 5_000_000, 400.0, 5000.0, LINE_NS,
                     [True, False, None][k % 3], readout_offset_rows=k) for k in range(5)]
     path = tmp_path / ("rec.npz" if kind == "npz" else "rec")
     save_recording(path, frames)
@@ -127,6 +127,112 @@ def test_replay_bad_input(tmp_path):
     with pytest.raises(ValueError, match="one size"):
         save_recording(tmp_path / "y.npz", [Frame(np.zeros((2, 2), np.uint8), 0, 0, 1, 1, 1), Frame(np.zeros((3, 2), np.uint8), 1, 0, 1, 1, 1)])
     assert not (tmp_path / "y.npz").exists()
+
+
+def _recording_arrays(n: int = 6) -> dict:
+    """A valid recording's arrays: n frames of 30 x 40 at 5 ms, every other one lit."""
+    k = np.arange(n)
+    return {"images": np.zeros((n, 30, 40), np.uint8), "seq": k, "sensor_timestamp_ns": 10**9 + k * 5_000_000,
+            "exposure_us": np.full(n, 400.0), "frame_duration_us": np.full(n, 5000.0), "line_time_ns": np.full(n, LINE_NS),
+            "lit": (k % 2 == 0).astype(np.int8), "readout_offset_rows": np.full(n, 155)}
+
+
+def _changed(**changes) -> dict:
+    return {**_recording_arrays(), **changes}
+
+
+@pytest.mark.parametrize("arrays, message", [
+    (_changed(lit=np.array([1, 0, 1, 0], np.int8)), r"lit has shape \(4,\), one value per frame of the 6 images"),
+    (_changed(images=np.zeros((4, 30, 40), np.uint8)), r"seq has shape \(6,\), one value per frame of the 4 images"),
+    ({k: v[0] for k, v in _recording_arrays().items()}, r"images must be \(frames, height, width\) uint8"),
+    (_changed(images=np.zeros((6, 30, 40, 3), np.uint8)), "colour frames: convert them to luminance first"),
+    (_changed(images=np.zeros((6, 30, 40), np.uint16)), "uint8 luminance"),
+    (_changed(lit=np.array(["1", "0"] * 3)), "lit must be numbers"),
+    (_changed(lit=np.array([1, 0, 2, 0, 1, 0])), "frame 2 .seq 2.: lit is 2: 1 .lit., 0 .dark. or -1"),
+    (_changed(seq=np.array([0, 1, np.nan, 3, 4, 5])), "frame 2 .*seq is nan: a count must be a whole number"),
+    (_changed(seq=np.array([0, 1, 2, 3, 2, 3])), "frame 4 .seq 2.: seq does not increase from 3"),
+    (_changed(line_time_ns=np.full(6, np.nan)), "frame 0 .*line_time_ns is nan: a duration must be finite and positive"),
+    (_changed(line_time_ns=np.zeros(6)), "line_time_ns is 0.0"),
+    (_changed(line_time_ns=np.full(6, 1e6)), "its 30 rows .read from row 155 of the sensor.* longer than the frame"),
+    (_changed(exposure_us=np.full(6, 9000.0)), "exposure_us 9000 is not shorter than its frame"),
+    (_changed(readout_offset_rows=np.full(6, -1)), "readout_offset_rows is -1"),
+    # frames 4 and 5 swapped in time; timestamps in microseconds
+    (_changed(sensor_timestamp_ns=10**9 + np.array([0, 1, 2, 3, 5, 4]) * 5_000_000),
+     r"frame 4 .seq 4.: it starts 10.000 ms after the frame before .sensor_timestamp_ns., where seq and frame_duration_us "
+     r"say 5.000 ms"),
+    (_changed(sensor_timestamp_ns=10**6 + np.arange(6) * 5000), "it starts 0.005 ms after the frame before"),
+])
+def test_replay_refuses_a_recording_no_camera_made(tmp_path, arrays, message):
+    """A recording from elsewhere (another renderer, another camera stack) is checked whole when
+    opened: what no camera produces is refused, naming the frame and the field, before a frame is
+    processed (device/camera/replay.py check_frames)."""
+    path = tmp_path / "rec.npz"
+    np.savez(path, **arrays)
+    with pytest.raises(ValueError, match=message) as err:
+        ReplayCamera(path)
+    assert str(path) in str(err.value)
+
+
+def test_replay_takes_a_dropped_frame_and_says_what_it_assumed(tmp_path, caplog):
+    caplog.set_level("INFO")
+    arrays = {k: np.delete(v, 3, axis=0) for k, v in _recording_arrays().items()}  # seq 3 dropped: a gap
+    del arrays["readout_offset_rows"]
+    np.savez(tmp_path / "rec.npz", **arrays)
+    cam = ReplayCamera(tmp_path / "rec.npz")
+    assert [cam.capture().seq for _ in range(5)] == [0, 1, 2, 4, 5]
+    assert list(cam.assumed) == ["readout_offset_rows"] and cam.assumed["readout_offset_rows"][0] == 0
+    assert "no readout_offset_rows recorded, taken as 0" in caplog.text
+
+
+def test_replay_refuses_what_no_npz_reader_can_read(tmp_path):
+    (tmp_path / "junk.npz").write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match="junk.npz: not an .npz recording"):
+        ReplayCamera(tmp_path / "junk.npz")
+    np.savez(tmp_path / "objects.npz", **_changed(seq=np.array([0, 1, 2, 3, 4, None], dtype=object)))
+    with pytest.raises(ValueError, match="objects.npz: an array holds Python objects, not numbers"):
+        ReplayCamera(tmp_path / "objects.npz")
+
+
+def test_replay_folder_refuses_an_index_that_does_not_describe_its_frames(tmp_path):
+    import json
+
+    frames = [Frame(np.zeros((30, 40), np.uint8), k, 10**9 + k * 5_000_000, 400.0, 5000.0, LINE_NS, k % 2 == 0)
+              for k in range(3)]
+    save_recording(tmp_path / "rec", frames)
+    index_path = tmp_path / "rec" / "frames.json"
+    index = json.loads(index_path.read_text())
+
+    def opened_with(change) -> str:
+        broken = json.loads(json.dumps(index))
+        change(broken["frames"])
+        index_path.write_text(json.dumps(broken))
+        with pytest.raises((ValueError, FileNotFoundError)) as err:
+            ReplayCamera(tmp_path / "rec").capture()
+        return str(err.value)
+
+    assert "frame 1: lit is 'yes': true, false or null" in opened_with(lambda f: f[1].update(lit="yes"))
+    assert "frame 1 (seq 1): lit is 2" in opened_with(lambda f: f[1].update(lit=2))
+    assert "frame 2 has no seq" in opened_with(lambda f: f[2].pop("seq"))
+    assert "a per-frame value is not a number" in opened_with(lambda f: f[0].update(exposure_us=[1, 2]))
+    assert "exposure_us must be numbers" in opened_with(lambda f: f[0].update(exposure_us="400"))
+    assert "no such frame image" in opened_with(lambda f: f[0].update(file="missing.png"))
+    index["frames"][0]["lit"], index["frames"][1]["lit"] = 1, -1  # the .npz's codes mean the same here
+    index_path.write_text(json.dumps(index))
+    cam = ReplayCamera(tmp_path / "rec")
+    assert [cam.capture().lit for _ in range(3)] == [True, None, True]
+
+
+def test_save_npz_leaves_nothing_behind_when_the_write_fails(tmp_path, mocker):
+    path = tmp_path / "out.npz"
+
+    def half_written(file, **arrays):
+        open(file, "wb").write(b"PK\x03\x04 half")
+        raise OSError(27, "File too large")
+
+    mocker.patch("numpy.savez_compressed", side_effect=half_written)
+    with pytest.raises(OSError, match="File too large"):
+        save_npz(path, a=np.zeros(3))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_picamera2_missing_module_is_a_clear_error(mocker):

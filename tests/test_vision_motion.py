@@ -313,6 +313,38 @@ def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
     assert "--out and --truth go with --recording" in capsys.readouterr().out
 
 
+def test_evaluate_writes_its_results_whole_or_not_at_all(tmp_path, capsys):
+    """A refusal leaves no OUT.npz and never an overwritten input; a recording without the
+    optional readout_offset_rows is reprocessed with a warning saying what was assumed."""
+    from device.camera.frame import Frame
+    from device.camera.replay import save_recording
+
+    rec = tmp_path / "rec.npz"
+    save_recording(rec, [Frame(np.zeros((CFG.height, CFG.width), np.uint8), i, i * 10**6, 100.0, 1000.0, 10.0,
+                               lit=i % 2 == 0) for i in range(4)])
+    before = rec.read_bytes()
+    out = tmp_path / "out.npz"
+    for bad_out, message in ((tmp_path / "out", "the results are an .npz file"), (rec, "is the --recording file"),
+                             (tmp_path / "none" / "out.npz", "no directory")):
+        assert main(["evaluate", "--recording", str(rec), "--out", str(bad_out)]) == 2
+        assert message in capsys.readouterr().out
+    assert rec.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+    W = CFG.width
+    nan = np.full((2, W), np.nan)
+    truth = tmp_path / "truth.npz"
+    np.savez(truth, seq=np.array([0, 2]), row=nan, range_m=nan[:, :-1], angle_rad=nan, points=np.full((2, W, 3), np.nan),
+             surface=np.full((2, W), -1), lit_rows=np.ones((2, CFG.height), bool))
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+    assert f"range_m has shape (2, {W - 1}), (2, {W}) expected" in capsys.readouterr().out
+    assert not out.exists()
+    with np.load(rec) as z:
+        np.savez(rec, **{k: z[k] for k in z.files if k != "readout_offset_rows"})
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 0
+    assert "warning: the recording has no readout_offset_rows, taken as 0" in capsys.readouterr().out
+    with np.load(out) as z:
+        assert z["status"].shape == (2, W) and list(z["lit_seq"]) == [0, 2]
+
+
 @pytest.mark.parametrize("bad", [{"moved_block_level": 0.0}, {"moved_block_ratio": -1.0}, {"turn_share": 0.0},
                                  {"max_turn_deg": 0.0}, {"max_turn_deg": 60.0}, {"agree_ratio": -1.0},
                                  {"agree_reach_columns": -1}, {"agree_share": 0.0}, {"resample_slack": -1.0},

@@ -2,16 +2,21 @@
 
 A recording is either one ``.npz`` file (``images`` (N, H, W) uint8 and per-frame arrays
 ``seq``, ``sensor_timestamp_ns``, ``exposure_us``, ``frame_duration_us``, ``line_time_ns``,
-``lit`` (int8: 1 lit, 0 dark, -1 unknown), ``readout_offset_rows`` (absent in older recordings:
+``lit`` (1 lit, 0 dark, -1 unknown), ``readout_offset_rows`` (absent in older recordings:
 0)) or a folder with one PNG per frame and
-``frames.json`` (``{"frames": [{"file": ..., "seq": ..., ...}, ...]}``), so that frames recorded
-on a Pi can be reprocessed anywhere.
+``frames.json`` (``{"frames": [{"file": ..., "seq": ..., ..., "lit": true/false/null or 1/0/-1}, ...]}``), so
+that frames recorded on a Pi can be reprocessed anywhere.
+
+A recording may come from elsewhere (another renderer, another camera stack), so it is checked
+whole when opened (:func:`check_frames`): what no camera could have produced is refused, naming
+the frame and the field, before a frame is processed.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import zipfile
 from pathlib import Path
 from typing import Sequence
 
@@ -22,16 +27,33 @@ from .frame import Frame
 
 log = logging.getLogger(__name__)
 FIELDS = ("seq", "sensor_timestamp_ns", "exposure_us", "frame_duration_us", "line_time_ns")
-OPTIONAL_FIELDS = {"readout_offset_rows": 0}  # field: its value in recordings made before it existed
+#: field: its value in recordings made before it existed (or elsewhere), and what taking it means
+OPTIONAL_FIELDS = {"readout_offset_rows": (0, "image row 0 is taken as the sensor's first row read: where the frames "
+                                              "are a crop of the sensor's rows, every row's time is early by the rows "
+                                              "above the crop")}
 INDEX_FILE = "frames.json"
+#: ``lit`` as recorded -> Frame.lit (JSON's true/false/null are 1/0/-1)
+LIT_CODES = {1: True, 0: False, -1: None}
+#: per-frame fields that count (frames, nanoseconds, rows): whole numbers
+WHOLE_FIELDS = ("seq", "sensor_timestamp_ns", "readout_offset_rows")
+#: per-frame durations: finite and positive
+DURATION_FIELDS = ("exposure_us", "frame_duration_us", "line_time_ns")
 
 
 def _lit_code(lit: bool | None) -> int:
     return -1 if lit is None else int(bool(lit))
 
 
-def _lit_value(code: int) -> bool | None:
-    return None if code < 0 else bool(code)
+def save_npz(path: str | Path, **arrays: np.ndarray) -> None:
+    """Write ``arrays`` to the .npz ``path`` whole or not at all: into a temporary file beside it,
+    then renamed over it (a full disk or a killed process leaves no truncated file)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    try:
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
@@ -45,9 +67,7 @@ def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
     if path.suffix == ".npz":
         arrays = {k: np.array([getattr(f, k) for f in frames]) for k in (*FIELDS, *OPTIONAL_FIELDS)}
         arrays["lit"] = np.array([_lit_code(f.lit) for f in frames], dtype=np.int8)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, images=np.stack([f.image for f in frames]), **arrays)
-        tmp.replace(path)
+        save_npz(path, images=np.stack([f.image for f in frames]), **arrays)
         return
     import cv2
 
@@ -61,51 +81,164 @@ def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
     (path / INDEX_FILE).write_text(json.dumps({"frames": index}, indent=1))
 
 
+def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None:
+    """Refuse per-frame metadata no camera produces (ValueError naming the first frame and field
+    at fault). ``fields``: every field of FIELDS and OPTIONAL_FIELDS and ``lit`` (its codes,
+    LIT_CODES), each an (N,) array in the recording's order; ``height``: the image's rows.
+
+    What a camera's frames satisfy (device/camera/frame.py says where each comes from):
+    - ``seq`` increases frame by frame: it counts the sensor's frames (picamera2_camera.py:
+      Unicam's buffer sequence), so a dropped frame is a gap, and the recording is in time order;
+    - ``sensor_timestamp_ns`` (the frame start, CLOCK_MONOTONIC ns) advances by the frames'
+      period times the frames the seq advanced, within half a frame (a frame's start follows the
+      one before it by that frame's length, the FrameDuration of its metadata);
+    - exposure shorter than the frame: the IMX219 exposes at most the frame length less 4 lines
+      (device/camera/modes.py: imx219.c, exposure_max = height + vblank - 4);
+    - the image's rows read within the frame: (readout_offset_rows + height) line times at most
+      the frame's length (its rows are a crop of the mode's, and the frame is at least the
+      mode's rows plus vertical blanking: modes.py).
+    """
+    def fail(k: int, what: str) -> None:
+        raise ValueError(f"{where}: frame {k} (seq {fields['seq'][k].item()!r}): {what}")
+
+    for name, v in fields.items():
+        if not (np.issubdtype(v.dtype, np.number) or v.dtype == bool):
+            raise ValueError(f"{where}: {name} must be numbers, got {v.dtype}")
+    for name in WHOLE_FIELDS:
+        v = fields[name]
+        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0))
+        if bad.any():
+            fail(int(np.argmax(bad)), f"{name} is {v[np.argmax(bad)].item()!r}: a count must be a whole number >= 0")
+    for name in DURATION_FIELDS:
+        v = fields[name]
+        bad = ~(np.isfinite(v) & (v > 0))
+        if bad.any():
+            fail(int(np.argmax(bad)), f"{name} is {v[np.argmax(bad)].item()!r}: a duration must be finite and positive")
+    bad = ~np.isin(fields["lit"], list(LIT_CODES))
+    if bad.any():
+        fail(int(np.argmax(bad)), f"lit is {fields['lit'][np.argmax(bad)].item()!r}: 1 (lit), 0 (dark) or -1 (unknown)")
+    seq, t = fields["seq"].astype(np.int64), fields["sensor_timestamp_ns"].astype(np.int64)
+    frame_ns = fields["frame_duration_us"] * 1e3
+    bad = fields["exposure_us"] * 1e3 >= frame_ns
+    if bad.any():
+        k = int(np.argmax(bad))
+        fail(k, f"exposure_us {fields['exposure_us'][k]:g} is not shorter than its frame, frame_duration_us "
+                f"{fields['frame_duration_us'][k]:g}")
+    readout_ns = (fields["readout_offset_rows"] + height) * fields["line_time_ns"]
+    bad = readout_ns > frame_ns
+    if bad.any():
+        k = int(np.argmax(bad))
+        fail(k, f"its {height} rows (read from row {int(fields['readout_offset_rows'][k])} of the sensor, "
+                f"line_time_ns {fields['line_time_ns'][k]:g}) take {readout_ns[k] / 1e6:.3f} ms to read, longer "
+                f"than the frame, frame_duration_us {fields['frame_duration_us'][k]:g}")
+    if seq.size < 2:
+        return
+    dseq, dt = np.diff(seq), np.diff(t)
+    bad = dseq <= 0
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
+        fail(k, f"seq does not increase from {seq[k - 1]} before it: a recording holds frames in time order, seq "
+                "counting the sensor's frames")
+    expected = dseq * (frame_ns[:-1] + frame_ns[1:]) / 2
+    bad = np.abs(dt - expected) > np.minimum(frame_ns[:-1], frame_ns[1:]) / 2
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
+        fail(k, f"it starts {dt[k - 1] / 1e6:.3f} ms after the frame before (sensor_timestamp_ns), where seq and "
+                f"frame_duration_us say {expected[k - 1] / 1e6:.3f} ms ({int(dseq[k - 1])} frame(s) later): timestamps are "
+                "CLOCK_MONOTONIC ns, durations us, and seq counts the sensor's frames (a dropped frame is a gap)")
+
+
 class ReplayCamera:
     """Plays a recording back frame by frame; frame timing is what was recorded.
 
     ``set_frame_duration``/``set_exposure`` cannot change recorded frames: they are logged and
     ignored. ``capture`` raises EndOfRecording after the last frame (or starts over if ``loop``).
+    ``assumed``: the optional fields the recording lacks -> (the value taken, what that means).
     """
 
     def __init__(self, path: str | Path, loop: bool = False):
         self.path = Path(path)
         self.loop = loop
         if self.path.suffix == ".npz":
-            if not self.path.is_file():
-                raise FileNotFoundError(f"{self.path}: no such recording")
+            self._images, fields = self._open_npz()
+            self._files = None
+        else:
+            self._images = None
+            self._files, fields = self._open_folder()
+        if not fields["seq"].size:
+            raise ValueError(f"{self.path}: the recording has no frames")
+        self.assumed = {k: v for k, v in OPTIONAL_FIELDS.items() if k not in fields}
+        for k, (value, meaning) in self.assumed.items():
+            fields[k] = np.full(fields["seq"].size, value)
+            log.info("%s: no %s recorded, taken as %s: %s", self.path, k, value, meaning)
+        shape = self._images.shape[1:] if self._images is not None else self._read_png(0).shape
+        self.height, self.width = int(shape[0]), int(shape[1])
+        check_frames(str(self.path), fields, self.height)
+        self._fields = fields
+        self.line_time_ns = float(fields["line_time_ns"][0])
+        self._i = 0
+
+    def _open_npz(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: no such recording")
+        if not zipfile.is_zipfile(self.path):
+            raise ValueError(f"{self.path}: not an .npz recording (not a zip archive of arrays)")
+        try:
             with np.load(self.path) as z:
                 missing = [k for k in ("images", "lit", *FIELDS) if k not in z.files]
                 if missing:
                     raise ValueError(f"{self.path}: not a recording, missing array(s) {', '.join(missing)}")
-                self._images = z["images"]
-                keys = FIELDS + ("lit",) + tuple(k for k in OPTIONAL_FIELDS if k in z.files)
-                self._meta = [dict(zip(keys, vals)) for vals in zip(*(z[k].tolist() for k in keys))]
-            for m in self._meta:
-                m["lit"] = _lit_value(m["lit"])
-        else:
-            index = self.path / INDEX_FILE
-            if not index.is_file():
-                raise FileNotFoundError(f"{self.path}: no {INDEX_FILE}; not a recording folder")
-            try:
-                self._meta = json.loads(index.read_text())["frames"]
-            except (ValueError, KeyError) as exc:
-                raise ValueError(f"{index}: not a frame index ({exc})") from None
-            self._images = None
-        if not self._meta:
-            raise ValueError(f"{self.path}: the recording has no frames")
-        shape = self._images.shape[1:] if self._images is not None else self._read_png(0).shape
-        self.height, self.width = int(shape[0]), int(shape[1])
-        self.line_time_ns = float(self._meta[0]["line_time_ns"])
-        self._i = 0
+                images = z["images"]
+                fields = {k: z[k] for k in (*FIELDS, "lit", *OPTIONAL_FIELDS) if k in z.files}
+        except (OSError, zipfile.BadZipFile, EOFError) as exc:
+            raise ValueError(f"{self.path}: not a readable .npz recording ({exc})") from None
+        except ValueError as exc:  # also numpy's refusal of an array of Python objects (pickled)
+            raise ValueError(str(exc) if str(exc).startswith(str(self.path)) else
+                             f"{self.path}: an array holds Python objects, not numbers ({exc})") from None
+        if images.ndim != 3 or images.dtype != np.uint8:
+            raise ValueError(f"{self.path}: images must be (frames, height, width) uint8 luminance (the Y plane), got "
+                             f"{images.shape} {images.dtype}" + ("; colour frames: convert them to luminance first"
+                                                                 if images.ndim == 4 else ""))
+        for k, v in fields.items():
+            if v.shape != images.shape[:1]:
+                raise ValueError(f"{self.path}: {k} has shape {v.shape}, one value per frame of the {images.shape[0]} "
+                                 "images expected")
+        return images, fields
+
+    def _open_folder(self) -> tuple[list[str], dict[str, np.ndarray]]:
+        index = self.path / INDEX_FILE
+        if not index.is_file():
+            raise FileNotFoundError(f"{self.path}: no {INDEX_FILE}; not a recording folder")
+        try:
+            frames = json.loads(index.read_text())["frames"]
+            if not isinstance(frames, list):
+                raise TypeError(f"'frames' is a {type(frames).__name__}, not a list")
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{index}: not a frame index ({exc})") from None
+        required = ("file", *FIELDS, "lit")
+        for k, f in enumerate(frames):
+            missing = [n for n in required if not isinstance(f, dict) or n not in f]
+            if missing:
+                raise ValueError(f"{index}: frame {k} has no {', '.join(missing)}")
+            if not (f["lit"] is None or isinstance(f["lit"], int)):  # JSON's true/false are ints here too
+                raise ValueError(f"{index}: frame {k}: lit is {f['lit']!r}: true, false or null (or 1, 0, -1)")
+        present = [k for k in OPTIONAL_FIELDS if frames and all(k in f for f in frames)]
+        try:
+            fields = {n: np.array([f[n] for f in frames]) for n in (*FIELDS, *present)}  # JSON's ints stay int64
+        except ValueError as exc:
+            raise ValueError(f"{index}: a per-frame value is not a number ({exc})") from None
+        fields["lit"] = np.array([-1 if f["lit"] is None else int(f["lit"]) for f in frames])
+        return [str(f["file"]) for f in frames], fields
 
     def __len__(self) -> int:
-        return len(self._meta)
+        return self._fields["seq"].size
 
     def _read_png(self, i: int) -> np.ndarray:
         import cv2
 
-        name = self.path / self._meta[i]["file"]
+        name = self.path / self._files[i]
+        if not name.is_file():
+            raise FileNotFoundError(f"{name}: no such frame image ({INDEX_FILE} lists it)")
         img = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
         if img is None or img.ndim != 2 or img.dtype != np.uint8:
             raise ValueError(f"{name}: not an 8-bit single-channel PNG")
@@ -124,15 +257,18 @@ class ReplayCamera:
         log.debug("replay: exposure request %s us ignored (recorded timing)", exposure_us)
 
     def capture(self, timeout_s: float = 1.0) -> Frame:
-        if self._i >= len(self._meta):
+        if self._i >= len(self):
             if not self.loop:
-                raise EndOfRecording(f"{self.path}: end of recording after {len(self._meta)} frames")
+                raise EndOfRecording(f"{self.path}: end of recording after {len(self)} frames")
             self._i = 0
         i = self._i
         self._i += 1
-        m = self._meta[i]
         image = self._images[i] if self._images is not None else self._read_png(i)
-        return Frame(image=np.ascontiguousarray(image), seq=int(m["seq"]), sensor_timestamp_ns=int(m["sensor_timestamp_ns"]),
-                     exposure_us=float(m["exposure_us"]), frame_duration_us=float(m["frame_duration_us"]),
-                     line_time_ns=float(m["line_time_ns"]), lit=m["lit"],
-                     readout_offset_rows=int(m.get("readout_offset_rows", OPTIONAL_FIELDS["readout_offset_rows"])))
+        if image.shape != (self.height, self.width):
+            raise ValueError(f"{self.path / self._files[i]}: {image.shape[1]}x{image.shape[0]}, the recording's first "
+                             f"frame {self.width}x{self.height}")
+        v = {k: a[i] for k, a in self._fields.items()}
+        return Frame(image=np.ascontiguousarray(image), seq=int(v["seq"]), sensor_timestamp_ns=int(v["sensor_timestamp_ns"]),
+                     exposure_us=float(v["exposure_us"]), frame_duration_us=float(v["frame_duration_us"]),
+                     line_time_ns=float(v["line_time_ns"]), lit=LIT_CODES[int(v["lit"])],
+                     readout_offset_rows=int(v["readout_offset_rows"]))

@@ -18,7 +18,10 @@ camera-frame point in metres, NaN where none; ``status`` (n, W) ColumnStatus
 reference's odd columns); ``time_ns`` (n, W) when the column's line was lit
 (device/scan/timing.py), NaN where none; ``lit_seq`` (n,) the lit frame's seq. With ``--truth
 TRUTH.npz`` (as ``laserpi simulate`` writes it: per frame, with ``seq``) it also prints the
-scores against the lit frames' truth.
+scores against the lit frames' truth. The recording is checked whole before a frame is processed
+(device/camera/replay.py ``check_frames``: it may come from another renderer or camera stack),
+the truth's arrays against the configuration's size, and OUT.npz written last, whole or not at
+all (``save_npz``): a refusal leaves nothing behind, and never an overwritten input.
 """
 
 from __future__ import annotations
@@ -99,7 +102,7 @@ def reprocess(args) -> dict:
     import numpy as np
 
     from ..camera.base import EndOfRecording
-    from ..camera.replay import ReplayCamera
+    from ..camera.replay import ReplayCamera, save_npz
     from ..scan.pairing import NeighbourPairing
     from ..scan.timing import column_times_ns
     from ..vision.evaluation import Score
@@ -113,6 +116,8 @@ def reprocess(args) -> dict:
     lo = op.min_m if args.min_range is None else args.min_range
     hi = op.max_m if args.max_range is None else args.max_range
     pipe = make_pipeline(name, cfg, lo, hi)
+    if args.out:
+        _check_out(args.out, args.recording, args.truth)
     cam = ReplayCamera(args.recording)
     if (cam.width, cam.height) != (cfg.width, cfg.height):
         raise ValueError(f"{args.recording}: frames are {cam.width}x{cam.height}, the configuration "
@@ -153,15 +158,30 @@ def reprocess(args) -> dict:
             if f.lit.seq not in truth:
                 raise ValueError(f"{args.truth}: no truth for frame seq {f.lit.seq}")
             score.add(meas, truth[f.lit.seq])
-    if args.out:
-        np.savez_compressed(args.out, **out)
     result = {"variant": name, "recording": args.recording, "scans": n, "frames_without_lit_flag": unknown,
-              "out": args.out, "flicker_kept": _flicker_kept([f.lit for f in neighbours], op.flicker_hz)}
+              "out": args.out, "flicker_kept": _flicker_kept([f.lit for f in neighbours], op.flicker_hz),
+              "assumed": cam.assumed}
     if truth is not None:
         result.update(score.summary())
         result["valid_fraction_within_2_5m"] = score.valid_fraction_within(2.5)
         result["resolution_deg"] = getattr(pipe, "resolution_deg", float("nan"))
+    if args.out:  # last: nothing is written unless everything before it worked
+        save_npz(args.out, **out)
     return result
+
+
+def _check_out(out: str, recording: str, truth: str | None) -> None:
+    """Refuse an --out that would not be the .npz asked for, or would overwrite an input."""
+    from pathlib import Path
+
+    path = Path(out)
+    if path.suffix != ".npz":
+        raise ValueError(f"--out {out}: the results are an .npz file; name it so (numpy would write {out}.npz)")
+    for name, given in (("--recording", recording), ("--truth", truth)):
+        if given is not None and path.resolve() == Path(given).resolve():
+            raise ValueError(f"--out {out} is the {name} file: it would be overwritten")
+    if not path.parent.is_dir():
+        raise ValueError(f"--out {out}: no directory {path.parent}")
 
 
 def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
@@ -188,12 +208,20 @@ def _load_truth(path: str, cfg) -> dict:
         missing = [k for k in ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows") if k not in z.files]
         if missing:
             raise ValueError(f"{path}: not a truth file of laserpi simulate, missing {', '.join(missing)}")
-        if z["row"].shape[1] != cfg.width:
-            raise ValueError(f"{path}: truth is {z['row'].shape[1]} columns wide, the configuration {cfg.width}")
-        return {int(s): FrameTruth(z["row"][i], z["range_m"][i], z["angle_rad"][i], z["points"][i], z["surface"][i],
-                                   z["lit_rows"][i], z["time_ns"][i] if "time_ns" in z.files else None,
-                                   z["range_span_m"][i] if "range_span_m" in z.files else None)
-                for i, s in enumerate(z["seq"])}
+        seq = z["seq"]
+        if seq.ndim != 1 or not np.issubdtype(seq.dtype, np.integer):
+            raise ValueError(f"{path}: seq must be one whole number per frame, got {seq.shape} {seq.dtype}")
+        n, W = seq.size, cfg.width
+        shapes = {"row": (n, W), "range_m": (n, W), "angle_rad": (n, W), "points": (n, W, 3), "surface": (n, W),
+                  "lit_rows": (n, cfg.height), "time_ns": (n, W), "range_span_m": (n, W, 2)}
+        truth = {k: z[k] for k in shapes if k in z.files}
+        for k, a in truth.items():
+            if a.shape != shapes[k]:
+                raise ValueError(f"{path}: {k} has shape {a.shape}, {shapes[k]} expected ({n} frames, the "
+                                 f"configuration's {W} columns and {cfg.height} rows)")
+        return {int(s): FrameTruth(*(truth[k][i] for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")),
+                                   *(truth[k][i] if k in truth else None for k in ("time_ns", "range_span_m")))
+                for i, s in enumerate(seq)}
 
 
 def _fmt(v, spec=".3f") -> str:
@@ -234,6 +262,8 @@ def _report_recording(result: dict, as_json: bool) -> int:
           + (f" -> {result['out']}" if result["out"] else "")
           + (f"; {result['frames_without_lit_flag']} frame(s) without a lit flag skipped"
              if result["frames_without_lit_flag"] else ""))
+    for field, (value, meaning) in result["assumed"].items():
+        print(f"warning: the recording has no {field}, taken as {value}: {meaning}")
     for k in result["flicker_kept"]:
         print(f"warning: its {k['hz']:g} Hz flicker of mains lighting is not cancelled between lit and unlit frames "
               f"(up to {k['residue']:.0%} of the lamps' modulation: exposure and frame period are not whole numbers "

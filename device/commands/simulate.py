@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from device.camera.replay import save_recording
+    from device.camera.replay import save_npz, save_recording
     from device.config import ConfigError, load_config, load_preset
     from device.sim.camera import SimulatedCamera
     from device.sim.pulses import frame_aligned_train
@@ -96,12 +96,12 @@ def run(args: argparse.Namespace) -> int:
     frames, truths = [f for f, _ in shots], [t for _, t in shots]
     save_recording(out / "frames.npz", frames)
     nan = np.full(cfg.width, np.nan)
-    np.savez_compressed(out / "truth.npz", seq=np.array([f.seq for f in frames]),
-                        time_ns=np.stack([nan if t.time_ns is None else t.time_ns for t in truths]),
-                        range_span_m=np.stack([np.full((cfg.width, 2), np.nan) if t.range_span_m is None
-                                               else t.range_span_m for t in truths]),
-                        **{k: np.stack([getattr(t, k) for t in truths])
-                           for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")})
+    save_npz(out / "truth.npz", seq=np.array([f.seq for f in frames]),
+             time_ns=np.stack([nan if t.time_ns is None else t.time_ns for t in truths]),
+             range_span_m=np.stack([np.full((cfg.width, 2), np.nan) if t.range_span_m is None else t.range_span_m
+                                    for t in truths]),
+             **{k: np.stack([getattr(t, k) for t in truths]) for k in ("row", "range_m", "angle_rad", "points", "surface",
+                                                                       "lit_rows")})
     r = cam.renderer
     meta = {
         "scene": scene.name, "config": cfg.name, "seed": args.seed, "frames": args.frames,
