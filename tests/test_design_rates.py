@@ -87,6 +87,23 @@ def test_the_readable_report_shows_the_rates(capsys):
     assert [r[0] for r in rows] == ["10", "15", "20"]
 
 
+def test_the_report_prints_limits_a_user_can_copy(capsys, cfg, points):
+    """A printed power limit is rounded down (a laser set to it stays within it: 20.0769 mW was
+    printed 20.08, which the device then refused), and each rate's make line builds into a
+    directory of its own (run verbatim, it replaced the production ELF that serve runs)."""
+    assert cli.main(["design", "--preset", "thesis-calibrated"]) == 0
+    out = capsys.readouterr().out
+    for p in points:
+        row = next(line.split() for line in out.splitlines() if line.split()[:1] == [f"{p.scan_rate_hz:g}"]
+                   and " mW " in line)
+        class1_mw, envelope_mw, power_mw = float(row[1]), float(row[3]), float(row[5])
+        assert class1_mw <= p.class1_power_w * 1e3 < class1_mw + 0.01
+        assert envelope_mw <= p.envelope_power_w * 1e3 < envelope_mw + 0.01
+        assert power_mw <= p.power_w * 1e3 < power_mw + 0.01
+        assert f"BUILD={p.envelope.build_dir} " in out and p.envelope.build_dir != "build"
+    assert safety.mw_down(0.0200769) == 20.07 and safety.mw_down(0.02008) == 20.08
+
+
 def test_a_config_at_20_hz_changes_nothing_but_the_operating_point(cfg):
     # the table does not depend on the operating point's own rate
     at20 = dataclasses.replace(cfg, operating_point=dataclasses.replace(cfg.operating_point, scan_rate_hz=20.0))

@@ -135,7 +135,7 @@ def test_generator_prints_the_makefile_line(tmp_path):
     out = _generator("--preset", "thesis-design")
     assert out.returncode == 0, out.stderr
     env = _defaults()
-    assert out.stdout.splitlines()[0] == (f"make -C firmware_pwm MAX_PULSE_US={env.max_pulse_us} "
+    assert out.stdout.splitlines()[0] == (f"make -C firmware_pwm BUILD={env.build_dir} MAX_PULSE_US={env.max_pulse_us} "
                                           f"MAX_DUTY_PPM={env.max_duty_ppm} MIN_PERIOD_US={env.min_period_us}")
     assert "worst NOHD 9.77 mm" in out.stdout
     # another laser from a config file: 8 ms pulses at 15 Hz need a shorter minimum period
@@ -163,15 +163,28 @@ def test_the_envelope_a_firmware_announces_in_ticks_rounds_to_its_loose_side():
 def test_the_device_refuses_to_light_a_laser_its_co_mcus_envelope_does_not_keep_class_1():
     import dataclasses
 
-    from device.config import load_preset
+    from device.config import load_preset, with_operating_point
+    from device.design.report import sensor_at_rate
     from device.service.assembly import envelope_refusal
     from protocol import mcu
 
-    cfg = load_preset("thesis-calibrated")  # the thesis laser, 25 mW
+    cfg = load_preset("thesis-calibrated")  # the thesis laser, 25 mW, 10 scans/s
+    pulse_s = 0.0174  # the pulse the device fires at most (laser_pulse_s)
     production = mcu.Info(2, 0x01, 50, 34_800, 200_000, 2_000_000, 180_000)  # firmware_pwm/Makefile at 16 MHz
-    assert envelope_refusal(cfg)(production) is None  # Class 1 to 25.6 mW over every train it allows
+    assert envelope_refusal(cfg, pulse_s)(production) is None  # Class 1 to 25.6 mW over every train it allows
     stronger = dataclasses.replace(cfg, laser=dataclasses.replace(cfg.laser, power_w=0.030))
-    why = envelope_refusal(stronger)(production)
-    assert why is not None and "25.6 mW" in why and "30 mW" in why and "laserpi design" in why
+    why = envelope_refusal(stronger, pulse_s)(production)
+    assert why is not None and "up to 25.58 mW" in why and "30 mW" in why and "laserpi design" in why
     # a firmware built for that laser at 5 scans/s (12.6 ms pulses at least 200 ms apart) keeps it
-    assert envelope_refusal(stronger)(mcu.Info(2, 0x01, 50, 25_200, 70_000, 2_000_000, 400_000)) is None
+    # Class 1, but lets through no train the sensor fires at 10 scans/s: every SCHEDULE would be
+    # refused (the co-MCU starts nothing: a scan-less device with no reason given, before)
+    at_5_hz = mcu.Info(2, 0x01, 50, 25_200, 70_000, 2_000_000, 400_000)
+    why = envelope_refusal(stronger, pulse_s)(at_5_hz)
+    assert why is not None and "does not allow the sensor's train at 10 scans/s" in why and "17400 us pulses" in why
+    slow = with_operating_point(stronger, scan_rate_hz=5.0)
+    assert envelope_refusal(slow, 0.0126)(at_5_hz) is None
+    # the 20 scans/s preset (design's laser power) on the production firmware: pulses 50 ms apart
+    # where it allows 90 ms
+    at_20_hz, _ = sensor_at_rate(cfg, 20.0)
+    why = envelope_refusal(at_20_hz, pulse_s)(production)
+    assert why is not None and "at 20 scans/s: 17400 us pulses 50000 us apart (34.8% duty)" in why

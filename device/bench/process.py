@@ -124,7 +124,7 @@ def rate_arguments(rate_hz: float, tmp: Path) -> list[str]:
     save_config(cfg, tmp / "sensor.toml")
     args = ["--config", str(tmp / "sensor.toml")]
     if envelope != parse_makefile_envelope((FIRMWARE_DIR / "Makefile").read_text()):
-        _, elf = build_emulator(f"build/rate-{envelope.min_period_us}", MAX_PULSE_US=envelope.max_pulse_us,
+        _, elf = build_emulator(envelope.build_dir, MAX_PULSE_US=envelope.max_pulse_us,
                                 MAX_DUTY_PPM=envelope.max_duty_ppm, MIN_PERIOD_US=envelope.min_period_us)
         args += ["--firmware", str(elf)]
     if m.link_budget_refusal(cfg.active_width or cfg.width, rate_hz, 921_600) is not None:

@@ -216,7 +216,7 @@ def format_report(rep: DesignReport) -> str:
                f"N {lim.pulses_in_t2}, C5 {lim.c5:.3f}")
     out.append(f"  per-pulse limits: single {lim.single_pulse_j * 1e6:.1f} uJ, average {lim.average_power_j * 1e6:.1f} uJ, "
                f"train {lim.pulse_train_j * 1e6:.1f} uJ -> {lim.limiting_condition} limits")
-    out.append(f"  max power {sa.max_power_w * 1e3:.2f} mW; NOHD of the {sa.power_w * 1e3:g} mW laser {sa.nohd_m * 1e3:.2f} mm: "
+    out.append(f"  max power {safety.mw_down(sa.max_power_w):.2f} mW; NOHD of the {sa.power_w * 1e3:g} mW laser {sa.nohd_m * 1e3:.2f} mm: "
                + ("Class 1" if sa.class1 else "NOT Class 1"))
     out.append("")
     out.append(f"background (ASTM G173 AM1.5 global, {rep.background_w_m2 / 10:.2f} mW/cm^2 in the bandpass):")
@@ -229,10 +229,11 @@ def format_report(rep: DesignReport) -> str:
         out.append("  scans/s   Class 1 max: this train   its firmware envelope   laser power   "
                    "range at 1 % of background: outdoors   indoors")
         for r in rep.rates:
-            out.append(f"  {r.scan_rate_hz:7g}   {r.class1_power_w * 1e3:20.2f} mW   {r.envelope_power_w * 1e3:18.2f} mW   "
-                       f"{r.power_w * 1e3:8.2f} mW   {_mm(r.background_range_m):>33}   {_mm(r.background_range_indoor_m):>9}"
+            out.append(f"  {r.scan_rate_hz:7g}   {safety.mw_down(r.class1_power_w):20.2f} mW   {safety.mw_down(r.envelope_power_w):18.2f} mW   "
+                       f"{safety.mw_down(r.power_w):8.2f} mW   {_mm(r.background_range_m):>33}   {_mm(r.background_range_indoor_m):>9}"
                        + ("" if r.frames_fit else "   (too fast for the sensor mode)"))
-        out.append("  the firmware envelope of each rate (flash the co-MCU with it to run at that rate; an envelope other "
-                   "than the Makefile's in its own BUILD=build/NAME):")
+        out.append("  the firmware envelope of each rate, built into a directory of its own (flash the co-MCU with its "
+                   "ELF, firmware_pwm/BUILD/laserpi_pwm.elf, to run at that rate; `laserpi serve --simulate --firmware` "
+                   "runs it in the emulator):")
         out.extend(f"  {r.scan_rate_hz:7g}   {r.envelope.make_command()}" for r in rep.rates)
     return "\n".join(out)

@@ -117,10 +117,18 @@ class FirmwareEnvelope:
         return cls(math.ceil(max_pulse_ticks * 1_000_000 / ticks_per_second), max_duty_ppm,
                    math.floor(min_period_ticks * 1_000_000 / ticks_per_second))
 
+    @property
+    def build_dir(self) -> str:
+        """This envelope's firmware build directory (relative to firmware_pwm/): one of its own, so
+        that building it never replaces the production ELF in build/ (the Makefile's envelope,
+        which `laserpi serve --simulate` runs by default)."""
+        return f"build/envelope-{self.max_pulse_us}-{self.max_duty_ppm}-{self.min_period_us}"
+
     def make_command(self) -> str:
-        """The firmware build line with these limits (firmware_pwm/Makefile variables)."""
-        return (f"make -C firmware_pwm MAX_PULSE_US={self.max_pulse_us} MAX_DUTY_PPM={self.max_duty_ppm} "
-                f"MIN_PERIOD_US={self.min_period_us}")
+        """The firmware build line with these limits (firmware_pwm/Makefile variables), into
+        build_dir: its ELF is firmware_pwm/<build_dir>/laserpi_pwm.elf."""
+        return (f"make -C firmware_pwm BUILD={self.build_dir} MAX_PULSE_US={self.max_pulse_us} "
+                f"MAX_DUTY_PPM={self.max_duty_ppm} MIN_PERIOD_US={self.min_period_us}")
 
 
 def parse_makefile_envelope(makefile_text: str) -> FirmwareEnvelope:

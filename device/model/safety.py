@@ -46,6 +46,12 @@ CONDITION_AVERAGE = "average_power"
 CONDITION_TRAIN = "pulse_train"
 
 
+def mw_down(power_w: float) -> float:
+    """``power_w`` in mW rounded down to 0.01 mW, as power limits are printed: a limit copied from
+    a report or a message is never above the limit."""
+    return math.floor(power_w * 1e5) / 100
+
+
 def _check_finite_positive(name: str, value: float) -> float:
     value = float(value)
     if not math.isfinite(value) or value <= 0.0:

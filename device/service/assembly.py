@@ -58,30 +58,42 @@ def laser_pulse_s(cfg: SensorConfig, row_min: int, row_max: int) -> float:
                cfg.laser.pulse_s)
 
 
-def envelope_refusal(cfg: SensorConfig, closest_eye_m: float = 0.01):
-    """Callable(mcu.Info) -> why the co-MCU's compiled-in envelope does not keep ``cfg``'s laser,
-    at its measured peak power ([laser] power_w, firmware_pwm/README.md "Optical power"), Class 1
-    for every pulse train that firmware allows (None if it does). The firmware's envelope is
-    what the Class 1 claim rests on when the Pi's software errs, so SyncedLaser lights nothing
-    under a firmware built for a weaker laser (device/model/envelope.py; eq. 3.45)."""
+def envelope_refusal(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0.01):
+    """Callable(mcu.Info) -> why the co-MCU's compiled-in envelope does not serve ``cfg``'s laser
+    (None if it does): it does not keep the laser, at its measured peak power ([laser] power_w,
+    firmware_pwm/README.md "Optical power"), Class 1 for every pulse train that firmware allows;
+    or it does not allow the train the sensor fires, one pulse of up to ``pulse_s`` (the sync's
+    guards widen it up to that) per scan at the operating point's scan rate, so that every
+    SCHEDULE would be refused. The firmware's envelope is what the Class 1 claim rests on when
+    the Pi's software errs, so SyncedLaser lights nothing under a firmware built for a weaker
+    laser (device/model/envelope.py; eq. 3.45), and starts nothing under one built for a slower
+    rate (firmware_pwm/src/core.c checks every schedule against it)."""
     import functools
 
     from device.model.envelope import FirmwareEnvelope, LineLaserOptics, envelope_max_power_w
+    from device.model.safety import mw_down
 
     las = cfg.laser
     optics = LineLaserOptics(las.wavelength_m * 1e9, las.fan_angle_rad, las.line_height_m, las.source_diameter_m)
     max_power_w = functools.lru_cache(maxsize=4)(lambda env: envelope_max_power_w(optics, closest_eye_m, env))
+    rate_hz = cfg.operating_point.scan_rate_hz
+    period_us, pulse_us = 1e6 / rate_hz, pulse_s * 1e6
 
     def refusal(info) -> str | None:
         env = FirmwareEnvelope.from_ticks(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks,
                                           info.ticks_per_second)
+        named = (f"the co-MCU's envelope ({env.max_pulse_us} us pulses, {env.max_duty_ppm / 1e4:g} % duty, "
+                 f"{env.min_period_us} us apart)")
         limit_w = max_power_w(env)
-        if las.power_w <= limit_w:
-            return None
-        return (f"the co-MCU's envelope ({env.max_pulse_us} us pulses, {env.max_duty_ppm / 1e4:g} % duty, "
-                f"{env.min_period_us} us apart) keeps a laser Class 1 only up to {limit_w * 1e3:.1f} mW, and "
-                f"[laser] power_w is {las.power_w * 1e3:g} mW: lower the laser's power or flash a firmware "
-                f"built for it (`laserpi design` gives the make line)")
+        if las.power_w > limit_w:
+            return (f"{named} keeps a laser Class 1 only up to {mw_down(limit_w):.2f} mW, and [laser] power_w is "
+                    f"{las.power_w * 1e3:g} mW: lower the laser's power or flash a firmware built for it "
+                    f"(`laserpi design` gives the make line)")
+        if pulse_us > env.max_pulse_us or period_us < env.min_period_us or pulse_us / period_us * 1e6 > env.max_duty_ppm:
+            return (f"{named} does not allow the sensor's train at {rate_hz:g} scans/s: {pulse_us:.0f} us pulses "
+                    f"{period_us:.0f} us apart ({pulse_us / period_us:.1%} duty): flash the firmware built for this "
+                    f"rate (`laserpi design` gives its make line)")
+        return None
 
     return refusal
 
@@ -195,7 +207,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
         camera = SimulatedCamera(cfg, get_scene(spec), hw, timing=timing, seed=setup.seed,
                                  sensor=SensorParams(analog_gain=op.analog_gain), hardware=hw)
         laser = SyncedLaser(hw.open_comcu, sync, gpio_edges=hw.gpio_edges, heartbeat_s=None, clock_ns=hw.now_ns,
-                            envelope_refusal=envelope_refusal(cfg))
+                            envelope_refusal=envelope_refusal(cfg, pulse_s))
         hw.tickers.append(laser.heartbeat)
         clock = lambda: hw.now_ns() * 1e-9  # noqa: E731
         faults = {"comcu-reset": hw.reset_mcu,
@@ -221,7 +233,7 @@ def build_sensor(setup: AssemblyConfig) -> BuiltSensor:
             degraded = True
         laser = SyncedLaser(functools.partial(open_comcu, setup.comcu), sync,
                             gpio_edges=None if edges is None else edges.read,
-                            envelope_refusal=envelope_refusal(cfg))
+                            envelope_refusal=envelope_refusal(cfg, pulse_s))
         clock = time.monotonic
         faults, hw = {}, None
     geometry = ScanGeometry(scan.angles.astype(np.float32), op.min_m, op.max_m)
