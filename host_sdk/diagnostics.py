@@ -9,6 +9,7 @@ since the previous report: a link that had noise an hour ago is not WARN now.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 from protocol import messages as m
@@ -37,7 +38,7 @@ def device_status(health: m.Health | None, hardware_id: str, failure: str = "") 
     if health is None:
         return DiagnosticStatus("LaserPi device", STALE, f"no health report: {failure}", {"hardware_id": hardware_id})
     values = {"hardware_id": hardware_id}
-    for name in health.__dataclass_fields__:
+    for name in (f.name for f in dataclasses.fields(health)):  # the instance's fields (its ClassVars are not)
         v = getattr(health, name)
         if v is not None:
             values[name] = ",".join(_code_name(e) for e in v) if name == "errors" else str(getattr(v, "name", v))

@@ -339,6 +339,9 @@ def test_a_saturated_camera_is_a_warning_naming_it():
     health = dataclasses.replace(VECTORS["health"][1], state=m.DeviceState.SCANNING, errors=(m.ErrorCode.SATURATED,))
     status = device_status(health, "LP-1")
     assert status.level == WARN and "SATURATED" in status.message and status.values["errors"] == "SATURATED"
+    # the values are the report's fields, not its class's constants (ClassVars such as its structs)
+    reported = {f.name for f in dataclasses.fields(health) if getattr(health, f.name) is not None}
+    assert set(status.values) == {"hardware_id"} | reported
 
 
 # --- the pure parts, with hypothesis ------------------------------------------------------------
