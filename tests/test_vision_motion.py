@@ -581,21 +581,30 @@ def test_bench_motion_picks_points_by_labels_that_hold_commas(capsys):
 
 
 def test_bench_motions_targets_judge_every_scene():
-    from device.bench.motion import targets
+    from device.bench.motion import SWEEP, targets
 
     def point(label, scene, yaw, ambient, valid, gross=0.0, false=0):
         return {"point": label, "scene": scene, "yaw_deg_s": yaw, "speed_m_s": 0.0, "ambient_x": ambient,
                 "fast": {"gross_fraction": gross, "false_returns": false, "false_too_close": 0, "valid_fraction": valid}}
 
-    result = {"ratio_vs_one_unlit": 1.2, "points": [
-        point("office", "office", 90, 3, 0.95), point("wall", "poster-wall", 14, 3, 0.6),
-        point("bright", "office", 90, 10, 0.2, gross=0.0005)]}
-    gross, valid, speed = targets(result)
-    assert gross.startswith("MET") and "worst gross 0.05 %" in gross
-    assert valid.startswith("NOT MET") and "worst 60.0 %, wall" in valid  # 10x light is not judged for it
+    def sweep(valid=0.95, **changes):  # every point of the sweep, as a whole run has them
+        pts = [point(label, scene, yaw, ambient, valid) for label, scene, yaw, _, ambient, _, _ in SWEEP]
+        for label, fast in changes.items():
+            next(p for p in pts if p["point"] == label)["fast"].update(fast)
+        return {"ratio_vs_one_unlit": 1.2, "points": pts}
+
+    gross, valid, speed = targets(sweep(**{"yaw 90, 10x": {"gross_fraction": 0.0005, "valid_fraction": 0.2}}))
+    assert gross == "MET: " + gross[5:] and "worst gross 0.05 %" in gross
+    assert valid.startswith("MET: ")  # 10x light is not judged for it
     assert speed.startswith("MET")
-    result["points"][0]["fast"]["false_returns"] = 1
-    assert targets(result)[0].startswith("NOT MET")
+    valid = targets(sweep(**{"poster wall, yaw 14": {"valid_fraction": 0.6}}))[1]
+    assert valid.startswith("NOT MET") and "worst 60.0 %, poster wall, yaw 14" in valid
+    assert targets(sweep(still={"false_returns": 1}))[0].startswith("NOT MET")
+    # some points run (--points): a target met on them is met on those, and says so
+    some = {"ratio_vs_one_unlit": 1.2, "points": [point("still", "office", 0, 3, 0.95)]}
+    gross, valid, _ = targets(some)
+    assert gross.startswith(f"MET on 1 of its {len(SWEEP)} sweep points (the rest not run): ")
+    assert valid.startswith("MET on 1 of its ") and "(the rest not run)" in valid
 
 
 def test_a_range_of_either_surface_a_line_crossed_during_the_exposure_is_no_gross_error():
