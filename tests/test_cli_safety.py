@@ -22,7 +22,7 @@ def test_contract_with_nohd(capsys):
     out = run_json(capsys, "--nohd-mm", "10")
     assert set(out) == {"max_power_mw", "nohd_mm", "class1", "limiting_condition"}
     assert out["max_power_mw"] == pytest.approx(30.43, rel=1e-3)      # hand value, see test_safety
-    assert out["nohd_mm"] == 10.0 and out["class1"] is True
+    assert out["nohd_mm"] == 10.0 and out["class1"] is None  # no laser given: a limit, not a verdict
     assert out["limiting_condition"] == sf.CONDITION_TRAIN
 
 
@@ -39,6 +39,10 @@ def test_readable_output_as_subprocess():
     res = subprocess.run([sys.executable, "-m", "device.cli", *BASE, "--power-mw", "25"],
                          capture_output=True, text=True, check=True)
     assert "pulse_train" in res.stdout and "Class 1" in res.stdout and "8.22 mm" in res.stdout
+    res = subprocess.run([sys.executable, "-m", "device.cli", *BASE, "--nohd-mm", "10"], capture_output=True, text=True,
+                         check=True)
+    assert res.stdout.splitlines()[-2:] == ["max power at 10 mm: 30.42 mW",
+                                            "a laser of at most that peak power is Class 1 with no eye nearer than 10 mm"]
 
 
 @pytest.mark.parametrize("change, option", [

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     out = {
         "max_power_mw": result.max_power_w * 1e3,
         "nohd_mm": result.nohd_m * 1e3,
-        "class1": result.class1,
+        "class1": result.class1 if result.power_w is not None else None,  # no laser given: nothing to judge
         "limiting_condition": result.limiting_condition,
     }
     if args.json:
@@ -61,9 +61,11 @@ def run(args: argparse.Namespace) -> int:
                         ("pulse train (x C5)", lim.pulse_train_j)):
         print(f"  {name:<20} {value * 1e6:10.2f}")
     print(f"limiting condition {result.limiting_condition}; H_mpe {lim.h_mpe_j_per_m2:.4g} J/m^2")
-    print(f"max power at {result.closest_eye_m * 1e3:g} mm: {out['max_power_mw']:.2f} mW")
-    if result.power_w is not None:
-        print(f"NOHD of {result.power_w * 1e3:g} mW: {out['nohd_mm']:.2f} mm")
+    print(f"max power at {result.closest_eye_m * 1e3:g} mm: {safety.mw_down(result.max_power_w):.2f} mW")
+    if result.power_w is None:  # --nohd-mm: the limit is the answer; no laser was given to judge
+        print(f"a laser of at most that peak power is Class 1 with no eye nearer than {result.closest_eye_m * 1e3:g} mm")
+        return 0
+    print(f"NOHD of {result.power_w * 1e3:g} mW: {out['nohd_mm']:.2f} mm")
     print("Class 1" if result.class1 else "NOT Class 1")
     return 0
 
