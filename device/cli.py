@@ -2,7 +2,9 @@
 
 Each subcommand lives in its own module that defines ``add_arguments(parser)`` and
 ``run(args) -> int``. Only the module of the subcommand being run is imported, so
-``laserpi scans`` on a robot never imports OpenCV and ``laserpi --help`` imports nothing.
+``laserpi scans`` on a robot never imports OpenCV and ``laserpi --help`` imports no command module
+but the table of benchmarks (device/commands/bench.py, the standard library only), which names
+them in ``bench``'s help.
 Command modules import their heavy dependencies inside ``run``.
 """
 
@@ -12,6 +14,8 @@ import argparse
 import importlib
 import logging
 import sys
+
+from device.commands.bench import BENCHMARKS
 
 # name -> (module, one-line help). Grouped by the package that owns the command.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -29,7 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "doctor": ("device.commands.doctor", "check a Pi's camera, co-MCU, GPIO, UART and host link before serve"),
     "soak": ("device.commands.soak", "long run of the simulated sensor, watching memory and drops"),
     "demo": ("device.commands.demo", "the simulated sensor end to end, read by the host SDK"),
-    "bench": ("device.commands.bench", "benchmarks: model, pipeline, protocol, sim"),
+    "bench": ("device.commands.bench", "benchmarks: " + ", ".join(BENCHMARKS)),
     "fuzz-firmware": ("device.commands.fuzz_firmware", "co-MCU eye-safety envelope fuzzed in the emulator"),
     # host side (host_sdk/)
     "scans": ("host_sdk.commands.scans", "print one line per scan from a sensor"),
@@ -42,7 +46,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def _top_parser() -> argparse.ArgumentParser:
-    lines = [f"  {name:<11} {help_}" for name, (_, help_) in COMMANDS.items()]
+    width = max(map(len, COMMANDS))
+    lines = [f"  {name:<{width}} {help_}" for name, (_, help_) in COMMANDS.items()]
     return argparse.ArgumentParser(
         prog="laserpi",
         description="LaserPi line-laser distance sensor",

@@ -34,10 +34,12 @@ from .argtypes import add_motion_arguments, scene_with_motion
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..sim.scene import scene_names
+
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--scene",
-                        help="scene name (wall, room, corridor, clutter, targets, near, far, sunlight, glossy-floor, "
-                             "empty, office, person, door), 'wall:distance=2,reflectivity=0.1', or a scene .toml")
+                        help=f"scene name ({', '.join(scene_names())}), 'wall:distance=2,reflectivity=0.1', "
+                             "or a scene .toml")
     source.add_argument("--recording", help="a recording (FRAMES.npz or a frames.json folder) to reprocess")
     parser.add_argument("--out", help="with --recording: write the per-scan results to this .npz")
     parser.add_argument("--truth", help="with --recording: score against this truth.npz (from laserpi simulate)")

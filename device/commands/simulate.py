@@ -26,8 +26,11 @@ EFFECTS = ("noise", "speckle", "ambient", "gloss", "texture", "rolling_shutter")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..sim.scene import scene_names
+
     parser.add_argument("--scene", required=True,
-                        help="built-in scene name, wall:distance=2,angle=30,reflectivity=0.1, or a scene .toml")
+                        help=f"built-in scene name ({', '.join(scene_names())}), "
+                             "wall:distance=2,angle=30,reflectivity=0.1, or a scene .toml")
     parser.add_argument("--frames", type=int, default=4, help="number of frames (default 4)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", help="sensor configuration .toml (default: preset thesis-calibrated)")
