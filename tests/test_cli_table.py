@@ -46,3 +46,21 @@ def test_unknown_command_is_an_error_naming_the_choices(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["frobnicate"])
     assert exc.value.code == 2 and "unknown command 'frobnicate'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, option, message", [
+    (["soak", "--minutes", "-1"], "--minutes", "must be a finite positive number, got '-1'"),
+    (["record", "--port", "sim://wall", "--out", "x.lpr", "--seconds", "-1"], "--seconds",
+     "must be a finite positive number, got '-1'"),
+    (["demo", "--seconds", "-1"], "--seconds", "must be a finite positive number, got '-1'"),
+    (["serve", "--simulate", "--mock", "--link", "x", "--points", "0"], "--points", "must be a positive integer, got '0'"),
+    (["scans", "--port", "sim://wall", "--baud", "0"], "--baud", "must be a positive integer, got '0'"),
+    (["replay", "x.lpr", "--speed", "nan"], "--speed", "must be finite, got 'nan'"),
+])
+def test_a_number_out_of_range_is_refused_naming_the_option(argv, option, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"argument {option}: {message}" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []  # nothing started: no link, no recording

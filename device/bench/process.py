@@ -42,13 +42,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from host_sdk.commands.argtypes import positive_float
+
 PRESET = "thesis-calibrated"
 #: The pty's pacing where the 921600 baud UART cannot carry the scans: USB CDC full speed, ~8 Mbit/s.
 LINK_BAUD = 8_000_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seconds", type=float, default=20.0, help="measured span after warm-up")
+    parser.add_argument("--seconds", type=positive_float, default=20.0, help="measured span after warm-up")
     parser.add_argument("--warmup", type=float, default=6.0, help="seconds before the first snapshot")
     parser.add_argument("--slowdown", type=float, default=15.0, help="Cortex-A53 @ 1 GHz per-core slowdown vs here")
     parser.add_argument("--scan-rate-hz", type=float, default=None,

@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from host_sdk.commands.argtypes import positive_float
+
 FULL_RATE_HZ = 10.0
 FULL_POINTS = 1640
 LINKS = {"UART 460800": 460800, "UART 921600": 921600, "USB CDC (full speed, ~8 Mbit/s usable)": 8_000_000}
@@ -27,7 +29,7 @@ LINKS = {"UART 460800": 460800, "UART 921600": 921600, "USB CDC (full speed, ~8 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--seconds", type=float, default=1.0, help="time per variant")
+    parser.add_argument("--seconds", type=positive_float, default=1.0, help="time per variant")
 
 
 def _rate(fn, seconds: float) -> float:

@@ -33,13 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
+from host_sdk.commands.argtypes import positive_int
+
 ROOT = Path(__file__).resolve().parents[2]
 WARMUP = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scans", type=int, default=100, help="scans per variant (10 per second)")
-    parser.add_argument("--points", type=int, default=1640, help="points per scan")
+    parser.add_argument("--scans", type=positive_int, default=100, help="scans per variant (10 per second)")
+    parser.add_argument("--points", type=positive_int, default=1640, help="points per scan")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
 
 

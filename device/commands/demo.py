@@ -17,12 +17,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from host_sdk.commands.argtypes import positive_float
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seconds", type=float, default=8.0, help="how long to run (default 8 s)")
+    parser.add_argument("--seconds", type=positive_float, default=8.0, help="how long to run (default 8 s)")
     parser.add_argument("--run-on", action="store_true", help="run until Ctrl-C")
     parser.add_argument("--scene", default="wall", help="scene name (see laserpi simulate) or wall:distance=...")
-    parser.add_argument("--distance-m", type=float, default=2.0, help="distance of the 'wall' scene")
+    parser.add_argument("--distance-m", type=positive_float, default=2.0, help="distance of the 'wall' scene")
     parser.add_argument("--mock", action="store_true", help="serve the analytic mock instead of the full simulation")
     parser.add_argument("--png", default="out/demo.png", help="where to write the top view")
     parser.add_argument("--log", default="out/demo-serve.log", help="where the device process logs")

@@ -11,7 +11,7 @@ import argparse
 import json
 import math
 
-from .argtypes import positive_floats
+from host_sdk.commands.argtypes import positive_floats
 
 DEFAULT_SUBPIXELS = "0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0"
 DEFAULT_DISTANCES_MM = "2000,2500,3500"

@@ -20,14 +20,18 @@ import math
 import sys
 import time
 
+from host_sdk.commands.argtypes import nonnegative_float, positive_float
+
 BAR = 40  # characters of the widest bar (4 x the target width)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--distance-m", type=float, default=2.0, help="distance of the wall focused on (target width; "
-                                                                      "the simulated wall's distance with --simulate)")
+    parser.add_argument("--distance-m", type=positive_float, default=2.0,
+                        help="distance of the wall focused on (target width; the simulated wall's distance with "
+                             "--simulate)")
     parser.add_argument("--regions", type=int, default=16, help="column regions, a bar each (default 16)")
-    parser.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
+    parser.add_argument("--seconds", type=nonnegative_float, default=0.0,
+                        help="stop after this long (default: until Ctrl-C)")
     parser.add_argument("--updates", type=int, default=0, help="stop after this many updates (default: no limit)")
     parser.add_argument("--png", metavar="FILE", help="save the band of the image the line is searched in, with the "
                                                       "detected line in red, at every update")

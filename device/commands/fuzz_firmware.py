@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from .argtypes import positive_float, positive_int
+from host_sdk.commands.argtypes import positive_float, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

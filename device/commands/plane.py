@@ -12,7 +12,7 @@ import math
 import sys
 import warnings
 
-from .argtypes import finite_float
+from host_sdk.commands.argtypes import finite_float
 
 
 def _three(text: str) -> tuple[float, float, float]:

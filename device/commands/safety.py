@@ -11,7 +11,7 @@ import argparse
 import json
 import math
 
-from .argtypes import positive_float
+from host_sdk.commands.argtypes import positive_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

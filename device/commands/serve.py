@@ -25,6 +25,8 @@ import math
 import signal
 import threading
 
+from host_sdk.commands.argtypes import nonnegative_float, positive_float, positive_int
+
 log = logging.getLogger(__name__)
 
 
@@ -32,12 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--link", metavar="PATH", help="create a pseudo-terminal and symlink PATH to it")
     where.add_argument("--port", metavar="DEV", help="serve on this serial device (e.g. /dev/ttyAMA0, /dev/ttyGS0)")
-    parser.add_argument("--baud", type=int, default=921600,
+    parser.add_argument("--baud", type=positive_int, default=921600,
                         help="baud rate of --port; with --link, writes are paced at this rate like a UART")
-    parser.add_argument("--link-rate-bps", type=float, default=None,
+    parser.add_argument("--link-rate-bps", type=positive_float, default=None,
                         help="what the host link carries, bits/s (default: --baud, a UART at 8N1; a USB CDC port "
                              "carries more): settings whose scans need more are refused")
-    parser.add_argument("--scan-rate-hz", type=float, default=None,
+    parser.add_argument("--scan-rate-hz", type=positive_float, default=None,
                         help="scans/s (default: the configuration's [operating_point] scan_rate_hz; not with --mock)")
     parser.add_argument("--firmware", metavar="ELF", default=None,
                         help="with --simulate: the co-MCU firmware to run (default: firmware_pwm/build/laserpi_pwm.elf, "
@@ -47,23 +49,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mock", action="store_true", help="with --simulate: the analytic wall, no images")
     parser.add_argument("--scene", default="wall",
                         help="simulated scene: a built-in name, wall:distance=2,angle=30, or a TOML path")
-    parser.add_argument("--distance-m", type=float, default=2.0, help="distance of the 'wall' scene in metres")
+    parser.add_argument("--distance-m", type=positive_float, default=2.0, help="distance of the 'wall' scene in metres")
     parser.add_argument("--config", metavar="TOML", help="sensor configuration file")
     parser.add_argument("--preset", default="thesis-calibrated", help="sensor configuration preset (without --config)")
-    parser.add_argument("--points", type=int, default=None,
+    parser.add_argument("--points", type=positive_int, default=None,
                         help="points per scan (default: 1640 for --mock, the active image width otherwise)")
     parser.add_argument("--comcu", metavar="DEV", default="/dev/serial0",
                         help="serial device of the co-MCU (ignored with --simulate)")
     parser.add_argument("--gpio-edge", metavar="CHIP:LINE", default=None,
                         help="GPIO line of the laser trigger for edge-timestamp sync, e.g. gpiochip0:17 (default: the "
                              "configuration's [pi] gpio_edge; neither: sync by pings only, reported as degraded)")
-    parser.add_argument("--fov-deg", type=float, default=105.0, help="field of view in degrees (--mock)")
+    parser.add_argument("--fov-deg", type=positive_float, default=105.0, help="field of view in degrees (--mock)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the simulation")
     parser.add_argument("--stats-file", metavar="JSON", help="write health and CPU time here every 2 s and at exit")
-    parser.add_argument("--host-timeout-s", type=float, default=5.0,
+    parser.add_argument("--host-timeout-s", type=nonnegative_float, default=5.0,
                         help="stop scanning (laser off) when the host sent nothing for this long; 0 never "
                              "(a one-way cable, a host of protocol minor < 2 that streams silently)")
-    parser.add_argument("--laser-limit-mw", type=float, default=None,
+    parser.add_argument("--laser-limit-mw", type=positive_float, default=None,
                         help="Class 1 limit on laser power the device enforces (default and maximum: from the safety model "
                              "for the sensor's laser and pulse; 5 mW for --mock)")
 

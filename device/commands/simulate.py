@@ -20,7 +20,9 @@ import json
 import math
 from pathlib import Path
 
-from .argtypes import add_motion_arguments, positive_float, scene_with_motion
+from host_sdk.commands.argtypes import positive_float
+
+from .argtypes import add_motion_arguments, scene_with_motion
 
 EFFECTS = ("noise", "speckle", "ambient", "gloss", "texture", "rolling_shutter")
 

@@ -22,11 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from host_sdk.commands.argtypes import positive_float
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--minutes", type=float, default=10.0, help="length of the run (default 10)")
-    parser.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling interval")
-    parser.add_argument("--max-growth-mb", type=float, default=5.0,
+    parser.add_argument("--minutes", type=positive_float, default=10.0, help="length of the run (default 10)")
+    parser.add_argument("--sample-s", type=positive_float, default=5.0, help="RSS sampling interval")
+    parser.add_argument("--max-growth-mb", type=positive_float, default=5.0,
                         help="largest RSS growth over the second half that still counts as steady")
     parser.add_argument("--scene", default="wall", help="simulated scene")
     parser.add_argument("--mock", action="store_true", help="soak the analytic mock instead of the full simulation")

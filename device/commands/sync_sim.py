@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from .argtypes import nonnegative_float, positive_float
+from host_sdk.commands.argtypes import nonnegative_float, positive_float
 
 KEYS = ("lock_frames", "p99_error_us", "p99_error_us_settled", "max_error_us", "median_error_us", "pulse_us",
         "frames_lit_after_lock", "frames_partly_unlit_after_lock", "frames_leaked_after_lock",

@@ -9,11 +9,13 @@ from __future__ import annotations
 import argparse
 import time
 
+from .argtypes import positive_float, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True, help="device path or pyserial URL (e.g. sim://wall)")
-    parser.add_argument("--baud", type=int, default=921600)
-    parser.add_argument("--seconds", type=float, required=True, help="how long to record")
+    parser.add_argument("--baud", type=positive_int, default=921600)
+    parser.add_argument("--seconds", type=positive_float, required=True, help="how long to record")
     parser.add_argument("--out", required=True, help="recording to create (.lpr); must not exist")
 
 

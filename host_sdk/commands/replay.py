@@ -11,11 +11,13 @@ import argparse
 import signal
 import threading
 
+from .argtypes import positive_float
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="recording (.lpr) from `laserpi record`")
     parser.add_argument("--link", metavar="PATH", help="serve through a pty symlinked at PATH")
-    parser.add_argument("--speed", type=float, default=1.0, help="playback speed, x real time")
+    parser.add_argument("--speed", type=positive_float, default=1.0, help="playback speed, x real time")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 
+from .argtypes import positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True, help="device path or pyserial URL (e.g. sim://wall)")
-    parser.add_argument("--baud", type=int, default=921600)
+    parser.add_argument("--baud", type=positive_int, default=921600)
     parser.add_argument("--png", required=True, help="output image")
 
 
