@@ -6,6 +6,8 @@ Each subcommand lives in its own module that defines ``add_arguments(parser)`` a
 but the table of benchmarks (device/commands/bench.py, the standard library only), which names
 them in ``bench``'s help.
 Command modules import their heavy dependencies inside ``run``.
+An OSError out of a command (a file it was given that cannot be opened, read or written) ends it
+with one line naming the file, exit code 2, as argparse's errors do.
 """
 
 from __future__ import annotations
@@ -83,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.run(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except OSError as exc:  # a file the command was given cannot be opened, read or written
+        reason = f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc)
+        print(f"laserpi {glob.command}: {reason}")
+        return 2
 
 
 if __name__ == "__main__":

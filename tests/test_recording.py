@@ -147,6 +147,19 @@ def test_scans_and_view_commands(tmp_path, capsys):
     assert "plugged in" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("argv, name", [
+    (["export-bag", "missing.lpr", "bag"], "missing.lpr"),
+    (["replay", "missing.lpr", "--link", "link"], "missing.lpr"),
+    (["record", "--port", "sim://wall", "--seconds", "0.1", "--out", "no-dir/r.lpr"], "no-dir/r.lpr"),
+    (["view", "--port", "sim://wall?points=50", "--png", "no-dir/scan.png"], "no-dir/scan.png"),
+])
+def test_a_file_that_cannot_be_read_or_written_is_named_in_one_line(argv, name, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    assert capsys.readouterr().out.splitlines()[-1] == f"laserpi {argv[0]}: {name}: No such file or directory"
+    assert list(tmp_path.iterdir()) == []  # no bag, link or recording left behind
+
+
 def test_replay_without_link_prints_the_scans(capsys):
     assert main(["replay", str(DATA / "wall_corrupt.lpr")]) == 0
     out = capsys.readouterr().out.splitlines()
