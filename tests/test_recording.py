@@ -134,6 +134,11 @@ def test_export_bag_reads_back_with_rosbags(tmp_path, capsys):
     wall = rep.header.wall_start_ns * 1e-9
     stamp = first.header.stamp.sec + first.header.stamp.nanosec * 1e-9
     assert 0 <= stamp - wall < 1.0  # recorded within the first second
+    written = {f: f.read_bytes() for f in out.iterdir()}
+    capsys.readouterr()
+    assert main(["export-bag", str(DATA / "wall_corrupt.lpr"), str(out)]) == 2
+    assert capsys.readouterr().out == f"laserpi export-bag: {out} exists; not overwriting it\n"
+    assert {f: f.read_bytes() for f in out.iterdir()} == written
 
 
 def test_scans_and_view_commands(tmp_path, capsys):

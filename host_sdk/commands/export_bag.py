@@ -11,7 +11,9 @@ The bag's receive time of each message is the same stamp.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
+import os
 
 log = logging.getLogger(__name__)
 
@@ -34,13 +36,15 @@ def storage_plugin():
 
 
 def export_bag(recording: str, out: str, topic: str = "/scan", frame_id: str = "laser") -> tuple[int, dict]:
-    """Write the bag; returns (messages written, replay stats)."""
+    """Write the bag; returns (messages written, replay stats). FileExistsError if ``out`` exists."""
     import numpy as np
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     from host_sdk.recording import Replay
 
+    if os.path.lexists(out):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), out)
     ts = get_typestore(Stores.ROS2_HUMBLE)
     LaserScanMsg = ts.types["sensor_msgs/msg/LaserScan"]
     Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
@@ -71,7 +75,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         n, stats = export_bag(args.file, args.out, args.topic, args.frame_id)
-    except (ValueError, FileExistsError) as exc:
+    except FileExistsError:
+        print(f"laserpi export-bag: {args.out} exists; not overwriting it")
+        return 2
+    except ValueError as exc:
         print(f"laserpi export-bag: {exc}")
         return 2
     print(f"wrote {n} LaserScan messages on {args.topic} to {args.out} ({storage_plugin().name}); dropped: "
