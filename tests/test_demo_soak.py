@@ -62,6 +62,39 @@ def test_soak_short_run_on_the_mock(tmp_path):
     assert result["verdict"] == "PASS" and result["scans"] >= 20 and result["lost_uncounted"] == 0
 
 
+@pytest.mark.parametrize("command", ["demo", "soak"])
+def test_a_bad_scene_is_named_before_anything_starts(command, tmp_path, capsys):
+    from device.cli import main
+
+    log = tmp_path / "serve.log"
+    assert main([command, "--scene", "wal", "--log", str(log)]) == 2
+    assert capsys.readouterr().out.startswith(f"laserpi {command}: unknown scene 'wal'; choose from: ")
+    assert not log.exists()  # no device process was started
+
+
+def test_serve_that_does_not_come_up_is_reported_with_its_reason(tmp_path):
+    from device.service.child import start_serve
+
+    with pytest.raises(RuntimeError) as exc:
+        start_serve(tmp_path / "laserpi", ["--simulate", "--scene", "wal"])
+    assert str(exc.value).startswith("laserpi serve did not come up (exit 2): laserpi serve: unknown scene 'wal'; ")
+    assert not (tmp_path / "laserpi").exists()
+
+
+@pytest.mark.parametrize("command", ["demo", "soak"])
+def test_demo_and_soak_relay_a_device_process_that_did_not_come_up(command, tmp_path, monkeypatch, capsys):
+    from device.cli import main
+    from device.service import child
+
+    def fails(*_, **__):
+        raise RuntimeError("laserpi serve did not come up (exit 2): laserpi serve: no firmware")
+
+    monkeypatch.setattr(child, "start_serve", fails)
+    assert main([command, "--log", str(tmp_path / "serve.log")]) == 1
+    assert capsys.readouterr().out.splitlines()[-1] == (f"laserpi {command}: laserpi serve did not come up (exit 2): "
+                                                        "laserpi serve: no firmware")
+
+
 def test_bench_process_subtracts_the_simulation_from_the_process_cpu():
     from device.bench.process import cost_per_scan
 

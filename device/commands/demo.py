@@ -55,10 +55,15 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     import host_sdk
+    from device.sim.scene import SceneError
     from device.sim.scene_truth import scene_truth
     from device.service.child import start_serve, stop_serve
 
-    truth_scene = scene_truth(args.scene, args.distance_m)
+    try:
+        truth_scene = scene_truth(args.scene, args.distance_m)
+    except SceneError as exc:
+        print(f"laserpi demo: {exc}")
+        return 2
     serve_args = ["--simulate", "--scene", args.scene, "--distance-m", str(args.distance_m)]
     if args.mock:
         serve_args.append("--mock")
@@ -67,7 +72,11 @@ def run(args: argparse.Namespace) -> int:
         link = Path(tmp) / "laserpi"
         print(f"starting the simulated sensor: laserpi serve {' '.join(serve_args)} --link {link}  (log: {args.log})",
               flush=True)
-        proc = start_serve(link, serve_args, log_path=Path(args.log))
+        try:
+            proc = start_serve(link, serve_args, log_path=Path(args.log))
+        except RuntimeError as exc:
+            print(f"laserpi demo: {exc}")
+            return 1
         arrivals: list[float] = []
         errs: list[tuple[float, float]] = []
         last = None

@@ -81,13 +81,23 @@ def verdict(seconds: float, scans: int, seq_gaps: int, device_dropped: int, host
 def run(args: argparse.Namespace) -> int:
     import host_sdk
     from device.service.child import rss_bytes, start_serve, stop_serve
+    from device.sim.scene import SceneError, get_scene
 
+    try:
+        get_scene(args.scene)  # named here, as serve would name it, before anything starts
+    except SceneError as exc:
+        print(f"laserpi soak: {exc}")
+        return 2
     serve_args = ["--simulate", "--scene", args.scene] + (["--mock"] if args.mock else [])
     duration = args.minutes * 60.0
     Path(args.log).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="laserpi-soak-") as tmp:
         link = Path(tmp) / "laserpi"
-        proc = start_serve(link, serve_args, log_path=Path(args.log))
+        try:
+            proc = start_serve(link, serve_args, log_path=Path(args.log))
+        except RuntimeError as exc:
+            print(f"laserpi soak: {exc}")
+            return 1
         times, rss = [], []
         scans = 0
         seqs_seen_gap = 0

@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -16,21 +17,21 @@ def start_serve(link: Path, serve_args: list[str], *, log_path: Path | None = No
                 timeout_s: float = 60.0) -> subprocess.Popen:
     """Run ``laserpi serve --link LINK *serve_args`` and wait until LINK points at a live pty.
 
-    Its stderr (the device's log) goes to ``log_path`` if given. Raises RuntimeError with the
-    child's output if it does not come up within ``timeout_s``.
+    Its output (stdout and stderr: its messages and the device's log) goes to ``log_path`` if
+    given, else to a temporary file. Raises RuntimeError ending in the last line of that output
+    (serve's reason) if it does not come up within ``timeout_s``.
     """
-    err = open(log_path, "w") if log_path else subprocess.DEVNULL
-    proc = subprocess.Popen([sys.executable, "-m", "device.cli", "-v", "serve", "--link", str(link), *serve_args],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
-    if log_path:
-        err.close()
-    deadline = time.monotonic() + timeout_s
-    while not (link.is_symlink() and Path(os.readlink(link)).exists()):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            stop_serve(proc)
-            tail = log_path.read_text()[-2000:] if log_path and log_path.exists() else ""
-            raise RuntimeError(f"laserpi serve did not come up (exit {proc.returncode}):\n{tail}")
-        time.sleep(0.05)
+    with open(log_path, "w+") if log_path else tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "device.cli", "-v", "serve", "--link", str(link), *serve_args],
+                                cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + timeout_s
+        while not (link.is_symlink() and Path(os.readlink(link)).exists()):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                stop_serve(proc)
+                out.seek(0)
+                reason = (out.read().splitlines() or ["no output"])[-1]
+                raise RuntimeError(f"laserpi serve did not come up (exit {proc.returncode}): {reason}")
+            time.sleep(0.05)
     return proc
 
 
