@@ -28,7 +28,7 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from protocol.mock_wall import AnalyticWallSource, default_settings
+from protocol.mock_wall import LASER_LIMIT_MW, AnalyticWallSource, default_settings
 from protocol.ports import NoisyPort, PacedPort, PortClosed, pipe_pair
 from protocol.server import DeviceConfig, LinkServer
 
@@ -67,7 +67,7 @@ def build_sim_device(opts: dict) -> tuple[AnalyticWallSource, DeviceConfig]:
     settings = default_settings(points)
     if "rate" in opts:
         settings = settings.merged(type(settings)(scan_rate_hz=opts["rate"]))
-    return source, DeviceConfig(laser_limit_mw=opts.get("limit_mw", 5.0), settings=settings,
+    return source, DeviceConfig(laser_limit_mw=opts.get("limit_mw", LASER_LIMIT_MW), settings=settings,
                                 host_timeout_s=opts.get("host_timeout", 5.0))
 
 

@@ -32,6 +32,9 @@ from protocol.server import ScanGeometry, SourceScan, SourceStatus, device_clock
 
 #: The thesis prototype's field of view (abstract: 105 degrees over the 1640 columns of mode 5).
 DEFAULT_FOV_RAD = math.radians(105.0)
+#: The mock device's Class 1 limit on laser power, mW (it has no laser: the limit it reports and
+#: enforces; ``laserpi serve --mock --laser-limit-mw`` can only lower it).
+LASER_LIMIT_MW = 5.0
 
 
 def column_angles(n_points: int, fov_rad: float) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import host_sdk
+from protocol import messages as m
 from protocol.mock_wall import wall_ranges
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,6 +118,35 @@ def test_serve_without_simulate_says_what_is_missing(tmp_path, capsys):
     assert main(["serve", "--link", str(tmp_path / "x")]) == 2
     assert "--simulate" in capsys.readouterr().out
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--simulate", "--mock", "--laser-limit-mw", "100"],
+     "--laser-limit-mw 100 is above the mock device's Class 1 limit, 5.00 mW; it can only lower the limit"),
+])
+def test_serve_mock_says_what_is_wrong_with_its_options(extra, message, tmp_path, capsys):
+    from device.cli import main
+
+    assert main(["serve", "--link", str(tmp_path / "x"), *extra]) == 2
+    assert capsys.readouterr().out == f"laserpi serve: {message}\n"
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("extra, limit_mw", [((), 5.0), (("--laser-limit-mw", "3"), 3.0)])
+def test_serve_mock_refuses_a_host_asking_for_more_than_its_laser_limit(extra, limit_mw, tmp_path):
+    link = tmp_path / "laserpi"
+    proc = start_serve(link, *extra)
+    try:
+        with host_sdk.LaserPi(str(link)) as s:
+            assert s.info().laser_limit_mw == limit_mw and s.info().settings.laser_power_mw <= limit_mw
+            s.configure(laser_power_mw=limit_mw)
+            with pytest.raises(host_sdk.CommandRefused) as exc:
+                s.configure(laser_power_mw=limit_mw + 1)
+            assert exc.value.code == m.NackCode.EYE_SAFETY and f"Class 1 limit of {limit_mw:g} mW" in exc.value.reason
+            assert s.info(refresh=True).settings.laser_power_mw == limit_mw
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0
 
 
 def test_a_host_killed_with_sigkill_leaves_the_laser_off(tmp_path):

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from protocol.mock_wall import LASER_LIMIT_MW
+
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--link", metavar="PATH", help="create a pseudo-terminal and symlink PATH to it")
     where.add_argument("--port", metavar="DEV", help="serve on this serial device (e.g. /dev/ttyAMA0, /dev/ttyGS0)")
@@ -67,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(a one-way cable, a host of protocol minor < 2 that streams silently)")
     parser.add_argument("--laser-limit-mw", type=positive_float, default=None,
                         help="Class 1 limit on laser power the device enforces (default and maximum: from the safety model "
-                             "for the sensor's laser and pulse; 5 mW for --mock)")
+                             f"for the sensor's laser and pulse; {LASER_LIMIT_MW:g} mW for --mock)")
 
 
 def serve_source(source, config, *, link: str | None = None, port: str | None = None, baudrate: int = 921600,
@@ -136,6 +138,17 @@ def _injector(name: str, fault):
     return handler
 
 
+def _laser_limit(asked_mw: float | None, limit_mw: float, whose: str) -> float:
+    """The laser power limit to enforce: ``limit_mw`` (``whose``), or --laser-limit-mw below it;
+    ValueError if --laser-limit-mw is above it."""
+    if asked_mw is None:
+        return limit_mw
+    if asked_mw > limit_mw:
+        raise ValueError(f"--laser-limit-mw {asked_mw:g} is above {whose}, {limit_mw:.2f} mW; "
+                         "it can only lower the limit")
+    return asked_mw
+
+
 def run(args: argparse.Namespace) -> int:
     from protocol.server import DeviceConfig
 
@@ -147,11 +160,11 @@ def run(args: argparse.Namespace) -> int:
             if not args.simulate or args.scan_rate_hz is not None or args.firmware is not None:
                 print("laserpi serve: --mock needs --simulate, and runs at its own rate without firmware")
                 return 2
-            from protocol.mock_wall import AnalyticWallSource, default_settings
+            from protocol.mock_wall import LASER_LIMIT_MW, AnalyticWallSource, default_settings
 
+            limit_mw = _laser_limit(args.laser_limit_mw, LASER_LIMIT_MW, "the mock device's Class 1 limit")
             n = args.points or 1640
             source = AnalyticWallSource(args.distance_m, n_points=n, fov_rad=math.radians(args.fov_deg), seed=args.seed)
-            limit_mw = 5.0 if args.laser_limit_mw is None else args.laser_limit_mw
             settings = default_settings(n, min(4.0, limit_mw))
         else:
             from device.service.assembly import AssemblyConfig, build_sensor
@@ -166,13 +179,8 @@ def run(args: argparse.Namespace) -> int:
                                                 scan_rate_hz=args.scan_rate_hz, firmware=args.firmware))
             source, settings, closers, faults = built.source, built.settings, built.closers, built.faults
             hw = built.hardware
-            limit_mw = built.laser_limit_mw
-            if args.laser_limit_mw is not None:
-                if args.laser_limit_mw > built.laser_limit_mw:
-                    raise ValueError(f"--laser-limit-mw {args.laser_limit_mw:g} is above the Class 1 limit of "
-                                     f"{built.laser_limit_mw:.2f} mW the safety model gives for this laser and pulse; "
-                                     "it can only lower the limit")
-                limit_mw = args.laser_limit_mw
+            limit_mw = _laser_limit(args.laser_limit_mw, built.laser_limit_mw,
+                                    "the Class 1 limit the safety model gives for this laser and pulse")
         config = DeviceConfig(laser_limit_mw=limit_mw, settings=settings, host_timeout_s=args.host_timeout_s,
                               link_rate_bps=args.baud if args.link_rate_bps is None else args.link_rate_bps)
     except (ValueError, OSError, RuntimeError) as exc:
