@@ -121,6 +121,9 @@ def test_serve_without_simulate_says_what_is_missing(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("extra, message", [
+    (["--mock"], "--mock needs --simulate"),
+    (["--simulate", "--mock", "--scan-rate-hz", "15"], "--mock runs at its own rate: --scan-rate-hz does not apply to it"),
+    (["--simulate", "--mock", "--firmware", "x.elf"], "--mock runs no firmware: --firmware does not apply to it"),
     (["--simulate", "--mock", "--laser-limit-mw", "100"],
      "--laser-limit-mw 100 is above the mock device's Class 1 limit, 5.00 mW; it can only lower the limit"),
 ])

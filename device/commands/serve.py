@@ -157,8 +157,14 @@ def run(args: argparse.Namespace) -> int:
     hw = None
     try:
         if args.mock:
-            if not args.simulate or args.scan_rate_hz is not None or args.firmware is not None:
-                print("laserpi serve: --mock needs --simulate, and runs at its own rate without firmware")
+            # what is wrong with --mock's options, first found first
+            refused = [why for wrong, why in ((not args.simulate, "--mock needs --simulate"),
+                                              (args.scan_rate_hz is not None,
+                                               "--mock runs at its own rate: --scan-rate-hz does not apply to it"),
+                                              (args.firmware is not None,
+                                               "--mock runs no firmware: --firmware does not apply to it")) if wrong]
+            if refused:
+                print(f"laserpi serve: {refused[0]}")
                 return 2
             from protocol.mock_wall import LASER_LIMIT_MW, AnalyticWallSource, default_settings
 
