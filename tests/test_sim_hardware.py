@@ -187,3 +187,19 @@ def test_heartbeats_reach_the_firmware_at_their_interval_far_inside_its_timeout(
         assert comcu.heartbeat_acks >= len(arrived) - 2 and comcu.heartbeat_state[1] == mcu.Fault(0)
     finally:
         comcu.port.close()
+
+
+def test_an_emulator_ended_by_a_signal_stops_the_clock_with_one_log_line(hardware, caplog, monkeypatch):
+    """Stopping serve's process group (timeout, systemd stop) signals the emulator too: the clock
+    thread ends with a warning, not an exception out of the thread."""
+    import signal
+    import threading
+
+    raised = []
+    monkeypatch.setattr(threading, "excepthook", raised.append)
+    clock = next(t for t in hardware._threads if t.name == "sim-clock")
+    hardware.mcu._proc.send_signal(signal.SIGTERM)
+    clock.join(timeout=5)
+    assert not clock.is_alive() and raised == []
+    assert [r.getMessage() for r in caplog.records if r.name == "device.sim.hardware"] == [
+        "the co-MCU emulator was ended by SIGTERM; the simulated clock stops"]

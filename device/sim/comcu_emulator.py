@@ -31,6 +31,14 @@ class EmulatorError(RuntimeError):
     """The harness could not be built or stopped answering."""
 
 
+class HarnessExited(EmulatorError):
+    """The harness's process ended: ``returncode`` is its exit status, negative when a signal ended it."""
+
+    def __init__(self, returncode: int, stderr_tail: str):
+        super().__init__(f"harness exited ({returncode}): {stderr_tail}")
+        self.returncode = returncode
+
+
 def build_emulator(build_dir: str = "build", **overrides: int) -> tuple[Path, Path]:
     """Builds the firmware ELF and the simavr harness (make -C firmware_pwm all harness).
 
@@ -156,14 +164,14 @@ class SteppedMcuPort:
                 self.timer_starts.append(int(rest.split()[0]))
             elif kind == "crash":
                 raise EmulatorError(f"simulated MCU crashed: {line.strip()}")
-        raise EmulatorError(f"harness exited ({self._proc.wait()}): {_stderr_tail(self._stderr)}")
+        raise HarnessExited(self._proc.wait(), _stderr_tail(self._stderr))
 
     def _command(self, line: str) -> None:
         try:
             self._proc.stdin.write(line + "\n")
             self._proc.stdin.flush()
         except BrokenPipeError:
-            raise EmulatorError(f"harness exited ({self._proc.wait()}): {_stderr_tail(self._stderr)}") from None
+            raise HarnessExited(self._proc.wait(), _stderr_tail(self._stderr)) from None
 
     def close(self) -> None:
         if self._proc.poll() is None:

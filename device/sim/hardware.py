@@ -15,8 +15,10 @@ than real time then). The pty between the two is the same either way.
 from __future__ import annotations
 
 import collections
+import logging
 import os
 import select
+import signal
 import threading
 import time
 from pathlib import Path
@@ -25,10 +27,12 @@ import numpy as np
 
 from device.laser.comcu import BAUDRATE, open_comcu
 from device.laser.synced import HEARTBEAT_S
-from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, SteppedMcuPort, build_emulator
+from device.sim.comcu_emulator import CPU_HZ, ELF, HARNESS, HarnessExited, SteppedMcuPort, build_emulator
 from protocol import mcu
 from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 from protocol.ports import open_raw_pty
+
+log = logging.getLogger(__name__)
 
 
 #: The Pi's UART receiver, the PL011 of the BCM2835/BCM2837 (Pi Zero 2 W, Pi 3: their uart0 in
@@ -152,6 +156,17 @@ class SimulatedHardware:
         return self._t_base_ns + self.mcu.cycle * 1_000_000_000 // self.cpu_hz
 
     def _run_clock(self) -> None:
+        try:
+            self._step_clock()
+        except HarnessExited as exc:
+            if exc.returncode >= 0:
+                raise
+            # a signal ended the emulator: stopping the process group (timeout, systemd stop) signals
+            # it and this process at once
+            log.warning("the co-MCU emulator was ended by %s; the simulated clock stops",
+                        signal.Signals(-exc.returncode).name)
+
+    def _step_clock(self) -> None:
         while not self._stop.is_set():
             self.clock_cpu_s = time.thread_time()  # stepping the emulator: simulation cost, not the device's
             self._pi_to_mcu()
