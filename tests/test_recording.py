@@ -145,6 +145,10 @@ def test_scans_and_view_commands(tmp_path, capsys):
     assert main(["scans", "--port", "sim://wall?points=50&rate=20", "--count", "3"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("seq")]
     assert len(lines) == 3 and "points 50" in lines[0]
+    for bad in ("-1", "0"):  # -1 never stopped (no scan is number -1); "never" is leaving --count out
+        with pytest.raises(SystemExit) as exit_:
+            main(["scans", "--port", "sim://wall", "--count", bad])
+        assert exit_.value.code == 2 and "--count: must be a positive integer" in capsys.readouterr().err
     png = tmp_path / "scan.png"
     assert main(["view", "--port", "sim://wall?points=50", "--png", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -12,7 +12,7 @@ from .argtypes import positive_int
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True, help="device path or pyserial URL (e.g. sim://wall)")
     parser.add_argument("--baud", type=positive_int, default=921600)
-    parser.add_argument("--count", type=int, default=0, help="stop after this many scans (0 = never)")
+    parser.add_argument("--count", type=positive_int, help="stop after this many scans (default: never)")
 
 
 def scan_line(scan) -> str:
