@@ -143,8 +143,10 @@ def _laser_limit(asked_mw: float | None, limit_mw: float, whose: str) -> float:
     ValueError if --laser-limit-mw is above it."""
     if asked_mw is None:
         return limit_mw
+    from device.model.safety import mw_down
+
     if asked_mw > limit_mw:
-        raise ValueError(f"--laser-limit-mw {asked_mw:g} is above {whose}, {limit_mw:.2f} mW; "
+        raise ValueError(f"--laser-limit-mw {asked_mw:g} is above {whose}, {mw_down(limit_mw * 1e-3):.2f} mW; "
                          "it can only lower the limit")
     return asked_mw
 
