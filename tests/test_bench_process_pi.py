@@ -5,6 +5,8 @@ import json
 import threading
 import time
 
+import pytest
+
 from device.bench.process import cost_per_scan, measure_running
 from device.cli import main
 
@@ -34,7 +36,10 @@ def test_it_reads_a_running_serves_stats_file(tmp_path, capsys):
     threading.Thread(target=later).start()
     r = measure_running(stats, 0.4)
     assert r["scans"] == 20 and abs(r["device_ms_per_scan"] - 30.0) < 1e-9
-    assert main(["bench", "process", "--stats", str(tmp_path / "none.json"), "--seconds", "0"]) == 2
+    assert main(["bench", "process", "--stats", str(tmp_path / "none.json"), "--seconds", "0.01"]) == 2
     assert "no stats file" in capsys.readouterr().out
-    assert main(["bench", "process", "--stats", str(stats), "--seconds", "0"]) == 2  # no scans in between
+    assert main(["bench", "process", "--stats", str(stats), "--seconds", "0.01"]) == 2  # no scans in between
     assert "no scans" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:  # a span of no time measures nothing
+        main(["bench", "process", "--stats", str(stats), "--seconds", "0"])
+    assert exit_.value.code == 2 and "--seconds: must be a finite positive number" in capsys.readouterr().err
