@@ -148,6 +148,8 @@ def _changed(**changes) -> dict:
     (_changed(images=np.zeros((6, 30, 40, 3), np.uint8)), "colour frames: convert them to luminance first"),
     (_changed(images=np.zeros((6, 30, 40), np.uint16)), "uint8 luminance"),
     (_changed(lit=np.array(["1", "0"] * 3)), "lit must be numbers"),
+    (_changed(exposure_us=np.full(6, True)), "exposure_us must be numbers, got bool"),
+    (_changed(exposure_us=np.full(6, 400 + 1j)), "exposure_us must be numbers, got complex"),
     (_changed(lit=np.array([1, 0, 2, 0, 1, 0])), "frame 2 .seq 2.: lit is 2: 1 .lit., 0 .dark. or -1"),
     (_changed(seq=np.array([0, 1, np.nan, 3, 4, 5])), "frame 2 .*seq is nan: a count must be a whole number"),
     (_changed(seq=np.array([0, 1, 2, 3, 2, 3])), "frame 4 .seq 2.: seq does not increase from 3"),
@@ -184,6 +186,20 @@ def test_replay_takes_a_dropped_frame_and_says_what_it_assumed(tmp_path, caplog)
     assert "no readout_offset_rows recorded, taken as 0" in caplog.text
 
 
+def test_replay_takes_a_frame_period_that_changes_at_once(tmp_path):
+    """A frame starts the earlier frame's length after it (libcamera's FrameDuration): from 60 ms
+    frames to 25 ms ones the step is 60 ms, whichever frame's period a recording labels it with."""
+    k = np.arange(4)
+    frame_us = np.array([60000.0, 60000.0, 25000.0, 25000.0])
+    starts = 10**9 + np.concatenate([[0], np.cumsum(frame_us[:-1])]).astype(np.int64) * 1000
+    for labels in (frame_us, np.roll(frame_us, 1)):  # its own length, or the time since the frame before (the simulator's)
+        np.savez(tmp_path / "rec.npz", **_changed(images=np.zeros((4, 30, 40), np.uint8), seq=k, sensor_timestamp_ns=starts,
+                                                  exposure_us=np.full(4, 400.0), frame_duration_us=labels,
+                                                  line_time_ns=np.full(4, LINE_NS), lit=(k % 2 == 0).astype(np.int8),
+                                                  readout_offset_rows=np.full(4, 155)))
+        assert len(ReplayCamera(tmp_path / "rec.npz")) == 4
+
+
 def test_replay_refuses_what_no_npz_reader_can_read(tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"not a zip file")
     with pytest.raises(ValueError, match="junk.npz: not an .npz recording"):
@@ -191,6 +207,15 @@ def test_replay_refuses_what_no_npz_reader_can_read(tmp_path):
     np.savez(tmp_path / "objects.npz", **_changed(seq=np.array([0, 1, 2, 3, 4, None], dtype=object)))
     with pytest.raises(ValueError, match="objects.npz: an array holds Python objects, not numbers"):
         ReplayCamera(tmp_path / "objects.npz")
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "objects.npz") as z:  # a truncated array: not a pickle's refusal
+        parts = {n: z.read(n) for n in z.namelist()}
+    with zipfile.ZipFile(tmp_path / "cut.npz", "w") as z:
+        for n, data in parts.items():
+            z.writestr(n, data[: len(data) // 2] if n == "images.npy" else data)
+    with pytest.raises(ValueError, match="cut.npz: not a readable .npz recording"):
+        ReplayCamera(tmp_path / "cut.npz")
 
 
 def test_replay_folder_refuses_an_index_that_does_not_describe_its_frames(tmp_path):
@@ -216,6 +241,9 @@ def test_replay_folder_refuses_an_index_that_does_not_describe_its_frames(tmp_pa
     assert "a per-frame value is not a number" in opened_with(lambda f: f[0].update(exposure_us=[1, 2]))
     assert "exposure_us must be numbers" in opened_with(lambda f: f[0].update(exposure_us="400"))
     assert "no such frame image" in opened_with(lambda f: f[0].update(file="missing.png"))
+    # readout_offset_rows on some frames only: the recorded values would be dropped for 0
+    assert "frame 1 has no readout_offset_rows, other frames have one" in opened_with(
+        lambda f: f[1].pop("readout_offset_rows"))
     index["frames"][0]["lit"], index["frames"][1]["lit"] = 1, -1  # the .npz's codes mean the same here
     index_path.write_text(json.dumps(index))
     cam = ReplayCamera(tmp_path / "rec")

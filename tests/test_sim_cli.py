@@ -39,3 +39,22 @@ def test_simulate_runs_as_a_module(tmp_path):
                         "--off", "noise", "--out", str(tmp_path / "e")], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "0 columns with a return" in r.stdout
+
+
+def test_simulate_makes_only_frames_the_sensor_mode_can_and_evaluate_takes_them(tmp_path, capsys):
+    """The mode reads all its rows and blanking (1232 + 32 lines, 23.9 ms: device/camera/modes.py);
+    a shorter --frame-duration-us made frames evaluate then refused as unreadable in their frame."""
+    from device.config import load_preset
+
+    mode = load_preset("thesis-calibrated").window.mode
+    shortest_us = mode.min_frame_duration_s * 1e6
+    assert main(["simulate", "--scene", "empty", "--frames", "2", "--frame-duration-us", "19000", "--exposure-us", "5000",
+                 "--out", str(tmp_path / "short")]) == 2
+    assert f"shorter than the sensor mode {mode.name}'s shortest frame, {shortest_us:.0f} us" in capsys.readouterr().out
+    assert not (tmp_path / "short").exists()
+    out = tmp_path / "fastest"
+    assert main(["simulate", "--scene", "wall", "--frames", "4", "--frame-duration-us", f"{shortest_us + 1:.0f}",
+                 "--exposure-us", "5000", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "--recording", str(out / "frames.npz"), "--out", str(tmp_path / "o.npz")]) == 0
+    assert "2 scan(s)" in capsys.readouterr().out

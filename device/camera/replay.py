@@ -7,9 +7,10 @@ A recording is either one ``.npz`` file (``images`` (N, H, W) uint8 and per-fram
 ``frames.json`` (``{"frames": [{"file": ..., "seq": ..., ..., "lit": true/false/null or 1/0/-1}, ...]}``), so
 that frames recorded on a Pi can be reprocessed anywhere.
 
-A recording may come from elsewhere (another renderer, another camera stack), so it is checked
-whole when opened (:func:`check_frames`): what no camera could have produced is refused, naming
-the frame and the field, before a frame is processed.
+A recording may come from elsewhere (another renderer, another camera stack), so its metadata is
+checked whole when opened (:func:`check_frames`, and an .npz's images): what no camera could have
+produced is refused, naming the frame and the field, before a frame is processed. A folder's
+PNGs are read, and checked, frame by frame.
 """
 
 from __future__ import annotations
@@ -89,9 +90,11 @@ def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None
     What a camera's frames satisfy (device/camera/frame.py says where each comes from):
     - ``seq`` increases frame by frame: it counts the sensor's frames (picamera2_camera.py:
       Unicam's buffer sequence), so a dropped frame is a gap, and the recording is in time order;
-    - ``sensor_timestamp_ns`` (the frame start, CLOCK_MONOTONIC ns) advances by the frames'
-      period times the frames the seq advanced, within half a frame (a frame's start follows the
-      one before it by that frame's length, the FrameDuration of its metadata);
+    - ``sensor_timestamp_ns`` (the frame start, CLOCK_MONOTONIC ns) advances by the frame
+      period times the frames the seq advanced, within half a frame: a frame starts the earlier
+      frame's length after it (libcamera's FrameDuration is frameLength x lineLength,
+      raspberrypi/libcamera src/ipa/rpi/common/ipa_base.cpp ``reportMetadata``), so the period of
+      either frame is taken (a recording may label a frame with the length before it);
     - exposure shorter than the frame: the IMX219 exposes at most the frame length less 4 lines
       (device/camera/modes.py: imx219.c, exposure_max = height + vblank - 4);
     - the image's rows read within the frame: (readout_offset_rows + height) line times at most
@@ -101,8 +104,9 @@ def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None
     def fail(k: int, what: str) -> None:
         raise ValueError(f"{where}: frame {k} (seq {fields['seq'][k].item()!r}): {what}")
 
-    for name, v in fields.items():
-        if not (np.issubdtype(v.dtype, np.number) or v.dtype == bool):
+    for name, v in fields.items():  # real numbers (a lit flag may be a bool)
+        if not (np.issubdtype(v.dtype, np.integer) or np.issubdtype(v.dtype, np.floating)
+                or (name == "lit" and v.dtype == bool)):
             raise ValueError(f"{where}: {name} must be numbers, got {v.dtype}")
     for name in WHOLE_FIELDS:
         v = fields[name]
@@ -139,8 +143,9 @@ def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None
         k = int(np.argmax(bad)) + 1
         fail(k, f"seq does not increase from {seq[k - 1]} before it: a recording holds frames in time order, seq "
                 "counting the sensor's frames")
-    expected = dseq * (frame_ns[:-1] + frame_ns[1:]) / 2
-    bad = np.abs(dt - expected) > np.minimum(frame_ns[:-1], frame_ns[1:]) / 2
+    expected = dseq * frame_ns[:-1]
+    tol = np.minimum(frame_ns[:-1], frame_ns[1:]) / 2
+    bad = (np.abs(dt - expected) > tol) & (np.abs(dt - dseq * frame_ns[1:]) > tol)
     if bad.any():
         k = int(np.argmax(bad)) + 1
         fail(k, f"it starts {dt[k - 1] / 1e6:.3f} ms after the frame before (sensor_timestamp_ns), where seq and "
@@ -192,9 +197,12 @@ class ReplayCamera:
                 fields = {k: z[k] for k in (*FIELDS, "lit", *OPTIONAL_FIELDS) if k in z.files}
         except (OSError, zipfile.BadZipFile, EOFError) as exc:
             raise ValueError(f"{self.path}: not a readable .npz recording ({exc})") from None
-        except ValueError as exc:  # also numpy's refusal of an array of Python objects (pickled)
-            raise ValueError(str(exc) if str(exc).startswith(str(self.path)) else
-                             f"{self.path}: an array holds Python objects, not numbers ({exc})") from None
+        except ValueError as exc:
+            if str(exc).startswith(str(self.path)):
+                raise
+            pickled = "allow_pickle" in str(exc)  # numpy refuses an array of Python objects so
+            raise ValueError(f"{self.path}: " + ("an array holds Python objects, not numbers" if pickled else
+                                                 "not a readable .npz recording") + f" ({exc})") from None
         if images.ndim != 3 or images.dtype != np.uint8:
             raise ValueError(f"{self.path}: images must be (frames, height, width) uint8 luminance (the Y plane), got "
                              f"{images.shape} {images.dtype}" + ("; colour frames: convert them to luminance first"
@@ -222,7 +230,12 @@ class ReplayCamera:
                 raise ValueError(f"{index}: frame {k} has no {', '.join(missing)}")
             if not (f["lit"] is None or isinstance(f["lit"], int)):  # JSON's true/false are ints here too
                 raise ValueError(f"{index}: frame {k}: lit is {f['lit']!r}: true, false or null (or 1, 0, -1)")
-        present = [k for k in OPTIONAL_FIELDS if frames and all(k in f for f in frames)]
+        present = []
+        for k in OPTIONAL_FIELDS:  # every frame has it, or none (a mix would drop the recorded values)
+            without = [i for i, f in enumerate(frames) if k not in f]
+            if without and len(without) < len(frames):
+                raise ValueError(f"{index}: frame {without[0]} has no {k}, other frames have one")
+            present += [] if without else [k]
         try:
             fields = {n: np.array([f[n] for f in frames]) for n in (*FIELDS, *present)}  # JSON's ints stay int64
         except ValueError as exc:

@@ -18,8 +18,9 @@ camera-frame point in metres, NaN where none; ``status`` (n, W) ColumnStatus
 reference's odd columns); ``time_ns`` (n, W) when the column's line was lit
 (device/scan/timing.py), NaN where none; ``lit_seq`` (n,) the lit frame's seq. With ``--truth
 TRUTH.npz`` (as ``laserpi simulate`` writes it: per frame, with ``seq``) it also prints the
-scores against the lit frames' truth. The recording is checked whole before a frame is processed
-(device/camera/replay.py ``check_frames``: it may come from another renderer or camera stack),
+scores against the lit frames' truth. The recording's metadata is checked whole before a frame is
+processed (device/camera/replay.py ``check_frames``: it may come from another renderer or camera
+stack; a folder's PNGs as they are read),
 the truth's arrays against the configuration's size, and OUT.npz written last, whole or not at
 all (``save_npz``): a refusal leaves nothing behind, and never an overwritten input.
 """

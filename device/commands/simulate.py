@@ -83,6 +83,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.exposure_us > args.frame_duration_us:
             raise ValueError(f"--exposure-us {args.exposure_us} exceeds --frame-duration-us {args.frame_duration_us}")
+        mode = cfg.window.mode  # the sensor reads all of the mode's rows and its blanking (device/camera/modes.py)
+        if args.frame_duration_us < mode.min_frame_duration_s * 1e6:
+            raise ValueError(f"--frame-duration-us {args.frame_duration_us:g} is shorter than the sensor mode "
+                             f"{mode.name}'s shortest frame, {mode.min_frame_duration_s * 1e6:.0f} us "
+                             f"({mode.min_frame_lines} lines)")
         timing = CameraTimingConfig(frame_duration_s=args.frame_duration_us * 1e-6, exposure_s=args.exposure_us * 1e-6,
                                     start_time_s=start_ns * 1e-9, timestamp_jitter_s=args.jitter_us * 1e-6,
                                     drop_probability=args.drop)
