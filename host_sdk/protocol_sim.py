@@ -52,6 +52,10 @@ def parse_sim_url(url: str) -> tuple[str, dict]:
             opts[key] = _OPTIONS[key](values[-1])
         except ValueError:
             raise SerialException(f"sim:// option {key}={values[-1]!r} is not a {_OPTIONS[key].__name__}") from None
+    limit = opts.get("limit_mw", LASER_LIMIT_MW)
+    if not 0 < limit <= LASER_LIMIT_MW:  # as serve --mock --laser-limit-mw: it can only lower the limit
+        raise SerialException(f"sim:// option limit_mw={limit:g}: the mock device's Class 1 limit is "
+                              f"{LASER_LIMIT_MW:g} mW; limit_mw can only lower it (0 < limit_mw <= {LASER_LIMIT_MW:g})")
     return scene, opts
 
 
@@ -64,10 +68,11 @@ def build_sim_device(opts: dict) -> tuple[AnalyticWallSource, DeviceConfig]:
                                 noise_floor_m=0.001 if noisy else 0.0, noise_rel_per_m=0.0025 if noisy else 0.0,
                                 dropout=0.01 if noisy else 0.0, seed=opts.get("seed", 0),
                                 start_delay_s=opts.get("start_delay", 0.0))
-    settings = default_settings(points)
+    limit_mw = opts.get("limit_mw", LASER_LIMIT_MW)
+    settings = default_settings(points, min(4.0, limit_mw))
     if "rate" in opts:
         settings = settings.merged(type(settings)(scan_rate_hz=opts["rate"]))
-    return source, DeviceConfig(laser_limit_mw=opts.get("limit_mw", LASER_LIMIT_MW), settings=settings,
+    return source, DeviceConfig(laser_limit_mw=limit_mw, settings=settings,
                                 host_timeout_s=opts.get("host_timeout", 5.0))
 
 

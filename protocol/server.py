@@ -175,6 +175,9 @@ class DeviceConfig:
             raise ValueError(f"DeviceConfig.settings must set every field; missing {missing}")
         if self.queue_scans < 1:
             raise ValueError("queue_scans must be at least 1")
+        # the eye-safety check compares with this limit: NaN would let every power through
+        if not 0 < self.laser_limit_mw < float("inf"):
+            raise ValueError(f"laser_limit_mw must be a finite power > 0 mW, got {self.laser_limit_mw}")
         for name in ("startup_s", "host_timeout_s"):
             v = getattr(self, name)
             if not (v >= 0 and v < float("inf")):

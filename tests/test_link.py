@@ -195,6 +195,13 @@ def test_power_on_settings_above_the_limit_are_refused():
         LinkServer(None, AnalyticWallSource(n_points=N), DeviceConfig(laser_limit_mw=1.0, settings=default_settings(N)))
 
 
+@pytest.mark.parametrize("limit", [float("nan"), float("inf"), 0.0, -1.0])
+def test_a_limit_that_would_let_every_power_through_is_refused(limit):
+    """The EYE_SAFETY check is power > limit: a NaN limit made it False for every power."""
+    with pytest.raises(ValueError, match="laser_limit_mw must be a finite power > 0 mW"):
+        DeviceConfig(laser_limit_mw=limit, settings=default_settings(N, 0.0))
+
+
 class LatestFirstSource(FastSource):
     """Scans whose rays were measured latest first: a negative ray interval."""
 

@@ -107,6 +107,9 @@ def test_no_scan_within_timeout_raises_device_timeout():
     ("sim://wall?distance=abc", "not a float"),
     ("sim://wall?colour=red", "unknown sim:// option"),
     ("sim://wall?distance=-1", "positive"),
+    # the mock's eye-safety limit can only be lowered (100 served 100 mW; nan switched the check off)
+    ("sim://wall?limit_mw=100", "limit_mw can only lower it"),
+    ("sim://wall?limit_mw=nan", "limit_mw can only lower it"),
 ])
 def test_bad_port_raises_port_error_naming_the_problem(port, words):
     with pytest.raises(host_sdk.PortError, match=words):
