@@ -101,7 +101,7 @@ def test_the_report_prints_limits_a_user_can_copy(capsys, cfg, points):
         assert envelope_mw <= p.envelope_power_w * 1e3 < envelope_mw + 0.01
         assert power_mw <= p.power_w * 1e3 < power_mw + 0.01
         assert f"BUILD={p.envelope.build_dir} " in out and p.envelope.build_dir != "build"
-    assert safety.mw_down(0.0200769) == 20.07 and safety.mw_down(0.02008) == 20.08
+    assert safety.mw_down(0.0200769) == 20.07 and safety.mw_down(0.02008) == 20.08 and safety.mw_down(0.30 * 1e-3) == 0.30
 
 
 def test_a_config_at_20_hz_changes_nothing_but_the_operating_point(cfg):

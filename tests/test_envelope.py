@@ -165,7 +165,8 @@ def test_the_device_refuses_to_light_a_laser_its_co_mcus_envelope_does_not_keep_
 
     from device.config import load_preset, with_operating_point
     from device.design.report import sensor_at_rate
-    from device.service.assembly import envelope_refusal
+    from device.service.assembly import envelope_refusal, laser_pulse_s, roi_rows
+    from device.vision.geometry import column_geometry
     from protocol import mcu
 
     cfg = load_preset("thesis-calibrated")  # the thesis laser, 25 mW, 10 scans/s
@@ -175,16 +176,31 @@ def test_the_device_refuses_to_light_a_laser_its_co_mcus_envelope_does_not_keep_
     stronger = dataclasses.replace(cfg, laser=dataclasses.replace(cfg.laser, power_w=0.030))
     why = envelope_refusal(stronger, pulse_s)(production)
     assert why is not None and "up to 25.58 mW" in why and "30 mW" in why and "laserpi design" in why
-    # a firmware built for that laser at 5 scans/s (12.6 ms pulses at least 200 ms apart) keeps it
+    # a firmware built for that laser at 5 scans/s (12.6 ms pulses at least 190 ms apart) keeps it
     # Class 1, but lets through no train the sensor fires at 10 scans/s: every SCHEDULE would be
     # refused (the co-MCU starts nothing: a scan-less device with no reason given, before)
-    at_5_hz = mcu.Info(2, 0x01, 50, 25_200, 70_000, 2_000_000, 400_000)
+    at_5_hz = mcu.Info(2, 0x01, 50, 25_200, 70_000, 2_000_000, 380_000)  # 190 ms: 1 / rate less the sync's slack
     why = envelope_refusal(stronger, pulse_s)(at_5_hz)
     assert why is not None and "does not allow the sensor's train at 10 scans/s" in why and "17400 us pulses" in why
     slow = with_operating_point(stronger, scan_rate_hz=5.0)
     assert envelope_refusal(slow, 0.0126)(at_5_hz) is None
-    # the 20 scans/s preset (design's laser power) on the production firmware: pulses 50 ms apart
-    # where it allows 90 ms
-    at_20_hz, _ = sensor_at_rate(cfg, 20.0)
-    why = envelope_refusal(at_20_hz, pulse_s)(production)
-    assert why is not None and "at 20 scans/s: 17400 us pulses 50000 us apart (34.8% duty)" in why
+    # the 20 scans/s sensor (design's laser power, its own pulse) on the production firmware:
+    # pulses 50 ms apart where it allows 90 ms; on the firmware design builds for 20/s it runs
+    at_20_hz, at_20_hz_envelope = sensor_at_rate(cfg, 20.0)
+    pulse_20 = laser_pulse_s(at_20_hz, *roi_rows(column_geometry(at_20_hz, at_20_hz.operating_point.min_m,
+                                                                 at_20_hz.operating_point.max_m)))
+    why = envelope_refusal(at_20_hz, pulse_20)(production)
+    assert why is not None and f"at 20 scans/s: {pulse_20 * 1e6:.0f} us pulses 50000 us apart" in why
+    def info(env):  # the INFO of a firmware with this envelope at 16 MHz (2 ticks a microsecond)
+        return mcu.Info(2, 0x01, 50, 2 * env.max_pulse_us, env.max_duty_ppm, 2_000_000, 2 * env.min_period_us)
+
+    assert envelope_refusal(at_20_hz, pulse_20)(info(at_20_hz_envelope)) is None
+    # every rate design builds a firmware for passes on that firmware (its period rounded up to whole us)
+    for rate in (10.0, 15.0, 20.0):
+        sensor, env = sensor_at_rate(cfg, rate)
+        assert envelope_refusal(sensor, 0.0174)(info(env)) is None, rate
+    # one built without the sync's slack (MIN_PERIOD_US 50000 at 20/s) would refuse some of the
+    # trimmed schedules: refused at start-up, the slack named
+    tight = dataclasses.replace(at_20_hz_envelope, min_period_us=50_000, max_duty_ppm=348_000)
+    why = envelope_refusal(at_20_hz, 0.0174)(info(tight))
+    assert why is not None and "less the sync's 10000 us for its trims" in why

@@ -49,7 +49,7 @@ CONDITION_TRAIN = "pulse_train"
 def mw_down(power_w: float) -> float:
     """``power_w`` in mW rounded down to 0.01 mW, as power limits are printed: a limit copied from
     a report or a message is never above the limit."""
-    return math.floor(power_w * 1e5) / 100
+    return math.floor(round(power_w * 1e5, 6)) / 100  # the round: 0.3 mW as 0.0003 W is 29.999999999999996 x 0.01 mW
 
 
 def _check_finite_positive(name: str, value: float) -> float:

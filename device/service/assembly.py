@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -63,21 +64,23 @@ def envelope_refusal(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0
     (None if it does): it does not keep the laser, at its measured peak power ([laser] power_w,
     firmware_pwm/README.md "Optical power"), Class 1 for every pulse train that firmware allows;
     or it does not allow the train the sensor fires, one pulse of up to ``pulse_s`` (the sync's
-    guards widen it up to that) per scan at the operating point's scan rate, so that every
-    SCHEDULE would be refused. The firmware's envelope is what the Class 1 claim rests on when
+    guards widen it up to that) per scan at the operating point's scan rate, its period shortened
+    by up to SYNC_SLACK_S by the sync's trims and phase steps (the slack `laserpi design`'s
+    envelopes leave), so that every SCHEDULE, or some, would be refused. The firmware's envelope is what the Class 1 claim rests on when
     the Pi's software errs, so SyncedLaser lights nothing under a firmware built for a weaker
     laser (device/model/envelope.py; eq. 3.45), and starts nothing under one built for a slower
     rate (firmware_pwm/src/core.c checks every schedule against it)."""
     import functools
 
-    from device.model.envelope import FirmwareEnvelope, LineLaserOptics, envelope_max_power_w
+    from device.model.envelope import SYNC_SLACK_S, FirmwareEnvelope, LineLaserOptics, envelope_max_power_w
     from device.model.safety import mw_down
 
     las = cfg.laser
     optics = LineLaserOptics(las.wavelength_m * 1e9, las.fan_angle_rad, las.line_height_m, las.source_diameter_m)
     max_power_w = functools.lru_cache(maxsize=4)(lambda env: envelope_max_power_w(optics, closest_eye_m, env))
     rate_hz = cfg.operating_point.scan_rate_hz
-    period_us, pulse_us = 1e6 / rate_hz, pulse_s * 1e6
+    period_us, pulse_us, slack_us = 1e6 / rate_hz, pulse_s * 1e6, SYNC_SLACK_S * 1e6
+    spaced_us = math.ceil(period_us - slack_us - 1e-6)  # as design's envelope_for rounds it (up, to whole us)
 
     def refusal(info) -> str | None:
         env = FirmwareEnvelope.from_ticks(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks,
@@ -89,10 +92,12 @@ def envelope_refusal(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0
             return (f"{named} keeps a laser Class 1 only up to {mw_down(limit_w):.2f} mW, and [laser] power_w is "
                     f"{las.power_w * 1e3:g} mW: lower the laser's power or flash a firmware built for it "
                     f"(`laserpi design` gives the make line)")
-        if pulse_us > env.max_pulse_us or period_us < env.min_period_us or pulse_us / period_us * 1e6 > env.max_duty_ppm:
+        if (pulse_us > env.max_pulse_us or env.min_period_us > spaced_us
+                or pulse_us / period_us * 1e6 > env.max_duty_ppm):
             return (f"{named} does not allow the sensor's train at {rate_hz:g} scans/s: {pulse_us:.0f} us pulses "
-                    f"{period_us:.0f} us apart ({pulse_us / period_us:.1%} duty): flash the firmware built for this "
-                    f"rate (`laserpi design` gives its make line)")
+                    f"{period_us:.0f} us apart ({pulse_us / period_us:.1%} duty), less the sync's {slack_us:.0f} us "
+                    f"for its trims and phase steps: flash the firmware built for this rate (`laserpi design` gives "
+                    f"its make line)")
         return None
 
     return refusal
