@@ -7,7 +7,8 @@ but the table of benchmarks (device/commands/bench.py, the standard library only
 them in ``bench``'s help.
 Command modules import their heavy dependencies inside ``run``.
 An OSError out of a command (a file it was given that cannot be opened, read or written) ends it
-with one line naming the file, exit code 2, as argparse's errors do.
+with one line naming the file, exit code 2, as the commands' own refusals do; stdout's reader
+going away (`laserpi scans ... | head`) ends it quietly.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from device.commands.bench import BENCHMARKS
@@ -85,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.run(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (`laserpi scans ... | head`): nothing to say to it
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python docs, "Note on SIGPIPE"
+        return 141
     except OSError as exc:  # a file the command was given cannot be opened, read or written
         reason = f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc)
         print(f"laserpi {glob.command}: {reason}")

@@ -169,6 +169,14 @@ def test_a_file_that_cannot_be_read_or_written_is_named_in_one_line(argv, name, 
     assert list(tmp_path.iterdir()) == []  # no bag, link or recording left behind
 
 
+def test_a_reader_that_goes_away_ends_the_command_quietly():
+    """`laserpi scans ... | head -1`: the pipe's reader closes it; before, the dispatcher's
+    message to that same stdout raised a second traceback."""
+    proc = subprocess.run(f"{sys.executable} -m device.cli scans --port 'sim://wall?points=50&rate=20' | head -1",
+                          shell=True, capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.stdout.startswith("seq") and "Traceback" not in proc.stderr, proc.stderr
+
+
 def test_replay_without_link_prints_the_scans(capsys):
     assert main(["replay", str(DATA / "wall_corrupt.lpr")]) == 0
     out = capsys.readouterr().out.splitlines()

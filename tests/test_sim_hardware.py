@@ -189,17 +189,22 @@ def test_heartbeats_reach_the_firmware_at_their_interval_far_inside_its_timeout(
         comcu.port.close()
 
 
-def test_an_emulator_ended_by_a_signal_stops_the_clock_with_one_log_line(hardware, caplog, monkeypatch):
+@pytest.mark.parametrize("signame, orderly", [("SIGTERM", True), ("SIGSEGV", False)])
+def test_an_emulator_ended_by_a_signal_stops_the_clock_with_one_log_line(hardware, caplog, monkeypatch, signame, orderly):
     """Stopping serve's process group (timeout, systemd stop) signals the emulator too: the clock
-    thread ends with a warning, not an exception out of the thread."""
+    thread ends with a warning, not an exception out of the thread. A crash (SIGSEGV) is not an
+    orderly stop: it is raised out of the thread."""
     import signal
     import threading
 
     raised = []
     monkeypatch.setattr(threading, "excepthook", raised.append)
     clock = next(t for t in hardware._threads if t.name == "sim-clock")
-    hardware.mcu._proc.send_signal(signal.SIGTERM)
+    hardware.mcu._proc.send_signal(getattr(signal, signame))
     clock.join(timeout=5)
-    assert not clock.is_alive() and raised == []
-    assert [r.getMessage() for r in caplog.records if r.name == "device.sim.hardware"] == [
-        "the co-MCU emulator was ended by SIGTERM; the simulated clock stops"]
+    logged = [r.getMessage() for r in caplog.records if r.name == "device.sim.hardware"]
+    assert not clock.is_alive()
+    if orderly:
+        assert raised == [] and logged == [f"the co-MCU emulator was ended by {signame}; the simulated clock stops"]
+    else:
+        assert len(raised) == 1 and logged == []

@@ -33,6 +33,8 @@ from protocol.framing import MAX_PAYLOAD_MCU, FrameError, decode_frame
 from protocol.ports import open_raw_pty
 
 log = logging.getLogger(__name__)
+#: signals that stop the emulator in an orderly way (its process group stopped), not a crash
+STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT, signal.SIGHUP}
 
 
 #: The Pi's UART receiver, the PL011 of the BCM2835/BCM2837 (Pi Zero 2 W, Pi 3: their uart0 in
@@ -159,10 +161,9 @@ class SimulatedHardware:
         try:
             self._step_clock()
         except HarnessExited as exc:
-            if exc.returncode >= 0:
-                raise
-            # a signal ended the emulator: stopping the process group (timeout, systemd stop) signals
-            # it and this process at once
+            if -exc.returncode not in STOP_SIGNALS:
+                raise  # an exit of its own, or a crash (SIGSEGV, SIGABRT, the OOM killer's SIGKILL)
+            # stopping the process group (timeout, systemd stop, Ctrl-C) signals it and this process at once
             log.warning("the co-MCU emulator was ended by %s; the simulated clock stops",
                         signal.Signals(-exc.returncode).name)
 
