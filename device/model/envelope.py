@@ -233,7 +233,7 @@ def envelope_max_power_w(optics: LineLaserOptics, closest_eye_m: float, envelope
 def envelope_for(max_pulse_s: float, min_period_s: float) -> FirmwareEnvelope:
     """The envelope for pulses up to ``max_pulse_s`` at most one per ``min_period_s``, in whole
     microseconds rounded to the safe side (pulse down, period up); not yet checked against the model."""
-    max_pulse_us, min_period_us = _us_down(max_pulse_s), math.ceil(min_period_s * 1e6 - 1e-6)
+    max_pulse_us, min_period_us = _us_down(max_pulse_s), us_up(min_period_s)
     return FirmwareEnvelope(max_pulse_us, duty_ppm_for(max_pulse_us, min_period_us), min_period_us)
 
 
@@ -290,6 +290,11 @@ def shortest_class1_period_s(optics: LineLaserOptics, power_w: float, closest_ey
 def _us_down(seconds: float) -> int:
     """Whole microseconds, rounded down (a hair of float error aside)."""
     return math.floor(seconds * 1e6 + 1e-6)
+
+
+def us_up(seconds: float) -> int:
+    """Whole microseconds, rounded up (a hair of float error aside): an envelope's minimum period."""
+    return math.ceil(seconds * 1e6 - 1e-6)
 
 
 # ---------------------------------------------------------------- generator (python -m ...)

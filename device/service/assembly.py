@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -72,7 +71,7 @@ def envelope_refusal(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0
     rate (firmware_pwm/src/core.c checks every schedule against it)."""
     import functools
 
-    from device.model.envelope import SYNC_SLACK_S, FirmwareEnvelope, LineLaserOptics, envelope_max_power_w
+    from device.model.envelope import SYNC_SLACK_S, FirmwareEnvelope, LineLaserOptics, envelope_max_power_w, us_up
     from device.model.safety import mw_down
 
     las = cfg.laser
@@ -80,7 +79,7 @@ def envelope_refusal(cfg: SensorConfig, pulse_s: float, closest_eye_m: float = 0
     max_power_w = functools.lru_cache(maxsize=4)(lambda env: envelope_max_power_w(optics, closest_eye_m, env))
     rate_hz = cfg.operating_point.scan_rate_hz
     period_us, pulse_us, slack_us = 1e6 / rate_hz, pulse_s * 1e6, SYNC_SLACK_S * 1e6
-    spaced_us = math.ceil(period_us - slack_us - 1e-6)  # as design's envelope_for rounds it (up, to whole us)
+    spaced_us = us_up(1 / rate_hz - SYNC_SLACK_S)  # the minimum period design's envelope_for gives this rate
 
     def refusal(info) -> str | None:
         env = FirmwareEnvelope.from_ticks(info.max_pulse_ticks, info.max_duty_ppm, info.min_period_ticks,
