@@ -11,15 +11,16 @@ Per frame pair (or triple):
    way between them in time: a smooth motion's residue is second order, and mains flicker,
    whose 100/120 Hz period divides the 50 ms frame period, cancels in it). A column whose two
    neighbours differ (their 8-column x 4-row block means, every other row: the mean |difference|
-   above ``moved_level``, or one block's above ``moved_block_level`` and ``moved_block_ratio``
-   times the median block difference sensor noise makes (measured within one unlit frame, where
-   motion does not inflate it): an edge a few rows high
-   that moved, as a horizontal edge crosses the rows when the robot drives forward; sensor noise
-   alone stays below) moved. In a moved column the residue a moved texture leaves in
-   ``lit - mean`` varies slowly along the column, except at its horizontal edges, while the laser
-   line is a few rows high: the residue's trend along the column (its morphological opening over
-   ``trend_rows`` rows, the largest envelope from below of what is at least that tall) joins the
-   background the line is measured against, and the closing of that trend the one the noise
+   above ``moved_level`` and ``moved_noise_ratio`` times the median block difference sensor
+   noise makes (shot noise grows with the light), or one block's above ``moved_block_level`` and
+   ``moved_block_ratio`` times that median (both medians measured within one unlit frame, where
+   motion does not inflate them): an edge a few rows high that moved, as a horizontal edge
+   crosses the rows when the robot drives forward; sensor noise alone stays below) moved. In a
+   moved column the residue a moved texture leaves in ``lit - mean`` varies slowly along the
+   column, except at its horizontal edges, while the laser line is a few rows high: the
+   residue's trend along the column (its morphological opening over ``trend_rows`` rows, the
+   largest envelope from below of what is at least that tall) joins the background the line is
+   measured against, and the closing of that trend the one the noise
    level is measured against (narrow dark dips, the counterpart of narrow bright ridges that
    are not a line; the closing of the residue itself would bridge to the line). A line found
    there is kept only if it stands ``moving_noise_ratio`` times above the noise level (step 1) of
@@ -238,6 +239,7 @@ class FastParams:
     moved_level: float = 0.9  # a column whose neighbours differ by more than this on average (levels, block means) moved; there
     moved_block_level: float = 3.0  # ... or one of its blocks by this much (levels)
     moved_block_ratio: float = 5.0  # ... and this x the median block change sensor noise makes
+    moved_noise_ratio: float = 1.5  # the average's bar is also this x the median change of 8 x 2 blocks sensor noise makes (step 0)
     moving_noise_ratio: float = 1.5  # a line must exceed this x the largest noise of the columns
     moving_noise_columns: int = 16  # this many either side,
     moving_max_spread_px: float = 2.0  # be no wider than this (RMS, px),
@@ -272,9 +274,9 @@ class FastParams:
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
         if math.isfinite(self.max_range_sigma) and self.smooth_half == 0:
             raise ValueError("max_range_sigma needs the line fit (smooth_half > 0): the range gate propagates its sigma")
-        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0):
-            raise ValueError(f"need moved_block_level > 0 and moved_block_ratio >= 0, got "
-                             f"{self.moved_block_level}, {self.moved_block_ratio}")
+        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moved_noise_ratio >= 0):
+            raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moved_noise_ratio >= 0, got "
+                             f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moved_noise_ratio}")
         if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.agree_ratio >= 0
                 and self.agree_reach_columns >= 0 and self.agree_share > 0 and self.resample_slack >= 0
                 and self.edge_ratio >= 0):
@@ -541,14 +543,22 @@ class FastPipeline:
         # inflates the median change between the neighbours' blocks (at 90 deg/s in 1x light
         # an edge crossing the rows of a few blocks went unseen: a phantom line). These
         # blocks are 8 columns x 2 rows, so their noise is sqrt(2) that of the 8 x 4 above;
-        # rounded to whole levels, the two medians came out equal on still 90 % walls (1),
-        # where this term sets the bar
+        # rounded to whole levels (as the 8 x 4 blocks are), the two medians came out equal on
+        # still 90 % walls (1), where this term sets the bar
         local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
-        block_level = p.moved_block_level
-        if local.max() >= block_level:  # else no block reaches the bar, whatever the noise
-            within = cv2.absdiff(blocks(unlit[0 : 8 * n : 4]), blocks(unlit[2 : 8 * n : 4]))
-            block_level = max(block_level, p.moved_block_ratio * float(np.median(within)))
-        return np.repeat((change > p.moved_level * n) | (local >= block_level), 8)[:W]
+        mean_level, block_level = p.moved_level * n, p.moved_block_level
+        if change.max() > mean_level or local.max() >= block_level:  # else no column reaches a bar, whatever the noise
+            upper, lower = (blocks(unlit[r : 8 * n : 4].astype(np.float32)) for r in (0, 2))
+            block_level = max(block_level, p.moved_block_ratio * float(np.median(np.abs(np.rint(upper) - np.rint(lower)))))
+            # the mean change sensor noise alone makes grows with the light (shot noise): on a
+            # still 90 % wall at a 40 ms exposure it is ~0.9 levels, and half of the columns
+            # counted as moved and lost lines to step 0's checks. In noise the mean |difference|
+            # of the neighbours' 8 x 4 blocks is ~0.84 x the median |difference| of these 8 x 2
+            # ones (half-normal: E|d| of sqrt(2) sigma against the median of 2 sigma); the bar,
+            # moved_noise_ratio times that median, is ~4.5 standard deviations of a column's
+            # mean over n = 20 blocks above it
+            mean_level = max(mean_level, p.moved_noise_ratio * n * float(np.median(np.abs(upper - lower))))
+        return np.repeat((change > mean_level) | (local >= block_level), 8)[:W]
 
     def _turned(self, grid, lum_lit: np.ndarray, lum_unlit: np.ndarray, lum_other: np.ndarray, background: np.ndarray,
                 other: np.ndarray, moved: np.ndarray, shares: tuple[float, float] | None):
