@@ -200,8 +200,9 @@ def test_motion_blur_is_a_smear_not_a_few_sharp_copies():
     the edge per column). Cut into slices 4 px apart (the renderer's default before) the edges
     stayed sharp copies: the largest steps along a row kept two thirds of the still image's; where
     the pitched view moved a horizontal edge across a row, the copies made a one-row ridge that
-    passed for a laser line (device/sim/render.py step 9)."""
-    opts = RenderOptions().without("noise", "speckle")
+    passed for a laser line (device/sim/render.py step 9). With the background point-sampled
+    (background_lens off), so that what is measured is the slices' smear, not the lens's blur."""
+    opts = RenderOptions().without("noise", "speckle", "background_lens")
     scene = with_motion(get_scene("poster-wall"), ambient_scale=10)
     t = FrameTiming(T0 + 50_000_000, 10000.0, LINE_NS)
     still = SceneRenderer(CFG, scene, options=opts, time_zero_ns=T0).render(t, np.random.default_rng(0))[0]

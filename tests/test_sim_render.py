@@ -285,3 +285,29 @@ def test_speckle_follows_the_scene_not_the_frame(model):
     assert a.std() > 0.1
     n = min(a.size, moved.size)
     assert abs(np.corrcoef(a[:n], moved[:n])[0, 1]) < 0.5
+
+
+def test_the_background_is_imaged_through_the_lens_as_the_line_is():
+    """A texture's edge is drawn as a lens draws it: the background's rays are point samples, so
+    the lens's blur and the pixel's area are applied to them (render.py lens_blur: the line's
+    blur and defocus, and the pixel's 1/12 px^2), not a step within one row, which no camera
+    shows and which a turned frame's resampling turned into residues (BENCHMARKS.md "Motion")."""
+    from device.sim.render import lens_blur
+
+    opts = RenderOptions()
+    step = np.zeros((40, 8), np.float32)
+    step[20:] = 100.0
+    col = lens_blur(step, opts)[:, 4]
+    sigma = math.sqrt(opts.blur_sigma_px**2 + opts.defocus_sigma_px**2 + 1 / 12)
+    rise = np.interp(90.0, col, np.arange(40)) - np.interp(10.0, col, np.arange(40))  # 10-90 %: 2.563 sigma
+    assert rise == pytest.approx(2.563 * sigma, rel=0.05) and col.sum() == pytest.approx(step[:, 4].sum(), rel=1e-4)
+    # the poster wall's checker edge under the laser's rows, without noise: the edge spreads over
+    # rows (its largest step between two rows at most ~1 / (sigma sqrt(2 pi)) of it), as a lens's does
+    cfg = load_preset("thesis-calibrated")
+    r = SceneRenderer(cfg, get_scene("poster-wall"), options=opts.without("noise", "speckle"))
+    image = r.render(FrameTiming(10**9, 10000.0, cfg.window.mode.line_time_ns), np.random.default_rng(0))[0]
+    c = int(np.nonzero(r.truth_template.surface == 1)[0][120])
+    profile = image[:, c].astype(float)[:400]
+    jumps = np.abs(np.diff(profile))
+    edge = profile.max() - profile.min()
+    assert edge > 30 and jumps.max() < 0.5 * edge

@@ -33,6 +33,10 @@ CFG_9MS = with_operating_point(CFG, exposure_us=9200.0)
 #: (sharp copies; the renderer's default is now 1 px: test_sim_motion.py
 #: test_motion_blur_is_a_smear_not_a_few_sharp_copies).
 COARSE = RenderOptions(motion_step=4, motion_blur_px=4.0, max_time_slices=12)
+#: The background point-sampled, not imaged through the lens (render.py lens_blur): a texture's
+#: edge a step within a row, as the renderer drew every background before, and as another
+#: renderer's frames may. The checks such edges need have their cases there.
+SHARP = RenderOptions(background_lens=False)
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +103,7 @@ def test_the_range_gate_meets_the_gross_error_target_on_the_still_office():
     # bridged by the fit, an outlier beside a shadow gap reporting the fit
     from device.vision.pipelines import DEVICE_VARIANT
 
-    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), ambient_scale=3), 3, 0)
+    pairs = sequence(CFG_9MS, with_motion(get_scene("office"), ambient_scale=3), 3, 0, SHARP)
     op = CFG_9MS.operating_point
     assert DEVICE_VARIANT == "fast-com-track-gated"  # the device runs the gate
     ungated = make_pipeline("fast-com-track", CFG_9MS, op.min_m, op.max_m)
@@ -191,7 +195,7 @@ def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbour
     # decimals). With the safeguards, the check still keeps the rows a turn smears over a depth
     # edge (the desk before the back wall) out at other points of `laserpi bench motion`
     # (BENCHMARKS.md)
-    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
+    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0, SHARP)
     device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0})
     _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0})
     gross = {name: score([(_process("fast", pipe, p), p.truth) for p in pairs], MIN_M)
@@ -206,7 +210,7 @@ def test_driving_forward_an_edge_that_moved_a_row_beside_moved_columns_is_no_lin
     # and the column's mean by 0.6: the columns count as still, and the edge's residue passed as a
     # line at 0.72 m where the wall is at 2.4 m (7 columns). Beside moved columns a line must
     # stand agree_ratio x above where the neighbours disagree along it
-    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 3)
+    pairs = sequence(CFG, with_motion(get_scene("office"), speed_m_s=1.0, ambient_scale=3), 3, 3, SHARP)
     device, without = _device_and_without({"agree_reach_columns": 0})
     measured = [(_process("fast", device, p), p.truth) for p in pairs]
     assert _phantoms(measured) == 0 and score(measured, MIN_M)["gross_fraction"] <= 0.001
@@ -223,7 +227,7 @@ def test_each_check_on_a_moved_background_is_needed(off, point):
     # gross errors); with all, none. Judged without the turn (these checks guard any motion no
     # turn explains: driving, something crossing; the turn makes these frames a still scene's)
     seed = point.pop("seed")
-    pairs = sequence(CFG, with_motion(get_scene("office"), **point), 3, seed)
+    pairs = sequence(CFG, with_motion(get_scene("office"), **point), 3, seed, SHARP)
     device, without = (_no_turn(p) for p in _device_and_without(off))
     assert score([(_process("fast", device, p), p.truth) for p in pairs], MIN_M)["gross_fraction"] <= 0.001
     assert score([(_process("fast", without, p), p.truth) for p in pairs], MIN_M)["gross"] >= 5
@@ -566,7 +570,7 @@ def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close():
     # with the turned background as read back (resample_slack inf): held against it within a
     # row, the lit frame shows a weak line candidate in those columns, which are then not
     # without a line, and step 7 does not look at them
-    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0)
+    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0, SHARP)
     device, as_read = _device_and_without({"resample_slack": math.inf})
     _, near_only = _device_and_without({"resample_slack": math.inf, "moving_reach_columns": 0})
     for pipe in (device, as_read):

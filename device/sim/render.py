@@ -42,7 +42,9 @@ How a frame is made (everything static is computed once per :class:`SceneRendere
    not modelled.
 6. *Background.* Once per renderer, a ray per 2x2 pixel block (backward projection) is cast
    into the scene; the hit surface's reflectivity and procedural texture under the scene's
-   ambient irradiance give ambient electrons per second per pixel (no hit: a 20 % backdrop).
+   ambient irradiance give ambient electrons per second per pixel (no hit: a 20 % backdrop),
+   then the lens (``lens_blur``: the line's blur and defocus of step 3, and the pixel's area),
+   as a camera images every point of the scene, not only the laser's.
 7. *Rolling shutter.* Row r is exposed during [T - E + r t_line, T + r t_line] (Frame docstring);
    its laser electrons are the column rate times the overlap of that window with the laser's
    pulse windows; ambient electrons are rate x E. Then the sensor (device.sim.sensor). For
@@ -140,6 +142,7 @@ class RenderOptions:
     gloss: bool = True  # ghost reflections of glossy surfaces
     texture: bool = True  # procedural reflectivity texture
     rolling_shutter: bool = True  # off: every row is exposed as row 0 (a global shutter)
+    background_lens: bool = True  # the background through the lens (step 6); off: point-sampled, a texture's edge a step within a row
     speckle_contrast: float = 1.0  # std/mean of the speckle on the line (1 = fully developed)
     speckle_model: str = "coherent"  # the line's own field through the pupil, or "multiplicative"
     speckle_grain_factor: float = 2.44  # multiplicative model only: grain = factor x lambda x N (2.44: Airy)
@@ -489,7 +492,8 @@ class SceneRenderer:
         return refl
 
     def _ambient_rate(self) -> np.ndarray:
-        """(H, W) float32 ambient electrons per second per pixel, zero outside the active area."""
+        """(H, W) float32 ambient electrons per second per pixel, zero outside the active area,
+        through the lens (lens_blur)."""
         step = self.options.background_step
         d_scan, valid = self._background_rays(step)
         hh, ww = valid.shape
@@ -498,7 +502,7 @@ class SceneRenderer:
         rate = (refl * self.ambient_w_m2 * ambient_gain(self.cfg, self.sensor, self.options)).reshape(hh, ww)
         full = np.repeat(np.repeat(rate, step, axis=0), step, axis=1)[: self.active_height, : self.active_width]
         out = np.zeros((self.height, self.width), dtype=np.float32)
-        out[: self.active_height, : self.active_width] = full
+        out[: self.active_height, : self.active_width] = lens_blur(full.astype(np.float32), self.options)
         return out
 
     # ------------------------------------------------------------ per frame
@@ -617,6 +621,7 @@ class SceneRenderer:
             lo = start + k * exposure_s / n
             light = (exposure_s / n * gain * flicker_mean(self.scene.flicker, lo, lo + exposure_s / n)).astype(np.float32)
             e[:h, :w] += full * light[:h, None]
+        e[:h, :w] = lens_blur(e[:h, :w], self.options)  # the slices' sum: the blur is linear
 
     def _mean_truth(self, parts: list, lit_rows: np.ndarray) -> FrameTruth:
         """The truth of a moving frame: each column's mean over the laser's time slices weighted by
@@ -653,6 +658,24 @@ class SceneRenderer:
             span[:, 0], span[:, 1] = np.fmin(span[:, 0], r_i), np.fmax(span[:, 1], r_i)
         return FrameTruth(row, np.where(has, rng_m, np.inf), np.where(has, angle, np.nan), points,
                           np.where(has, surface, -1), lit_rows, time_ns, np.where(has[:, None], span, np.nan))
+
+
+def lens_blur(rate: np.ndarray, options: RenderOptions) -> np.ndarray:
+    """The background's light through the lens (step 6): its rays are cast at the pixels' centres
+    (or every background_step pixels), but a lens images every point of the scene as a spot and a
+    pixel integrates over its area, as for the laser line (step 3). So the same incoherent blur and
+    defocus (Gaussian sigmas, px), and the pixel's 1-px box as its variance 1/12, as one Gaussian
+    (float32 (h, w) in, the same out; ``rate`` itself where ``options.background_lens`` is off).
+    Without it a texture's edge is a step within one pixel row, which no lens draws, and a
+    turned frame's resampling leaves residues a camera does not (BENCHMARKS.md "Motion"); the
+    option stays for the frames of a renderer that draws them so (the device must hold there too)."""
+    import cv2
+
+    if not options.background_lens:
+        return rate
+
+    sigma = math.sqrt(options.blur_sigma_px**2 + options.defocus_sigma_px**2 + 1.0 / 12.0)
+    return cv2.GaussianBlur(rate, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
 
 
 def speckle_pattern_weights(contrast: float) -> np.ndarray:
