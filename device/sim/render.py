@@ -603,6 +603,7 @@ class SceneRenderer:
         grid_rows = np.minimum(np.arange(hh) * step + (step - 1) // 2, self.height - 1)
         block = 16  # grid rows per position of the moving objects
         h, w = self.active_height, self.active_width
+        background = np.zeros((h, w), dtype=np.float32)
         for k in range(n):
             t_row = start[grid_rows] + (k + 0.5) * exposure_s / n
             yaw, x, y = sensor_pose(self.scene.motion, t_row)
@@ -620,11 +621,11 @@ class SceneRenderer:
             full = cv2.resize(refl.astype(np.float32), (ww * step, hh * step), interpolation=cv2.INTER_LINEAR)[:h, :w]
             lo = start + k * exposure_s / n
             light = (exposure_s / n * gain * flicker_mean(self.scene.flicker, lo, lo + exposure_s / n)).astype(np.float32)
-            e[:h, :w] += full * light[:h, None]
+            background += full * light[:h, None]
         # the slices' sum through the lens (the blur is linear); the blur mixes each row with
         # rows a few line times (~4 x 19 us) from its exposure window, ~0.35 px of image
         # motion at 180 deg/s: left out
-        e[:h, :w] = lens_blur(e[:h, :w], self.options)
+        e[:h, :w] += lens_blur(background, self.options)
 
     def _mean_truth(self, parts: list, lit_rows: np.ndarray) -> FrameTruth:
         """The truth of a moving frame: each column's mean over the laser's time slices weighted by
