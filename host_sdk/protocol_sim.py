@@ -69,7 +69,7 @@ def build_sim_device(opts: dict) -> tuple[AnalyticWallSource, DeviceConfig]:
                                 dropout=0.01 if noisy else 0.0, seed=opts.get("seed", 0),
                                 start_delay_s=opts.get("start_delay", 0.0))
     limit_mw = opts.get("limit_mw", LASER_LIMIT_MW)
-    settings = default_settings(points, min(4.0, limit_mw))
+    settings = default_settings(points, limit_mw)
     if "rate" in opts:
         settings = settings.merged(type(settings)(scan_rate_hz=opts["rate"]))
     return source, DeviceConfig(laser_limit_mw=limit_mw, settings=settings,

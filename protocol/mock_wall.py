@@ -35,6 +35,8 @@ DEFAULT_FOV_RAD = math.radians(105.0)
 #: The mock device's Class 1 limit on laser power, mW (it has no laser: the limit it reports and
 #: enforces; ``laserpi serve --mock --laser-limit-mw`` can only lower it).
 LASER_LIMIT_MW = 5.0
+#: The mock device's laser power at power-on, mW (below its limit).
+POWER_ON_MW = 4.0
 
 
 def column_angles(n_points: int, fov_rad: float) -> np.ndarray:
@@ -142,7 +144,8 @@ class AnalyticWallSource:
         return SourceScan(device_time_us, r.astype(np.float32), q, first_index=s.roi_first, ray_times_ns=times)
 
 
-def default_settings(n_points: int, laser_power_mw: float = 4.0) -> ScanSettings:
-    """Power-on settings of the simulated device: 10 Hz, all columns, no filters, 4 mW, no ray times."""
+def default_settings(n_points: int, limit_mw: float = LASER_LIMIT_MW) -> ScanSettings:
+    """Power-on settings of the simulated device: 10 Hz, all columns, no filters, no ray times, and
+    POWER_ON_MW of laser power, or ``limit_mw`` (the limit it enforces) where that is lower."""
     return ScanSettings(scan_rate_hz=10.0, exposure_us=2000, roi_first=0, roi_count=n_points,
-                        median_window=1, min_quality=0, laser_power_mw=laser_power_mw, ray_times=False)
+                        median_window=1, min_quality=0, laser_power_mw=min(POWER_ON_MW, limit_mw), ray_times=False)

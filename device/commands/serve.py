@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
             limit_mw = _laser_limit(args.laser_limit_mw, LASER_LIMIT_MW, "the mock device's Class 1 limit")
             n = args.points or 1640
             source = AnalyticWallSource(args.distance_m, n_points=n, fov_rad=math.radians(args.fov_deg), seed=args.seed)
-            settings = default_settings(n, min(4.0, limit_mw))
+            settings = default_settings(n, limit_mw)
         else:
             from device.service.assembly import AssemblyConfig, build_sensor
 
