@@ -16,12 +16,11 @@ Per frame pair (or triple):
    ``moved_block_level`` and ``moved_block_ratio`` times the frame's median (both measured
    within one unlit frame, where motion does not inflate them): an edge a few rows high that
    moved, as a horizontal edge crosses the rows when the robot drives forward; sensor noise
-   alone stays below) moved. In a
-   moved column the residue a moved texture leaves in ``lit - mean`` varies slowly along the
-   column, except at its horizontal edges, while the laser line is a few rows high: the
-   residue's trend along the column (its morphological opening over ``trend_rows`` rows, the
-   largest envelope from below of what is at least that tall) joins the background the line is
-   measured against, and the closing of that trend the one the noise
+   alone stays below) moved. In a moved column the residue a moved texture leaves in
+   ``lit - mean`` varies slowly along the column, except at its horizontal edges, while the laser
+   line is a few rows high: the residue's trend along the column (its morphological opening over
+   ``trend_rows`` rows, the largest envelope from below of what is at least that tall) joins the
+   background the line is measured against, and the closing of that trend the one the noise
    level is measured against (narrow dark dips, the counterpart of narrow bright ridges that
    are not a line; the closing of the residue itself would bridge to the line). A line found
    there is kept only if it stands ``moving_noise_ratio`` times above the noise level (step 1) of
