@@ -162,6 +162,7 @@ def test_too_close_in_separate_spans_of_columns():
     wall = np.ones(cfg.width, bool)
     for a, b in near:
         wall[a - 3 : b + 3] = False
+    wall = wall[m.column]  # the image's columns (the buffer's padding beyond them is not measured)
     assert not np.any(m.status[wall] == ColumnStatus.TOO_CLOSE)
     assert np.mean(m.valid[wall]) > 0.95
     # the spans themselves: runs nearer than the join become one span, farther ones stay apart
@@ -179,11 +180,11 @@ def test_partly_lit_frame_gives_nan_not_ranges(wall2m, pipes):
     lit_rows[:75] = False  # the pulse missed the top of the frame (rolling shutter)
     lit[:75] = unlit[:75]
     m = pipes["fast-com"].process(lit, unlit, lit_rows=lit_rows)
-    dark = np.nanmax(np.stack([rows - 6, rows]), axis=0) < 75
+    dark = (np.nanmax(np.stack([rows - 6, rows]), axis=0) < 75)[m.column]
     assert np.all(np.isnan(m.range[dark])) and np.all(m.status[dark] == ColumnStatus.UNLIT)
     ok = m.valid
     assert ok.sum() > 200
-    np.testing.assert_allclose(m.range[ok], rng[ok], rtol=0.01)
+    np.testing.assert_allclose(m.range[ok], rng[m.column][ok], rtol=0.01)
 
 
 def test_partly_lit_frame_is_unlit_also_where_the_range_gate_rejects(wall2m):
@@ -196,7 +197,7 @@ def test_partly_lit_frame_is_unlit_also_where_the_range_gate_rejects(wall2m):
     lit[:75] = unlit[:75]
     gated = FastPipeline(CFG, FastParams(max_range_sigma=0.015))
     m = gated.process(lit, unlit, lit_rows=lit_rows)
-    dark = np.nanmax(np.stack([rows - 6, rows]), axis=0) < 75
+    dark = (np.nanmax(np.stack([rows - 6, rows]), axis=0) < 75)[:CFG.active_width]
     # the line next to the missed rows is too uncertain for the gate, but the missed pulse says why
     assert np.all(m.status[dark] == ColumnStatus.UNLIT)
     assert (gated.process(lit, unlit).status[dark] == ColumnStatus.REJECTED).any()
@@ -240,6 +241,33 @@ def test_a_scan_counts_the_columns_a_saturated_background_hides(wall2m):
         assert np.isnan(rays.ranges).sum() >= (80 if patch else 0)
 
 
+def test_the_frame_buffers_padding_is_neither_measured_nor_scanned(wall2m, pipes):
+    """The 1640-column image sits at the left of a zeroed 1664-column buffer (picamera2_camera.py,
+    [image] active_width): its 24 padding columns hold no pixel. No pipeline measures them, and
+    the scan's rays span the image's columns only: before, their zeros said "no return" and the
+    first 9 rays of a scan of this wall claimed free space (+inf) beyond the image's edge."""
+    from device.camera.frame import Frame
+    from device.scan.pipeline import ScanPipeline
+
+    rows, _ = wall2m
+    lit, unlit = frame_pair(CFG, rows, seed=34)
+    lit[:, CFG.active_width:] = unlit[:, CFG.active_width:] = 0
+    image = np.arange(CFG.active_width)
+    for name, pipe in pipes.items():
+        m = pipe.process(lit, unlit)
+        assert m.column.max() < CFG.active_width and np.isin(m.column, image).all(), name
+        if name != "reference":  # the reference measures every other column
+            np.testing.assert_array_equal(m.column, image)
+    angles = pipes["fast-com"].geometry.column_angle
+    assert np.isnan(angles[CFG.active_width:]).all() and np.isfinite(angles[: CFG.active_width]).all()
+    scan = ScanPipeline(make_pipeline("fast-com", CFG), CFG.active_width)
+    assert (scan.angle_min, scan.angle_max) == (angles[: CFG.active_width].min(), angles[: CFG.active_width].max())
+    frame = lambda image, seq: Frame(image, seq, 10**9 + seq * 50_000_000, 9200.0, 50_000.0, 18_904.0, lit=seq == 1)  # noqa: E731
+    rays = scan(frame(lit, 1), frame(unlit, 2))
+    assert not np.isinf(rays.ranges).any()  # a wall fills the view: nowhere free space
+    assert np.isfinite(rays.ranges[:20]).all() and np.isfinite(rays.ranges[-20:]).all()
+
+
 def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
     """Nothing in range, but columns 300-399 saturated over rows 150-199 (a window), and columns
     1000-1099 over the rows nearer than the range (step 7's): a line there would not show, so no
@@ -260,7 +288,7 @@ def test_no_return_is_not_claimed_where_the_background_saturates(pipes):
             m = pipes[name].process(lit, unlit, other_unlit=other) if other is not None else pipes[name].process(lit, unlit)
             assert np.all(m.status[hidden] == ColumnStatus.SATURATED), name
             assert np.isnan(m.range[hidden]).all()
-            rest = np.r_[0:290, 410:990, 1110:CFG.width]
+            rest = np.r_[0:290, 410:990, 1110:CFG.active_width]  # the image's columns: m.column is 0, 1, ...
             assert np.all(m.status[rest] == ColumnStatus.NO_RETURN) and np.all(m.range[rest] == np.inf), name
 
 
@@ -441,4 +469,4 @@ def test_small_camera_whose_band_is_not_whole_blocks():
             lit, unlit = frame_pair(small, rows, seed=13)
             m = pipe.process(lit, unlit)
             assert m.valid.sum() > 0.9 * np.isfinite(rows).sum(), (name, z)
-            np.testing.assert_allclose(m.row[m.valid], rows[m.valid], atol=0.3)
+            np.testing.assert_allclose(m.row[m.valid], rows[m.column][m.valid], atol=0.3)

@@ -39,7 +39,11 @@ class ColumnGeometry:
     ``top``/``bottom``: rows [top, bottom) covered by the ray table ``xn``/``yn`` (rows, W).
     ``roi_lo``/``roi_hi``: (W,) rows [lo, hi) where the laser line can appear for depths in
     [min_m, max_m], widened by ``margin`` rows. ``column_angle``: (W,) scan angle of each column's
-    laser point at 2 m (or the nearest depth in range), for columns without a return.
+    laser point at 2 m (or the nearest depth in range), for columns without a return; NaN in the
+    frame buffer's padding columns. ``active_width``: the image's columns [0, active_width) of the
+    buffer's ``width`` (the configuration's ``[image] active_width``): the columns beyond hold no
+    pixel (device/camera/picamera2_camera.py places the 1640-column Y plane at the left of a
+    zeroed 1664-column buffer), so no pipeline measures there and no scan has a ray there.
     ``near_below``: nearer depths lie at larger rows (the camera looks down onto the plane).
     """
 
@@ -58,6 +62,7 @@ class ColumnGeometry:
     column_angle: np.ndarray
     near_below: bool
     inv_depth: np.ndarray  # (rows, W) 1/z of each table pixel on the plane (<= 0 beyond the horizon)
+    active_width: int
 
     def triangulate(self, rows: np.ndarray, columns: np.ndarray | None = None) -> Triangulation:
         """Sub-pixel rows (one per column, NaN: none) -> points on the laser plane, by the table.
@@ -149,6 +154,8 @@ def _build(config: SensorConfig, min_m: float, max_m: float, margin: int) -> Col
     best = np.argmin(dz, axis=0)
     pts = unlimited.points[best, np.arange(W)]
     angle, _ = to_scan_plane(pts, sf)
+    active = config.active_width or W
+    angle[active:] = np.nan  # the buffer's padding: no pixel, no scan angle
     zc = unlimited.depth[:, int(np.argmax(any_ok))] if not any_ok[W // 2] else unlimited.depth[:, W // 2]
     fin = np.nonzero(np.isfinite(zc))[0]
     near_below = bool(zc[fin[-1]] < zc[fin[0]]) if fin.size > 1 else True
@@ -159,4 +166,5 @@ def _build(config: SensorConfig, min_m: float, max_m: float, margin: int) -> Col
     return ColumnGeometry(
         W, H, config.plane, sf, min_m, max_m, top, bottom,
         np.ascontiguousarray(xy[..., 0]), np.ascontiguousarray(xy[..., 1]), roi_lo, roi_hi, angle, near_below, inv,
+        active,
     )

@@ -105,7 +105,14 @@ def finish(
     tri: Triangulation, post,
 ) -> ColumnMeasurements:
     """Combine line finding (``line_status``: OK where a line was measured at ``rows``) and its
-    triangulation into measurements: post-calibration (eq. 6.5), scan angle/range, REP 117."""
+    triangulation into measurements: post-calibration (eq. 6.5), scan angle/range, REP 117. Only
+    the image's ``columns`` are measured: those in the frame buffer's padding beyond it
+    (``geom.active_width``) hold no pixel, where "no return" (+inf) would claim free space."""
+    columns = np.asarray(columns)
+    image = columns < geom.active_width
+    if not image.all():
+        columns, rows, quality, line_status = columns[image], rows[image], quality[image], line_status[image]
+        tri = Triangulation(tri.points[image], tri.depth[image], tri.status[image])
     status = np.asarray(line_status, dtype=np.uint8)
     ok_u8 = STATUS_U8[ColumnStatus.OK]
     status = np.where(status == ok_u8, _FROM_RANGE_STATUS.take(tri.status), status)
@@ -115,7 +122,7 @@ def finish(
     angle = np.where(ok, angle, geom.column_angle.take(columns))
     rng = np.where(ok, rng, _RANGE_OF_STATUS.take(status))
     none = status == STATUS_U8[ColumnStatus.NO_RETURN]
-    return ColumnMeasurements(np.asarray(columns), np.where(none, np.nan, rows), angle, rng,
+    return ColumnMeasurements(columns, np.where(none, np.nan, rows), angle, rng,
                               np.where(none, 0.0, quality), points, status)
 
 
