@@ -111,15 +111,17 @@ def device(tmp_path_factory):
 
 def expected_ray_times_s(scan, recorded: Recorded) -> np.ndarray:
     """What each ray's time must be: the mid-exposure of the row its line was found in, in the
-    lit frame the scan was made of (device/scan/timing.py), taken from the column nearest to the
-    ray's bearing; a ray without a return, or whose column has no row, is on the scan's line."""
+    lit frame the scan was made of (device/scan/timing.py), taken from the measured column
+    nearest to the ray's bearing (a ray's range comes from the measured columns either side of
+    it); a ray without a return is on the scan's line. Every ray with a return has a time."""
     lit, meas = min(recorded.seen, key=lambda s: abs(s[0].sensor_timestamp_ns * 1e-9 - scan.device_time))
     angle = np.asarray(meas.angle, dtype=np.float64)
-    ok = np.flatnonzero(np.isfinite(angle))
+    ok = np.flatnonzero(np.isfinite(angle) & np.isfinite(meas.range))
     nearest = ok[np.argmin(np.abs(angle[ok][None, :] - scan.angles[:, None].astype(np.float64)), axis=1)]
     times = column_times_ns(lit, np.asarray(meas.row, dtype=np.float64)[nearest]) * 1e-9
+    assert np.isfinite(times[np.isfinite(scan.ranges)]).all()
     line = scan.device_time + np.arange(scan.ranges.size) * scan.time_increment
-    return np.where(np.isfinite(scan.ranges) & np.isfinite(times), times, line)
+    return np.where(np.isfinite(scan.ranges), times, line)
 
 
 def test_each_rays_time_reaches_the_host_exactly_from_the_rows_of_the_lit_frame(device):

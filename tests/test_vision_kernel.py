@@ -210,18 +210,21 @@ def test_resolve_takes_its_arguments_grouped_as_the_kernels_structs():
 
 
 def _scan_rays_numpy(angle, rng, quality, row, grid, max_gap):
-    """scan_rays' definition in numpy: resample_scan, and quality and row of the nearest column
-    with a finite angle where the resampled range is finite."""
-    from device.model.scan_frame import resample_scan
+    """scan_rays' definition in numpy: resample_scan, and quality and row of the measured column
+    each ray with a finite range came from (of the two it was interpolated between, the one
+    nearer in angle)."""
+    from device.model.scan_frame import angle_order, resample_scan
 
     out = resample_scan(angle, rng, grid, max_gap)
-    fin = np.isfinite(angle)
-    order = np.argsort(angle[fin])
-    a, q, r = angle[fin][order], quality[fin][order], row[fin][order]
-    idx = np.clip(np.searchsorted(a, grid), 1, max(a.size - 1, 1))
-    nearest = np.where(np.abs(a[idx - 1] - grid) <= np.abs(a[np.minimum(idx, a.size - 1)] - grid), idx - 1,
-                       np.minimum(idx, a.size - 1))
+    order = angle_order(angle)
+    ok = order[np.isfinite(rng[order])]  # the measured columns in increasing angle, as resample_scan takes them
+    a, q, r = angle[ok], quality[ok], row[ok]
     measured = np.isfinite(out)
+    if not a.size:
+        return out, np.zeros(grid.size, np.uint8), np.full(grid.size, np.nan)
+    k = np.searchsorted(a, grid)
+    lo, hi = np.clip(k - 1, 0, a.size - 1), np.clip(k, 0, a.size - 1)
+    nearest = np.where(np.abs(grid - a[lo]) <= np.abs(a[hi] - grid), lo, hi)
     return out, np.where(measured, np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8), np.where(measured, r[nearest], np.nan)
 
 
@@ -252,6 +255,29 @@ def test_scan_rays_equals_resample_scan_and_the_nearest_columns(seed):
     for got, expected in zip((out, q, rows), want):
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got, expected)
+
+
+def test_a_ray_with_a_range_has_the_row_and_quality_of_a_measured_column():
+    """Ray 5 lies on column 5, whose line was REJECTED (NaN); its range is interpolated between
+    columns 4 and 6, and its row and quality are theirs (the nearer in angle), so it has a time.
+    Before, they were column 5's: no row (no time, the host fell back to the scan's line) and
+    quality 0 (dropped by a host's min_quality)."""
+    from device.model.scan_frame import angle_order
+
+    angle = np.linspace(0.1, -0.1, 11)  # a camera's columns: angle falls with the column
+    r = np.full(11, 2.0)
+    r[5] = np.nan
+    quality = np.arange(11) * 10.0
+    row = 100.0 + np.arange(11)
+    row[5] = np.nan
+    grid = np.linspace(-0.1, 0.1, 11)  # ray i at column 10 - i
+    grid[5] += 0.001  # a little nearer column 4
+    out, q, rows = np.empty(11), np.empty(11, np.uint8), np.empty(11)
+    order = angle_order(angle)
+    K.scan_rays(angle, r, quality, row, order, grid, 0.05, 0.05, np.empty_like(order), out, q, rows)
+    assert np.isfinite(out).all() and np.isfinite(rows).all()
+    assert (rows[5], q[5]) == (104.0, 40)
+    np.testing.assert_array_equal(rows[:5], row[:5:-1][:5])
 
 
 def test_scan_rays_names_a_bad_order():

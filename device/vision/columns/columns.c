@@ -882,10 +882,14 @@ ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *
     idx_t nm = 0;
     for (idx_t j = 0; j < n_order; j++)
         if (isfinite(range[order[j]])) measured[nm++] = order[j];
+    /* each ray's range, and the quality and row of the measured column it came from: the one
+     * nearer in angle of the two it was interpolated between, or the one it was taken from across
+     * a jump (a ray with a range always has a row, so a time: device/scan/timing.py) */
     idx_t k = 0;
     for (idx_t i = 0; i < m; i++) {
         const double g = grid[i];
         double out = INFINITY;
+        idx_t src = -1;
         if (nm > 0) {
             k = lower_bound_from(angle, measured, nm, k, g);
             const idx_t lo = k - 1 < 0 ? 0 : k - 1, hi = k < nm - 1 ? k : nm - 1;
@@ -895,14 +899,22 @@ ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *
             const bool inside = k > 0 && k < nm && span <= max_gap;
             const bool smooth = fabs(r1 - r0) <= max_jump_ratio * (r0 < r1 ? r0 : r1);
             const double w = span > 0 ? (g - a0) / span : 0.0;
+            const idx_t near = measured[fabs(g - a0) <= fabs(a1 - g) ? lo : hi];
             if (inside && smooth) {
-                out = r0 + w * (r1 - r0);
-            } else { /* across a jump: the nearer-in-angle neighbour within half the gap limit */
-                const idx_t near = fabs(g - a0) <= fabs(a1 - g) ? lo : hi;
-                if (fabs(angle[measured[near]] - g) <= max_gap / 2) out = range[measured[near]];
+                out = r0 + w * (r1 - r0), src = near;
+            } else if (fabs(angle[near] - g) <= max_gap / 2) { /* across a jump: the nearer-in-angle neighbour */
+                out = range[near], src = near;
             }
         }
         range_out[i] = out;
+        if (src >= 0) {
+            const double q = rint(quality[src]);
+            quality_out[i] = q > 0 ? (q < 255 ? (uint8_t)q : 255) : 0;
+            row_out[i] = row[src];
+        } else {
+            quality_out[i] = 0;
+            row_out[i] = NAN;
+        }
     }
     /* REP 117 codes (finite angle, no finite range) in the nearest cell, the first one in the
      * columns' order that says more than "no return" in a cell nothing was resampled into */
@@ -912,24 +924,6 @@ ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *
         if (!isfinite(angle[j]) || isfinite(code) || code > 0) continue;
         const double cell = rint((angle[j] - grid[0]) / step);
         if (cell >= 0 && cell < (double)m && range_out[(idx_t)cell] == INFINITY) range_out[(idx_t)cell] = code;
-    }
-    /* quality and row of the nearest column with a finite angle (measured or not) */
-    const idx_t last = n_order - 1 > 1 ? n_order - 1 : 1;
-    idx_t kq = 0;
-    for (idx_t i = 0; i < m; i++) {
-        const double g = grid[i];
-        kq = lower_bound_from(angle, order, n_order, kq, g);
-        const idx_t c = kq < 1 ? 1 : kq > last ? last : kq;
-        const idx_t next = c < n_order - 1 ? c : n_order - 1;
-        const idx_t near = order[fabs(angle[order[c - 1]] - g) <= fabs(angle[order[next]] - g) ? c - 1 : next];
-        if (isfinite(range_out[i])) {
-            const double q = rint(quality[near]);
-            quality_out[i] = q > 0 ? (q < 255 ? (uint8_t)q : 255) : 0;
-            row_out[i] = row[near];
-        } else {
-            quality_out[i] = 0;
-            row_out[i] = NAN;
-        }
     }
     return COLUMNS_DONE;
 }

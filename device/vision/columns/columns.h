@@ -166,8 +166,9 @@ void columns_run_length(const bool *mask, ptrdiff_t n, ptrdiff_t *out);
  * the columns with a finite angle in increasing angle. range_out: the columns' ranges resampled
  * as device.model.scan_frame.resample_scan does (bridging at most max_gap rad, never a depth
  * jump of max_jump_ratio; its arithmetic in its order, so bit for bit); quality_out and row_out:
- * the quality (rounded, clipped to 0..255) and row of the column nearest in angle to each ray with
- * a finite range, 0 and NaN at the others. `measured`: n_order indices of workspace. Needs
+ * the quality (rounded, clipped to 0..255) and row of the measured column (finite range) each ray
+ * with a finite range came from (of the two it was interpolated between the one nearer in angle),
+ * 0 and NaN at the others. `measured`: n_order indices of workspace. Needs
  * n_order >= 1 and m >= 2. */
 ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
                                 const double *row, ptrdiff_t n_order, const ptrdiff_t *order, ptrdiff_t m,
