@@ -339,6 +339,52 @@ def test_evaluate_names_what_is_wrong_with_a_recording(tmp_path, capsys):
     assert "3 frames have no lit flag" in capsys.readouterr().out
     assert main(["evaluate", "--scene", "wall", "--out", str(tmp_path / "x.npz")]) == 2
     assert "--out and --truth go with --recording" in capsys.readouterr().out
+    # what only sets up a simulated scene is refused with a recording, not ignored
+    assert main(["evaluate", "--recording", str(unknown), "--frames", "5", "--yaw-rate-deg-s", "90", "--no-lit-rows"]) == 2
+    assert "--frames, --no-lit-rows, --yaw-rate-deg-s set up a simulated scene" in capsys.readouterr().out
+
+
+def test_evaluate_refuses_frames_and_truth_that_do_not_belong_together(tmp_path, capsys):
+    """A lit frame exposed 4x as long as its unlit neighbours (the background's change would
+    pass for lines), a truth that is not the recording's (an unlit frame's, or two for one
+    frame), a truth file numpy cannot read and a seq beyond int64: each refused, naming what is
+    wrong, and nothing written."""
+    from device.camera.frame import Frame
+    from device.camera.replay import save_recording
+
+    def frames(lit_exposure_us=100.0, seq0=0):
+        return [Frame(np.zeros((CFG.height, CFG.width), np.uint8), seq0 + i, 10**9 + i * 10**6,
+                      lit_exposure_us if i % 2 == 0 else 100.0, 1000.0, 10.0, lit=i % 2 == 0) for i in range(4)]
+
+    rec, out = tmp_path / "rec.npz", tmp_path / "out.npz"
+    save_recording(rec, frames(400.0))
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 2
+    assert "lit frame seq 0 (400 us) and its unlit neighbour seq 1 (100 us) differ in exposure" in capsys.readouterr().out
+    save_recording(rec, frames(100.005))  # within one line time (10 ns): the same exposure as a camera reports it
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 0
+    out.unlink()
+    capsys.readouterr()
+    W, H = CFG.width, CFG.height
+    nan = np.full((2, W), np.nan)
+    arrays = dict(row=nan, range_m=nan, angle_rad=nan, points=np.full((2, W, 3), np.nan), surface=np.full((2, W), -1))
+    truth = tmp_path / "truth.npz"
+    for seq, lit_rows, message in (([0, 2], np.zeros((2, H), bool), "the truth of frame seq 0 has no lit rows"),
+                                   ([2, 2], np.ones((2, H), bool), "frame seq 2 has 2 truths")):
+        np.savez(truth, seq=np.array(seq), lit_rows=lit_rows, **arrays)
+        assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+        assert message in capsys.readouterr().out
+    np.savez(truth, seq=np.array([object(), object()]), lit_rows=np.ones((2, H), bool), **arrays)
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+    assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
+    truth.write_text("not an archive")
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+    assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
+    save_recording(rec, frames())
+    with np.load(rec) as z:
+        np.savez(rec, **{k: z[k] for k in z.files if k != "seq"}, seq=np.arange(4, dtype=np.uint64) + np.uint64(2**63))
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 2
+    assert "seq is 9223372036854775808: a count must be a whole number >= 0 and below 2**63" in capsys.readouterr().out
+    assert not out.exists()
 
 
 def test_evaluate_writes_its_results_whole_or_not_at_all(tmp_path, capsys):

@@ -110,9 +110,11 @@ def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None
             raise ValueError(f"{where}: {name} must be numbers, got {v.dtype}")
     for name in WHOLE_FIELDS:
         v = fields[name]
-        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0))
+        # below 2**63: the frames' int64 (a larger uint64 would wrap negative; 2**63 ns are 292 years)
+        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0) & (v < 2.0**63))
         if bad.any():
-            fail(int(np.argmax(bad)), f"{name} is {v[np.argmax(bad)].item()!r}: a count must be a whole number >= 0")
+            fail(int(np.argmax(bad)), f"{name} is {v[np.argmax(bad)].item()!r}: a count must be a whole number >= 0 "
+                                      "and below 2**63")
     for name in DURATION_FIELDS:
         v = fields[name]
         bad = ~(np.isfinite(v) & (v > 0))

@@ -11,18 +11,22 @@ and the effective angular resolution.
 device/vision/pipelines.py DEVICE_VARIANT, with the configuration's [operating_point] depth limits)
 over a recording in the ReplayCamera format (device/camera/replay.py: frames in time order with
 their lit flags), each lit frame with its unlit neighbours as the device pairs them. OUT.npz
-holds, per scan in time order, every array indexed by image column (W = the image width):
-``row`` (n, W) sub-pixel image row of the line, NaN where none; ``points`` (n, W, 3) the
-camera-frame point in metres, NaN where none; ``status`` (n, W) ColumnStatus
-(device/vision/measurements.py; 255 for a column the pipeline does not process, e.g. the
-reference's odd columns); ``time_ns`` (n, W) when the column's line was lit
-(device/scan/timing.py), NaN where none; ``lit_seq`` (n,) the lit frame's seq. With ``--truth
-TRUTH.npz`` (as ``laserpi simulate`` writes it: per frame, with ``seq``) it also prints the
-scores against the lit frames' truth. The recording's metadata is checked whole before a frame is
-processed (device/camera/replay.py ``check_frames``: it may come from another renderer or camera
-stack; a folder's PNGs as they are read),
-the truth's arrays against the configuration's size, and OUT.npz written last, whole or not at
-all (``save_npz``): a refusal leaves nothing behind, and never an overwritten input.
+holds, per scan in time order, every array indexed by image column (W = the frames' width):
+``row`` (n, W) sub-pixel image row of the line, NaN where none (a line found beyond the depth
+limits, TOO_CLOSE or TOO_FAR, keeps its row); ``points`` (n, W, 3) the camera-frame point in
+metres, NaN where none (and beyond the depth limits); ``status`` (n, W) ColumnStatus
+(device/vision/measurements.py; 255 for a column the pipeline does not process: the reference's
+odd columns, the frame buffer's padding beyond the image's ``[image] active_width``);
+``time_ns`` (n, W) when the column's line was lit (device/scan/timing.py: the middle of its
+row's exposure, as the device's pulse lights it), NaN where none; ``lit_seq`` (n,) the lit
+frame's seq. With ``--truth TRUTH.npz`` (as ``laserpi simulate`` writes it: per frame, with
+``seq``) it also prints the scores against the lit frames' truth. The recording's metadata is
+checked whole before a frame is processed (device/camera/replay.py ``check_frames``: it may come
+from another renderer or camera stack; a folder's PNGs as they are read), as are a lit frame's
+unlit neighbours' exposures (one exposure, as the device pairs them) and the truth (the
+configuration's size, one per frame, lit where the recording is); options that only set up a
+simulated scene are refused; OUT.npz is written last, whole or not at all (``save_npz``): a
+refusal leaves nothing behind, and never an overwritten input.
 """
 
 from __future__ import annotations
@@ -32,6 +36,11 @@ import json
 import math
 
 from .argtypes import add_motion_arguments, scene_with_motion
+
+
+#: what only a simulated scene takes: given with --recording, whose frames are what they are, refused
+SIMULATION_ONLY = ("frames", "seed", "gain", "exposure_us", "isp", "no_lit_rows", "yaw_rate_deg_s", "speed_m_s",
+                   "sensor_ahead_m", "ambient_scale", "flicker_hz", "flicker_depth")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -144,6 +153,8 @@ def reprocess(args) -> dict:
     if not neighbours:
         raise ValueError(f"{args.recording}: no lit frame with an unlit neighbour"
                          + (f" ({unknown} frames have no lit flag)" if unknown else ""))
+    for f in neighbours:
+        _check_same_exposure(args.recording, f.lit, f.unlit, f.other_unlit)
     W = cfg.width
     n = len(neighbours)
     out = {"row": np.full((n, W), np.nan), "points": np.full((n, W, 3), np.nan),
@@ -160,6 +171,9 @@ def reprocess(args) -> dict:
         if truth is not None:
             if f.lit.seq not in truth:
                 raise ValueError(f"{args.truth}: no truth for frame seq {f.lit.seq}")
+            if not truth[f.lit.seq].lit_rows.any():
+                raise ValueError(f"{args.truth}: the truth of frame seq {f.lit.seq} has no lit rows (an unlit frame's), "
+                                 f"but the recording's frame seq {f.lit.seq} is lit: not this recording's truth")
             score.add(meas, truth[f.lit.seq])
     result = {"variant": name, "recording": args.recording, "scans": n, "frames_without_lit_flag": unknown,
               "out": args.out, "flicker_kept": _flicker_kept([f.lit for f in neighbours], op.flicker_hz),
@@ -171,6 +185,19 @@ def reprocess(args) -> dict:
     if args.out:  # last: nothing is written unless everything before it worked
         save_npz(args.out, **out)
     return result
+
+
+def _check_same_exposure(recording: str, lit, *unlit) -> None:
+    """Refuse a lit frame paired with an unlit neighbour of another exposure: their difference
+    keeps the background's change, which a line search takes for lines. The device never pairs
+    such frames (device/scan/source.py refuses an exposure change while it runs); a recording
+    from elsewhere may hold them. Within one line time: the exposure a camera reports is a whole
+    number of lines (device/camera/modes.py: the IMX219's exposure control counts lines)."""
+    for u in unlit:
+        if u is not None and abs(u.exposure_us - lit.exposure_us) * 1e3 > lit.line_time_ns:
+            raise ValueError(f"{recording}: lit frame seq {lit.seq} ({lit.exposure_us:g} us) and its unlit neighbour seq "
+                             f"{u.seq} ({u.exposure_us:g} us) differ in exposure: their difference would keep the "
+                             "background's change; a lit frame is measured against unlit frames of its own exposure")
 
 
 def _check_out(out: str, recording: str, truth: str | None) -> None:
@@ -203,28 +230,37 @@ def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
 
 def _load_truth(path: str, cfg) -> dict:
     """{seq: FrameTruth} of a truth.npz as ``laserpi simulate`` writes it."""
+    import zipfile
+
     import numpy as np
 
     from ..sim.truth import FrameTruth
 
-    with np.load(path) as z:
-        missing = [k for k in ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows") if k not in z.files]
-        if missing:
-            raise ValueError(f"{path}: not a truth file of laserpi simulate, missing {', '.join(missing)}")
-        seq = z["seq"]
-        if seq.ndim != 1 or not np.issubdtype(seq.dtype, np.integer):
-            raise ValueError(f"{path}: seq must be one whole number per frame, got {seq.shape} {seq.dtype}")
-        n, W = seq.size, cfg.width
-        shapes = {"row": (n, W), "range_m": (n, W), "angle_rad": (n, W), "points": (n, W, 3), "surface": (n, W),
-                  "lit_rows": (n, cfg.height), "time_ns": (n, W), "range_span_m": (n, W, 2)}
-        truth = {k: z[k] for k in shapes if k in z.files}
-        for k, a in truth.items():
-            if a.shape != shapes[k]:
-                raise ValueError(f"{path}: {k} has shape {a.shape}, {shapes[k]} expected ({n} frames, the "
-                                 f"configuration's {W} columns and {cfg.height} rows)")
-        return {int(s): FrameTruth(*(truth[k][i] for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")),
-                                   *(truth[k][i] if k in truth else None for k in ("time_ns", "range_span_m")))
-                for i, s in enumerate(seq)}
+    keys = ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows", "time_ns", "range_span_m")
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in keys if k in z.files}
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:  # numpy's own words: not one of ours
+        raise ValueError(f"--truth {path}: not a readable truth .npz of laserpi simulate ({exc})") from None
+    missing = [k for k in keys[:7] if k not in arrays]
+    if missing:
+        raise ValueError(f"{path}: not a truth file of laserpi simulate, missing {', '.join(missing)}")
+    seq = arrays.pop("seq")
+    if seq.ndim != 1 or not np.issubdtype(seq.dtype, np.integer):
+        raise ValueError(f"{path}: seq must be one whole number per frame, got {seq.shape} {seq.dtype}")
+    values, counts = np.unique(seq, return_counts=True)
+    if np.any(counts > 1):
+        raise ValueError(f"{path}: frame seq {values[np.argmax(counts > 1)].item()} has {counts.max()} truths; one per frame")
+    n, W = seq.size, cfg.width
+    shapes = {"row": (n, W), "range_m": (n, W), "angle_rad": (n, W), "points": (n, W, 3), "surface": (n, W),
+              "lit_rows": (n, cfg.height), "time_ns": (n, W), "range_span_m": (n, W, 2)}
+    for k, a in arrays.items():
+        if a.shape != shapes[k]:
+            raise ValueError(f"{path}: {k} has shape {a.shape}, {shapes[k]} expected ({n} frames, the "
+                             f"configuration's {W} columns and {cfg.height} rows)")
+    return {int(s): FrameTruth(*(arrays[k][i] for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")),
+                               *(arrays[k][i] if k in arrays else None for k in ("time_ns", "range_span_m")))
+            for i, s in enumerate(seq)}
 
 
 def _fmt(v, spec=".3f") -> str:
@@ -241,6 +277,10 @@ def run(args: argparse.Namespace) -> int:
     if args.recording is None and (args.out or args.truth):
         print("laserpi evaluate: --out and --truth go with --recording")
         return 2
+    if args.recording is not None and (given := _simulation_options_given(args)):
+        print(f"laserpi evaluate: {', '.join(given)} set up a simulated scene; a recording's frames are what they are "
+              "(drop them, or use --scene)")
+        return 2
     try:
         if args.recording is not None:
             return _report_recording(reprocess(args), args.json)
@@ -255,6 +295,13 @@ def run(args: argparse.Namespace) -> int:
     for s in results:
         _print_score(s)
     return 0
+
+
+def _simulation_options_given(args) -> list[str]:
+    """The SIMULATION_ONLY options ``args`` sets to other than their defaults, as flags."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return ["--" + d.replace("_", "-") for d in SIMULATION_ONLY if getattr(args, d) != parser.get_default(d)]
 
 
 def _report_recording(result: dict, as_json: bool) -> int:
