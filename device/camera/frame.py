@@ -17,7 +17,14 @@ class Frame:
     in raspberrypi/linux drivers/media/platform/bcm2835/bcm2835-unicam.c ``unicam_isr``: "Timestamp is
     to be when the first data byte was captured, aka frame start"; passed through unchanged as the
     V4L2 buffer timestamp by raspberrypi/libcamera src/libcamera/pipeline/rpi/vc4/vc4.cpp
-    ``unicamBufferDequeue``, to the microsecond of the V4L2 timeval).
+    ``unicamBufferDequeue``, to the microsecond of the V4L2 timeval). That is the Pi's, not
+    libcamera's documented meaning ("the time when the first row of the image sensor active
+    array is exposed", on CLOCK_BOOTTIME: src/libcamera/control_ids_core.yaml ``SensorTimestamp``):
+    the implementation is what a Pi's frames carry, so it is what is modelled (CLOCK_BOOTTIME and
+    CLOCK_MONOTONIC differ only by time suspended, which a running sensor never is). The IMX219
+    sends one line of embedded data after the frame start before its first pixel row
+    (raspberrypi/linux drivers/media/i2c/imx219.c ``IMX219_NUM_EMBEDDED_LINES``): image rows are
+    read one line time (~19 us) later than modelled here; left out (0.002 deg at 90 deg/s).
     ``readout_offset_rows``: the sensor-mode rows read before image row 0 (the ISP's ScalerCrop
     starts that far down the mode: 155 in mode 5, device/camera/modes.py), so image row r is read
     at T + (readout_offset_rows + r) * line_time and exposed during the ``exposure`` before that

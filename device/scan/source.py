@@ -261,7 +261,7 @@ class SensorSource:
         # the host's region of interest starts at ray roi_first: its time moves with it
         first_ns = rays.first_ray_ns + s.roi_first * rays.ray_interval_ns
         times = None if rays.ray_times_ns is None else rays.ray_times_ns[sl]
-        return SourceScan(first_ns // 1000, ranges, quality, first_index=s.roi_first,
+        return SourceScan(round(first_ns / 1000), ranges, quality, first_index=s.roi_first,
                           ray_interval_ns=rays.ray_interval_ns, ray_times_ns=times)
 
     def _saturated(self, columns: int, seq: int) -> None:
