@@ -349,6 +349,8 @@ def test_evaluate_refuses_frames_and_truth_that_do_not_belong_together(tmp_path,
     pass for lines), a truth that is not the recording's (an unlit frame's, or two for one
     frame), a truth file numpy cannot read and a seq beyond int64: each refused, naming what is
     wrong, and nothing written."""
+    import zipfile
+
     from device.camera.frame import Frame
     from device.camera.replay import save_recording
 
@@ -360,7 +362,13 @@ def test_evaluate_refuses_frames_and_truth_that_do_not_belong_together(tmp_path,
     save_recording(rec, frames(400.0))
     assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 2
     assert "lit frame seq 0 (400 us) and its unlit neighbour seq 1 (100 us) differ in exposure" in capsys.readouterr().out
-    save_recording(rec, frames(100.005))  # within one line time (10 ns): the same exposure as a camera reports it
+    save_recording(rec, frames(100.004))  # within half a line (10 ns): the same exposure, as reported
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 0
+    out.unlink()
+    save_recording(rec, frames(100.010))  # a line longer: another exposure
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 2
+    assert "differ in exposure" in capsys.readouterr().out
+    save_recording(rec, frames(99.996))
     assert main(["evaluate", "--recording", str(rec), "--out", str(out)]) == 0
     out.unlink()
     capsys.readouterr()
@@ -377,6 +385,17 @@ def test_evaluate_refuses_frames_and_truth_that_do_not_belong_together(tmp_path,
     assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
     assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
     truth.write_text("not an archive")
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+    assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
+    np.save(tmp_path / "truth.npy", np.zeros(3))  # one array, not an archive
+    assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(tmp_path / "truth.npy")]) == 2
+    assert "not a readable truth .npz of laserpi simulate (one ndarray" in capsys.readouterr().out
+    np.savez_compressed(truth, seq=np.array([0, 2]), lit_rows=np.ones((2, H), bool), **arrays)
+    damaged = bytearray(truth.read_bytes())  # as laserpi simulate writes it, its deflated data broken:
+    h = zipfile.ZipFile(truth).infolist()[0].header_offset  # the first member's local header
+    data = h + 30 + int.from_bytes(damaged[h + 26 : h + 28], "little") + int.from_bytes(damaged[h + 28 : h + 30], "little")
+    damaged[data] = 0xFF  # its first deflate block of the reserved type 3, which zlib refuses (zlib.error)
+    truth.write_bytes(bytes(damaged))
     assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
     assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
     save_recording(rec, frames())

@@ -191,10 +191,12 @@ def _check_same_exposure(recording: str, lit, *unlit) -> None:
     """Refuse a lit frame paired with an unlit neighbour of another exposure: their difference
     keeps the background's change, which a line search takes for lines. The device never pairs
     such frames (device/scan/source.py refuses an exposure change while it runs); a recording
-    from elsewhere may hold them. Within one line time: the exposure a camera reports is a whole
-    number of lines (device/camera/modes.py: the IMX219's exposure control counts lines)."""
+    from elsewhere may hold them. The IMX219 exposes whole lines (device/camera/modes.py: its
+    exposure control counts lines), so two exposures differ by at least a line time: anything
+    from half a line apart is another exposure (what is reported, e.g. libcamera's whole us, is
+    within half a line of it)."""
     for u in unlit:
-        if u is not None and abs(u.exposure_us - lit.exposure_us) * 1e3 > lit.line_time_ns:
+        if u is not None and abs(u.exposure_us - lit.exposure_us) * 1e3 >= lit.line_time_ns / 2:
             raise ValueError(f"{recording}: lit frame seq {lit.seq} ({lit.exposure_us:g} us) and its unlit neighbour seq "
                              f"{u.seq} ({u.exposure_us:g} us) differ in exposure: their difference would keep the "
                              "background's change; a lit frame is measured against unlit frames of its own exposure")
@@ -231,6 +233,7 @@ def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
 def _load_truth(path: str, cfg) -> dict:
     """{seq: FrameTruth} of a truth.npz as ``laserpi simulate`` writes it."""
     import zipfile
+    import zlib
 
     import numpy as np
 
@@ -238,9 +241,12 @@ def _load_truth(path: str, cfg) -> dict:
 
     keys = ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows", "time_ns", "range_span_m")
     try:
-        with np.load(path) as z:
+        loaded = np.load(path)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy's one array
+            raise ValueError(f"one {type(loaded).__name__}, not an archive of arrays")
+        with loaded as z:
             arrays = {k: z[k] for k in keys if k in z.files}
-    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:  # numpy's own words: not one of ours
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:  # numpy's own words: not ours
         raise ValueError(f"--truth {path}: not a readable truth .npz of laserpi simulate ({exc})") from None
     missing = [k for k in keys[:7] if k not in arrays]
     if missing:
