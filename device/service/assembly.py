@@ -46,8 +46,10 @@ def sensor_config(config_path: str | None, preset: str) -> SensorConfig:
 
 
 def roi_rows(geometry) -> tuple[int, int]:
-    """First and last image row of the pipeline's region of interest (any column)."""
-    return int(geometry.roi_lo.min()), int(geometry.roi_hi.max()) - 1
+    """First and last image row of the pipeline's region of interest (any of the image's columns:
+    not the frame buffer's padding, geometry.active_width)."""
+    image = slice(0, geometry.active_width)
+    return int(geometry.roi_lo[image].min()), int(geometry.roi_hi[image].max()) - 1
 
 
 def laser_pulse_s(cfg: SensorConfig, row_min: int, row_max: int) -> float:

@@ -456,7 +456,8 @@ class FastPipeline:
                 # within moving_reach_columns of the image's edge the texture may have come in from
                 # outside it, where the neighbours are not seen: such a return cannot be trusted
                 unseen = np.zeros(W, bool)
-                unseen[: p.moving_reach_columns] = unseen[W - p.moving_reach_columns :] = True
+                edge = self.geometry.active_width  # the image's right edge (the buffer's padding beyond it)
+                unseen[: p.moving_reach_columns] = unseen[edge - p.moving_reach_columns :] = True
                 status[close & moved_raw & above & unseen] = STATUS_U8[ColumnStatus.REJECTED]
                 close &= ~moved_raw | (above & ~unseen)
             if close.any():
