@@ -208,7 +208,7 @@ class ScanSettings:
 
     roi_first / roi_count select the columns (indices into Info.angles) a scan carries;
     median_window is the odd length of the range median filter (1 = off); min_quality drops
-    points below this quality (they become NaN); laser_power_mw is the peak optical power;
+    returns below this quality (they become NaN; +inf and -inf, which have no line, stay); laser_power_mw is the peak optical power;
     ray_times (protocol minor 4) makes every SCAN carry each ray's own time (SPEC.md "SCAN").
 
     Bit i of the block's mask is FIELDS[i]. The values of MINOR4_FIELDS are not in the block:

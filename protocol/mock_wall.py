@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from protocol.median import median_filter
+from protocol.median import scan_filters
 from protocol.messages import ScanSettings
 from protocol.server import ScanGeometry, SourceScan, SourceStatus, device_clock_us
 
@@ -136,9 +136,8 @@ class AnalyticWallSource:
         g = self._geometry
         r = np.where(r > g.range_max_m, np.inf, np.where(r < g.range_min_m, -np.inf, r))
         r[self._rng.random(truth.size) < self.dropout] = np.nan
-        r = median_filter(r, s.median_window)
         q = quality_of(r)
-        r = np.where(q < s.min_quality, np.nan, r) if s.min_quality else r
+        r = scan_filters(r, q, s.min_quality, s.median_window)
         # a wall seen squarely lies in one row of the image: every ray measured at device_time_us
         times = np.where(np.isfinite(r), device_time_us * 1000.0, np.nan)
         return SourceScan(device_time_us, r.astype(np.float32), q, first_index=s.roi_first, ray_times_ns=times)

@@ -135,6 +135,22 @@ def test_roi_min_quality_and_median_are_applied_and_fixed_settings_refused():
     s = scans_for(src, 0.3)[0]
     assert np.isnan(s.ranges_m).all()
     src.stop()
+    # min_quality drops weak returns, not REP 117's codes: "too close" (-inf) and "nothing there"
+    # (+inf) have no line, so quality 0, and must reach the host as they are
+    pipe = src.pipeline
+
+    def with_codes(lit, dark, other_dark):
+        rays = pipe(lit, dark, other_dark)
+        ranges, quality = rays.ranges.copy(), rays.quality.copy()
+        ranges[5], ranges[6], quality[5:7] = -np.inf, np.inf, 0
+        return dataclasses.replace(rays, ranges=ranges, quality=quality)
+
+    src.pipeline = with_codes
+    src.apply(settings(roi_first=4, roi_count=10, min_quality=250))
+    src.start()
+    s = scans_for(src, 0.3)[0]
+    assert s.ranges_m[1] == -np.inf and s.ranges_m[2] == np.inf and np.isnan(np.delete(s.ranges_m, [1, 2])).all()
+    src.stop()
 
 
 def test_pipeline_exception_skips_the_scan_and_is_counted():

@@ -48,7 +48,7 @@ from device.laser.base import Laser, LaserError
 from device.scan.pairing import NeighbourPairing
 from device.scan.pipeline import ScanFunction
 from protocol import messages as m
-from protocol.median import median_filter
+from protocol.median import scan_filters
 from protocol.server import ScanGeometry, SourceScan, SourceStatus
 
 log = logging.getLogger(__name__)
@@ -253,10 +253,7 @@ class SensorSource:
         s = self._settings
         sl = slice(s.roi_first, s.roi_first + s.roi_count)
         ranges, quality = ranges[sl], quality[sl]
-        if s.min_quality:
-            ranges = np.where(quality < s.min_quality, np.float32(np.nan), ranges)
-        if s.median_window > 1:
-            ranges = median_filter(ranges, s.median_window)
+        ranges = scan_filters(ranges, quality, s.min_quality, s.median_window)
         self.counters.scans_made += 1
         # the host's region of interest starts at ray roi_first: its time moves with it
         first_ns = rays.first_ray_ns + s.roi_first * rays.ray_interval_ns
