@@ -417,11 +417,12 @@ def test_evaluate_writes_its_results_whole_or_not_at_all(tmp_path, capsys):
                                lit=i % 2 == 0) for i in range(4)])
     before = rec.read_bytes()
     out = tmp_path / "out.npz"
+    (tmp_path / "dir.npz").mkdir()
     for bad_out, message in ((tmp_path / "out", "the results are an .npz file"), (rec, "is the --recording file"),
-                             (tmp_path / "none" / "out.npz", "no directory")):
+                             (tmp_path / "none" / "out.npz", "no directory"), (tmp_path / "dir.npz", "is a directory")):
         assert main(["evaluate", "--recording", str(rec), "--out", str(bad_out)]) == 2
         assert message in capsys.readouterr().out
-    assert rec.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
+    assert rec.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["dir.npz", "rec.npz"]
     W = CFG.width
     nan = np.full((2, W), np.nan)
     truth = tmp_path / "truth.npz"

@@ -214,6 +214,8 @@ def _check_out(out: str, recording: str, truth: str | None) -> None:
             raise ValueError(f"--out {out} is the {name} file: it would be overwritten")
     if not path.parent.is_dir():
         raise ValueError(f"--out {out}: no directory {path.parent}")
+    if path.is_dir():
+        raise ValueError(f"--out {out} is a directory; name the .npz file to write")
 
 
 def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
