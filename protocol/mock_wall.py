@@ -13,7 +13,10 @@ Noise model (SIMULATED, chosen to look like triangulation, not fitted to the the
 with σ(r) = noise_floor_m + noise_rel_m⁻¹ · r², because triangulation error grows with the
 square of the range; a fraction ``dropout`` of rays is invalid (NaN). Ranges beyond range_max
 are +inf (no return), below range_min -inf (too close), as REP 117 says. Quality falls with
-1/r² like the returned laser power: round(255 · min(1, (0.5 m / r)²)), 0 for non-finite ranges.
+1/r² like the returned laser power: round(255 · min(1, (0.5 m / r)²)) of the ray's own noisy
+range, 0 where it is not finite; the host's min_quality and median filter then apply to the
+ranges (protocol/median.py ``scan_filters``, as on the device), so a filtered range keeps the
+quality of the ray's own return.
 ``start_delay_s`` holds back the first scan after start() like a real sensor starting its camera
 and locking its laser (SIMULATED time, not measured on a Pi).
 """

@@ -398,6 +398,16 @@ def test_evaluate_refuses_frames_and_truth_that_do_not_belong_together(tmp_path,
     truth.write_bytes(bytes(damaged))
     assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
     assert f"--truth {truth}: not a readable truth .npz of laserpi simulate" in capsys.readouterr().out
+    # a compression method zipfile does not know (NotImplementedError), in the truth and in the recording
+    np.savez_compressed(truth, seq=np.array([0, 2]), lit_rows=np.ones((2, H), bool), **arrays)
+    for damaged_file, message in ((truth, f"--truth {truth}: not a readable truth .npz"),
+                                  (rec, f"{rec}: not a readable .npz recording")):
+        damaged = bytearray(damaged_file.read_bytes())
+        damaged[damaged.find(b"PK\x01\x02") + 10] = 99  # the central directory's compression method
+        damaged_file.write_bytes(bytes(damaged))
+        assert main(["evaluate", "--recording", str(rec), "--out", str(out), "--truth", str(truth)]) == 2
+        assert message in capsys.readouterr().out
+    save_recording(rec, frames())
     save_recording(rec, frames())
     with np.load(rec) as z:
         np.savez(rec, **{k: z[k] for k in z.files if k != "seq"}, seq=np.arange(4, dtype=np.uint64) + np.uint64(2**63))

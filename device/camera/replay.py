@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Sequence
 
@@ -33,6 +34,9 @@ OPTIONAL_FIELDS = {"readout_offset_rows": (0, "image row 0 is taken as the senso
                                               "are a crop of the sensor's rows, every row's time is early by the rows "
                                               "above the crop")}
 INDEX_FILE = "frames.json"
+#: what reading a damaged or foreign .npz raises (numpy and zipfile, not ours): its wrong CRC,
+#: header or deflate stream, an unknown compression method or zip version, an encrypted member
+NPZ_READ_ERRORS = (OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError)
 #: ``lit`` as recorded -> Frame.lit (JSON's true/false/null are 1/0/-1)
 LIT_CODES = {1: True, 0: False, -1: None}
 #: per-frame fields that count (frames, nanoseconds, rows): whole numbers
@@ -197,7 +201,7 @@ class ReplayCamera:
                     raise ValueError(f"{self.path}: not a recording, missing array(s) {', '.join(missing)}")
                 images = z["images"]
                 fields = {k: z[k] for k in (*FIELDS, "lit", *OPTIONAL_FIELDS) if k in z.files}
-        except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        except NPZ_READ_ERRORS as exc:
             raise ValueError(f"{self.path}: not a readable .npz recording ({exc})") from None
         except ValueError as exc:
             if str(exc).startswith(str(self.path)):

@@ -234,11 +234,9 @@ def _flicker_kept(lit_frames, flicker_hz) -> list[dict]:
 
 def _load_truth(path: str, cfg) -> dict:
     """{seq: FrameTruth} of a truth.npz as ``laserpi simulate`` writes it."""
-    import zipfile
-    import zlib
-
     import numpy as np
 
+    from ..camera.replay import NPZ_READ_ERRORS
     from ..sim.truth import FrameTruth
 
     keys = ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows", "time_ns", "range_span_m")
@@ -248,7 +246,7 @@ def _load_truth(path: str, cfg) -> dict:
             raise ValueError(f"one {type(loaded).__name__}, not an archive of arrays")
         with loaded as z:
             arrays = {k: z[k] for k in keys if k in z.files}
-    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:  # numpy's own words: not ours
+    except (*NPZ_READ_ERRORS, ValueError) as exc:  # numpy's own words, not ours
         raise ValueError(f"--truth {path}: not a readable truth .npz of laserpi simulate ({exc})") from None
     missing = [k for k in keys[:7] if k not in arrays]
     if missing:
