@@ -143,20 +143,26 @@ def test_a_clock_held_back_falls_behind_the_wall_clock_for_good_and_says_how_far
 def test_a_waiter_is_woken_when_its_time_has_come_not_at_every_step(hardware):
     """wait_until's callers (the simulated camera waiting for its next frame, the ticker thread
     waiting for its tick) are notified once the clock reaches the time one of them waits for,
-    not at each of the ~50 steps before it."""
-    notified: list[int] = []
+    not at each of the ~50 steps before it. Judged notification by notification (a waiter was
+    due), not by their number: a waiter the machine's load keeps from running is still due at
+    the steps after its time, and is rightly notified again (a count bounded by the ticker's
+    ticks failed under load: 7 against 6)."""
+    notified: list[tuple[int, bool]] = []
+    steps = counted_steps(hardware)
     notify_all = hardware._advanced.notify_all
 
-    def counting() -> None:
-        notified.append(hardware.now_ns())
+    def counting() -> None:  # the clock thread, holding the condition's lock that guards _awaited_ns
+        now = hardware.now_ns()
+        notified.append((now, bool(hardware._awaited_ns) and now >= min(hardware._awaited_ns)))
         notify_all()
 
     hardware._advanced.notify_all = counting
     target = hardware.now_ns() + 50_000_000
     assert hardware.wait_until(target, 2.0)
     assert hardware.now_ns() >= target
-    ticks = 50_000_000 // hardware.tick_ns + 1  # the ticker's
-    assert 1 <= len(notified) <= ticks + 2 and notified[-1] >= target, notified
+    assert notified and all(due for _, due in notified), notified
+    assert max(t for t, _ in notified) >= target
+    assert len(steps) > 2 * len(notified), (len(steps), len(notified))  # most steps notify no one
 
 
 def test_heartbeats_reach_the_firmware_at_their_interval_far_inside_its_timeout(hardware):
