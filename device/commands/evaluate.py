@@ -239,7 +239,9 @@ def _load_truth(path: str, cfg) -> dict:
     from ..camera.replay import NPZ_READ_ERRORS
     from ..sim.truth import FrameTruth
 
-    keys = ("seq", "row", "range_m", "angle_rad", "points", "surface", "lit_rows", "time_ns", "range_span_m")
+    required = ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")  # FrameTruth's fields in order,
+    optional = ("time_ns", "range_span_m")  # then these (older truth files lack them)
+    keys = ("seq", *required, *optional)
     try:
         loaded = np.load(path)
         if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy's one array
@@ -248,7 +250,7 @@ def _load_truth(path: str, cfg) -> dict:
             arrays = {k: z[k] for k in keys if k in z.files}
     except (*NPZ_READ_ERRORS, ValueError) as exc:  # numpy's own words, not ours
         raise ValueError(f"--truth {path}: not a readable truth .npz of laserpi simulate ({exc})") from None
-    missing = [k for k in keys[:7] if k not in arrays]
+    missing = [k for k in ("seq", *required) if k not in arrays]
     if missing:
         raise ValueError(f"{path}: not a truth file of laserpi simulate, missing {', '.join(missing)}")
     seq = arrays.pop("seq")
@@ -264,8 +266,7 @@ def _load_truth(path: str, cfg) -> dict:
         if a.shape != shapes[k]:
             raise ValueError(f"{path}: {k} has shape {a.shape}, {shapes[k]} expected ({n} frames, the "
                              f"configuration's {W} columns and {cfg.height} rows)")
-    return {int(s): FrameTruth(*(arrays[k][i] for k in ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")),
-                               *(arrays[k][i] if k in arrays else None for k in ("time_ns", "range_span_m")))
+    return {int(s): FrameTruth(*(arrays[k][i] for k in required), *(arrays[k][i] if k in arrays else None for k in optional))
             for i, s in enumerate(seq)}
 
 
