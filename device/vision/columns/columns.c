@@ -728,7 +728,8 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     }
     for (idx_t i = 0; i < W; i++) {
         status[i] = found[i] ? COLUMNS_OK : COLUMNS_NO_RETURN;
-        if (!found[i] && (s1[i] >= thr[i] || failed[i])) status[i] = COLUMNS_REJECTED; /* a line, not measurable */
+        /* a line, not measurable; one dimmer than min_peak is seen only as part of a run (run_min_peak) */
+        if (!found[i] && s1[i] >= p.min_peak && (s1[i] >= thr[i] || failed[i])) status[i] = COLUMNS_REJECTED;
     }
     if (p.smooth_half) {
         for (idx_t i = 0; i < W; i++) weight[i] = found[i] && !outlier[i] ? (peak[i] >= 1.0 || isnan(peak[i]) ? peak[i] : 1.0) : 0.0;
