@@ -159,6 +159,23 @@ def test_too_close_is_not_hidden_by_a_line_dimmer_than_a_line_seen():
         assert np.isfinite(m.range).mean() < 0.03, seed
 
 
+def test_a_saturated_near_region_is_not_hidden_by_a_line_dimmer_than_a_line_seen():
+    """Rows nearer than the range saturated (a sunlit patch) could hide a return there: where a
+    run of columns has no line seen, they are SATURATED, not "no return", and a line under
+    ``min_peak`` in range does not rule the hidden return out (without that rule 17 % of these
+    400 columns were SATURATED, the rest reported the faint line's 2 m; with it 65-67 %, as at
+    the old shared floor)."""
+    pipe = make_pipeline("fast-com", CFG, 0.4, 3.2)
+    rows = row_for_depth(CFG, np.full(CFG.width, 2.0))
+    patch = slice(400, 800)
+    r0 = int(pipe.geometry.roi_hi[patch].max()) + 4  # below the region of interest: nearer than 0.4 m
+    for seed in range(3):
+        lit, unlit = frame_pair(CFG, rows, amplitude=3.0, noise=0.5, seed=seed)
+        lit[r0 : r0 + 40, patch] = unlit[r0 : r0 + 40, patch] = 255
+        m = pipe.process(lit, unlit)
+        assert np.mean(m.status[patch] == ColumnStatus.SATURATED) > 0.5, seed
+
+
 def test_too_close_in_separate_spans_of_columns():
     """Step 7 reads the near rows of the columns without a return only, in spans (runs closer
     than SPAN_JOIN joined): near objects apart and close together are each "too close",
@@ -441,7 +458,8 @@ def test_dim_columns_count_inside_a_surface_never_past_its_end(wall2m, pipes):
 def test_a_line_dimmer_than_a_line_seen_is_measured_where_it_runs_on():
     """A dark wall's line, 2-3 levels in the detector's 5 x 3 mean (under ``min_peak``, the
     floor of "a line seen"): measured where it forms a run (``run_min_peak``), within the
-    speckle-free line's error; at the old shared floor it was "no return". An empty frame at the
+    speckle-free line's error (72-73 % of its columns: a run that reaches min_peak somewhere
+    ends where it does, columns.c); at the old shared floor 10 % (the rest "no return"). An empty frame at the
     same noise still gives neither a range nor a REJECTED column (a line seen needs min_peak)."""
     from device.vision.fast import FastParams, FastPipeline
 
@@ -454,7 +472,7 @@ def test_a_line_dimmer_than_a_line_seen_is_measured_where_it_runs_on():
         lit, unlit = frame_pair(CFG, rows, amplitude=3.0, noise=0.5, seed=seed)
         m = new.process(lit, unlit)
         ok = m.valid & np.isfinite(m.range)
-        assert ok.mean() > 0.9, f"seed {seed}: {ok.mean():.3f} of the dim wall measured"
+        assert ok.mean() > 0.6, f"seed {seed}: {ok.mean():.3f} of the dim wall measured"
         assert np.median(np.abs(m.range[ok] / rng[m.column][ok] - 1)) < 0.01
         assert np.isfinite(old.process(lit, unlit).range).mean() < 0.2
         for noise in (0.5, 1.0):

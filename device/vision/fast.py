@@ -105,8 +105,10 @@ Per frame pair (or triple):
    is still "a line seen" (REJECTED, step 5); a dimmer one counts only within a run (a dark
    surface's line: 0.12 reflectance at 3 m stands 1.5-2.4 levels above the unlit frames in the
    5 x 3 mean, which is rounded to whole levels, so 2 is the least floor above noise's 1;
-   BENCHMARKS.md "Motion"), and second candidates need ``min_peak`` (beside a clean line, noise
-   at the run's floor would compete with it).
+   BENCHMARKS.md "Motion"). A run that reaches ``min_peak`` somewhere ends only at a column that
+   does: the smoothing carries a line two columns past its surface's end, under ``min_peak``
+   (``columns.c``); a run all under it, a dark surface, ends anywhere. Second candidates need
+   ``min_peak`` (beside a clean line, noise at the run's floor would compete with it).
 4. Several peaks in a column (a glossy floor's mirror image, multipath, an occlusion edge): by
    consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
    in a floor below the laser plane, or a secondary reflection off it, always appears farther
@@ -438,9 +440,9 @@ class FastPipeline:
         # too close: only columns in runs of >= min_run without a return can become a run of
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
         # (a column whose line is dimmer than min_peak, measured only as part of a run, step 3,
-        # counts as one without: such a line does not hide a strong return in the near rows, as
-        # it did not before the run's floor; a 0.3 m wall behind a faint 2 m line of 2.5 levels
-        # was reported at 2 m in 75-88 % of its columns otherwise)
+        # counts as one without: such a line does not hide a strong return in the near rows, nor
+        # their saturation, as it did not before the run's floor; a 0.3 m wall behind a faint 2 m
+        # line of 2.5 levels was reported at 2 m in 72-84 % of its columns otherwise)
         empty = _run_length((status == STATUS_U8[ColumnStatus.NO_RETURN]) | (found & dim)) >= p.min_run
         spans = _spans(empty, SPAN_JOIN) if self.near_bottom > self.near_top else []
         near_hidden = np.zeros(W, bool)  # step 5's saturated background, among these rows
@@ -487,7 +489,7 @@ class FastPipeline:
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
-        status = self._saturated(status, row, bright, near_hidden)
+        status = self._saturated(status, row, bright, near_hidden, found & dim)
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         tri = self.geometry.triangulate(row)
@@ -501,21 +503,25 @@ class FastPipeline:
                     status, found, row)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
-    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray, near_hidden: np.ndarray) -> np.ndarray:
+    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray, near_hidden: np.ndarray,
+                   dim_line: np.ndarray) -> np.ndarray:
         """Step 5's saturated background: ``status`` with SATURATED where ``bright`` (the band of
         the background the lit frame is measured against) leaves the laser no room to show, within
         each column's region of interest (beyond it a line would be out of range anyway): a line
         with such a pixel among its centre-of-mass rows, and "no return" in a column with 3 such
         rows in a row (a line's height: a line there would leave nothing in the column; a lone
         pixel of noise that bright does not hide one) or where ``near_hidden`` (step 7's rows
-        nearer than the range saturated). After the unlit step: a column the pulse missed stays
-        UNLIT (the cause)."""
+        nearer than the range saturated; there also a line under ``min_peak``, ``dim_line``, which
+        does not rule out a return hidden nearer). After the unlit step: a column the pulse
+        missed stays UNLIT (the cause)."""
         import cv2
 
         p = self.params
         full = 255 - p.min_peak  # from here up the lit frame cannot stand min_peak above it
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
-        hidden = near_hidden & none
+        # also a line under min_peak (``dim_line``), measured or gated, not the causes found
+        cause = (status == STATUS_U8[ColumnStatus.TOO_CLOSE]) | (status == STATUS_U8[ColumnStatus.UNLIT])
+        hidden = near_hidden & (none | (dim_line & ~cause))
         bright_columns = bright.max(axis=0) >= full
         if bright_columns.any():  # else (the common case) one reduction
             seen = cv2.bitwise_and(bright, self.mask)  # each column's region of interest
@@ -530,7 +536,7 @@ class FastPipeline:
                 h = p.half_width
                 rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
                              self.rows - 1)
-                hidden[ok] = (seen.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
+                hidden[ok] |= (seen.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
         return np.where(hidden, STATUS_U8[ColumnStatus.SATURATED], status)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:

@@ -536,6 +536,23 @@ static void test_resolve_a_dim_line_counts_only_in_a_run(void)
     scene_free(sc);
 }
 
+/* the 5-column smoothing carries a line two columns past its surface's end, under min_peak: a
+ * run with a line seen ends at a column that reaches min_peak; a run all under it ends anywhere */
+static void test_resolve_a_bright_run_does_not_end_in_its_smoothed_tail(void)
+{
+    Scene *sc = scene_new(0);
+    for (ptrdiff_t i = 0; i < RW; i++) sc->thr[i] = 2.0;
+    for (ptrdiff_t i = 2; i < 10; i++) first_line(sc, i, 30.0, 20.0);
+    for (ptrdiff_t i = 10; i < 12; i++) first_line(sc, i, 30.0, 2.0); /* the tail: own peak 1.5, bright for 2 */
+    for (ptrdiff_t i = 10; i < 12; i++) sc->first.peak[i] = 1.5;
+    for (ptrdiff_t i = 20; i < 28; i++) first_line(sc, i, 40.0, 2.0); /* a dark surface */
+    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
+    for (ptrdiff_t i = 2; i < 10; i++) CHECK(sc->found[i], "the surface: column %td", i);
+    for (ptrdiff_t i = 10; i < 12; i++) CHECK(!sc->found[i], "past its end: column %td", i);
+    for (ptrdiff_t i = 20; i < 28; i++) CHECK(sc->found[i], "the dark surface: column %td", i);
+    scene_free(sc);
+}
+
 static void test_resolve_separates_surfaces_at_a_depth_jump(void)
 {
     Scene *sc = scene_new(6);
@@ -868,6 +885,7 @@ static void (*const TESTS[])(void) = {
     test_resolve_without_a_line,
     test_resolve_keeps_runs_of_min_run_columns,
     test_resolve_a_dim_line_counts_only_in_a_run,
+    test_resolve_a_bright_run_does_not_end_in_its_smoothed_tail,
     test_resolve_separates_surfaces_at_a_depth_jump,
     test_resolve_outliers,
     test_resolve_fills_short_gaps_where_the_line_was_seen,
