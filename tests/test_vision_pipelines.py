@@ -144,38 +144,6 @@ def test_too_close_is_minus_inf():
     assert np.all(m.status[np.isneginf(m.range)] == ColumnStatus.TOO_CLOSE)
 
 
-def test_too_close_is_not_hidden_by_a_line_dimmer_than_a_line_seen():
-    """A line under ``min_peak`` is measured only as part of a run (``run_min_peak``); where the
-    near rows hold a strong return in the same columns, it does not make them "with a return":
-    they stay too close, as before that floor (without the rule: 75-88 % of these columns
-    reported the faint line's 2 m, an obstacle at 0.3 m hidden)."""
-    cfg = dataclasses.replace(CFG, range=RangeLimits(0.5, 4.0))
-    near, far = (row_for_depth(cfg, np.full(cfg.width, z)) for z in (0.3, 2.0))
-    pipe = make_pipeline("fast-com", cfg)
-    for seed in range(80, 83):
-        lit, unlit = frame_pair(cfg, near, noise=0.5, seed=seed, extra_lines=((far, 2.5),))
-        m = pipe.process(lit, unlit)
-        assert np.mean(m.status == ColumnStatus.TOO_CLOSE) > 0.95, seed
-        assert np.isfinite(m.range).mean() < 0.03, seed
-
-
-def test_a_saturated_near_region_is_not_hidden_by_a_line_dimmer_than_a_line_seen():
-    """Rows nearer than the range saturated (a sunlit patch) could hide a return there: where a
-    run of columns has no line seen, they are SATURATED, not "no return", and a line under
-    ``min_peak`` in range does not rule the hidden return out (without that rule 17 % of these
-    400 columns were SATURATED, the rest reported the faint line's 2 m; with it 65-67 %, as at
-    the old shared floor)."""
-    pipe = make_pipeline("fast-com", CFG, 0.4, 3.2)
-    rows = row_for_depth(CFG, np.full(CFG.width, 2.0))
-    patch = slice(400, 800)
-    r0 = int(pipe.geometry.roi_hi[patch].max()) + 4  # below the region of interest: nearer than 0.4 m
-    for seed in range(3):
-        lit, unlit = frame_pair(CFG, rows, amplitude=3.0, noise=0.5, seed=seed)
-        lit[r0 : r0 + 40, patch] = unlit[r0 : r0 + 40, patch] = 255
-        m = pipe.process(lit, unlit)
-        assert np.mean(m.status[patch] == ColumnStatus.SATURATED) > 0.5, seed
-
-
 def test_too_close_in_separate_spans_of_columns():
     """Step 7 reads the near rows of the columns without a return only, in spans (runs closer
     than SPAN_JOIN joined): near objects apart and close together are each "too close",
@@ -453,33 +421,6 @@ def test_dim_columns_count_inside_a_surface_never_past_its_end(wall2m, pipes):
         np.testing.assert_allclose(m.range[600:603], rng[600:603], rtol=0.003)
         assert m.valid[1190:1200].all()
         assert not np.isfinite(m.range[1200:1215]).any(), f"seed {seed}: a range past the surface's end"
-
-
-def test_a_line_dimmer_than_a_line_seen_is_measured_where_it_runs_on():
-    """A dark wall's line, 2-3 levels in the detector's 5 x 3 mean (under ``min_peak``, the
-    floor of "a line seen"): measured where it forms a run (``run_min_peak``), within the
-    speckle-free line's error (72-73 % of its columns: a run that reaches min_peak somewhere
-    ends where it does, columns.c); at the old shared floor 10 % (the rest "no return"). An empty frame at the
-    same noise still gives neither a range nor a REJECTED column (a line seen needs min_peak)."""
-    from device.vision.fast import FastParams, FastPipeline
-
-    rows = row_for_depth(CFG, np.full(CFG.width, 2.0))
-    _, rng = column_geometry(CFG).angle_range(true_points(CFG, rows))
-    new = make_pipeline("fast-com", CFG)
-    old = FastPipeline(CFG, dataclasses.replace(new.params, run_min_peak=new.params.min_peak))
-    nothing = np.full(CFG.width, np.nan)
-    for seed in range(60, 63):
-        lit, unlit = frame_pair(CFG, rows, amplitude=3.0, noise=0.5, seed=seed)
-        m = new.process(lit, unlit)
-        ok = m.valid & np.isfinite(m.range)
-        assert ok.mean() > 0.6, f"seed {seed}: {ok.mean():.3f} of the dim wall measured"
-        assert np.median(np.abs(m.range[ok] / rng[m.column][ok] - 1)) < 0.01
-        assert np.isfinite(old.process(lit, unlit).range).mean() < 0.2
-        for noise in (0.5, 1.0):
-            m = new.process(*frame_pair(CFG, nothing, noise=noise, seed=seed))
-            assert not np.isfinite(m.range).any() and not (m.status == ColumnStatus.REJECTED).any()
-    with pytest.raises(ValueError, match="run_min_peak <= min_peak"):
-        FastParams(run_min_peak=4.0)
 
 
 def test_running_median_is_the_median_of_the_found_neighbours():

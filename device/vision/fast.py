@@ -99,16 +99,9 @@ Per frame pair (or triple):
    faster than a strided argmax over the whole band). Each is refined by the selected
    sub-pixel estimator (:func:`device.vision.peaks.refine_peaks`).
 3. Detection, on the difference smoothed over 5 columns x 3 rows (speckle and noise averaged):
-   peak >= max(run_min_peak, noise_ratio x the column's largest smoothed negative difference),
+   peak >= max(min_peak, noise_ratio x the column's largest smoothed negative difference),
    a profile no wider than a single line, and part of a run of >= ``min_run`` continuous columns
-   (a noise peak is alone; a line is not). A peak of at least ``min_peak`` that is not measured
-   is still "a line seen" (REJECTED, step 5); a dimmer one counts only within a run (a dark
-   surface's line: 0.12 reflectance at 3 m stands 1.5-2.4 levels above the unlit frames in the
-   5 x 3 mean, which is rounded to whole levels, so 2 is the least floor above noise's 1;
-   BENCHMARKS.md "Motion"). A run that reaches ``min_peak`` somewhere ends only at a column that
-   does: the smoothing carries a line two columns past its surface's end, under ``min_peak``
-   (``columns.c``); a run all under it, a dark surface, ends anywhere. Second candidates need
-   ``min_peak`` (beside a clean line, noise at the run's floor would compete with it).
+   (a noise peak is alone; a line is not).
 4. Several peaks in a column (a glossy floor's mirror image, multipath, an occlusion edge): by
    consistency with neighbouring columns and geometry, never by brightness alone. A mirror image
    in a floor below the laser plane, or a secondary reflection off it, always appears farther
@@ -226,8 +219,7 @@ class FastParams:
     estimator: str = "com"
     half_width: int = 4  # centre-of-mass window (rows each side)
     pedestal: float = 0.0  # centre-of-mass threshold, fraction of the peak (0: best under speckle)
-    min_peak: float = 3.0  # smallest line amplitude in the smoothed difference that is "a line seen", 8-bit levels
-    run_min_peak: float = 2.0  # ... and, down to this, one measured where its column is part of a run (step 3)
+    min_peak: float = 3.0  # smallest line amplitude in the smoothed difference, 8-bit levels
     noise_ratio: float = 1.5  # smoothed peak must exceed this x the column's largest smoothed negative difference
     max_spread_px: float = 2.5  # RMS width above which a profile is two lines, not one
     min_run: int = 5  # continuous columns for a detection to count
@@ -302,9 +294,9 @@ class FastParams:
             raise ValueError(f"flank_rows must be >= half_width, got {self.flank_rows} < {self.half_width}")
         if self.smooth_half < 0:
             raise ValueError(f"smooth_half must be >= 0, got {self.smooth_half}")
-        if not (0 < self.jump_rel < 1 and 0 < self.run_min_peak <= self.min_peak and self.max_range_sigma > 0):
-            raise ValueError(f"need 0 < jump_rel < 1, 0 < run_min_peak <= min_peak and max_range_sigma > 0, got "
-                             f"{self.jump_rel}, {self.run_min_peak}, {self.min_peak}, {self.max_range_sigma}")
+        if not (0 < self.jump_rel < 1 and self.min_peak > 0 and self.max_range_sigma > 0):
+            raise ValueError(f"need 0 < jump_rel < 1, min_peak > 0 and max_range_sigma > 0, got {self.jump_rel}, "
+                             f"{self.min_peak}, {self.max_range_sigma}")
         if not 0 <= 2 * self.mixed_tol < self.mixed_jump:
             raise ValueError(f"need 0 <= 2 mixed_tol < mixed_jump (inf: off; no depth is more than half the jump from "
                              f"both ends), got {self.mixed_tol}, {self.mixed_jump}")
@@ -415,9 +407,9 @@ class FastPipeline:
                 background, noise_background = _moved_backgrounds(lit_band, background, moved, p.trend_rows)
         band = self._tracking_band()
         if band is None:
-            found, row, peak, status, seen, noise, dim = self._search(lum_lit, background, noise_background, 0, self.rows)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, 0, self.rows)
         else:
-            found, row, peak, status, seen, noise, dim = self._search(lum_lit, background, noise_background, *band)
+            found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, *band)
             lost = self._track.found & ~found
             edge = p.half_width + 1
             if (np.any(_run_length(lost) >= p.track_lost_run)
@@ -425,7 +417,7 @@ class FastPipeline:
                 # the line left the band in some columns (a depth jump, a new object in front of
                 # the tracked surface, a lost line), or a candidate touches the band's edge (it
                 # may continue outside): search the whole region of interest now
-                found, row, peak, status, seen, noise, dim = self._search(lum_lit, background, noise_background, 0, self.rows)
+                found, row, peak, status, seen, noise = self._search(lum_lit, background, noise_background, 0, self.rows)
                 band = None
         t0, t1 = band or (0, self.rows)
         self.searched_rows = (self.top + t0, self.top + t1)
@@ -439,11 +431,7 @@ class FastPipeline:
         W = self.cols.size
         # too close: only columns in runs of >= min_run without a return can become a run of
         # "too close" ones (none: a wall fills every column; scattered dark speckle grains)
-        # (a column whose line is dimmer than min_peak, measured only as part of a run, step 3,
-        # counts as one without: such a line does not hide a strong return in the near rows, nor
-        # their saturation, as it did not before the run's floor; a 0.3 m wall behind a faint 2 m
-        # line of 2.5 levels was reported at 2 m in 72-84 % of its columns otherwise)
-        empty = _run_length((status == STATUS_U8[ColumnStatus.NO_RETURN]) | (found & dim)) >= p.min_run
+        empty = _run_length(status == STATUS_U8[ColumnStatus.NO_RETURN]) >= p.min_run
         spans = _spans(empty, SPAN_JOIN) if self.near_bottom > self.near_top else []
         near_hidden = np.zeros(W, bool)  # step 5's saturated background, among these rows
         if len(spans):
@@ -489,7 +477,7 @@ class FastPipeline:
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
             status = self._unlit(status, found, row, np.asarray(lit_rows, dtype=bool))
-        status = self._saturated(status, row, bright, near_hidden, found & dim)
+        status = self._saturated(status, row, bright, near_hidden)
         found = status == STATUS_U8[ColumnStatus.OK]
         row = np.where(found, row, np.nan)
         tri = self.geometry.triangulate(row)
@@ -503,25 +491,21 @@ class FastPipeline:
                     status, found, row)
         return finish(self.geometry, self.cols, row, np.where(found, peak, 0.0), status, tri, self.config.post_calibration)
 
-    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray, near_hidden: np.ndarray,
-                   dim_line: np.ndarray) -> np.ndarray:
+    def _saturated(self, status: np.ndarray, row: np.ndarray, bright: np.ndarray, near_hidden: np.ndarray) -> np.ndarray:
         """Step 5's saturated background: ``status`` with SATURATED where ``bright`` (the band of
         the background the lit frame is measured against) leaves the laser no room to show, within
         each column's region of interest (beyond it a line would be out of range anyway): a line
         with such a pixel among its centre-of-mass rows, and "no return" in a column with 3 such
         rows in a row (a line's height: a line there would leave nothing in the column; a lone
         pixel of noise that bright does not hide one) or where ``near_hidden`` (step 7's rows
-        nearer than the range saturated; there also a line under ``min_peak``, ``dim_line``, which
-        does not rule out a return hidden nearer). After the unlit step: a column the pulse
-        missed stays UNLIT (the cause)."""
+        nearer than the range saturated). After the unlit step: a column the pulse missed stays
+        UNLIT (the cause)."""
         import cv2
 
         p = self.params
         full = 255 - p.min_peak  # from here up the lit frame cannot stand min_peak above it
         none = status == STATUS_U8[ColumnStatus.NO_RETURN]
-        # also a line under min_peak (``dim_line``), measured or gated, not the causes found
-        cause = (status == STATUS_U8[ColumnStatus.TOO_CLOSE]) | (status == STATUS_U8[ColumnStatus.UNLIT])
-        hidden = near_hidden & (none | (dim_line & ~cause))
+        hidden = near_hidden & none
         bright_columns = bright.max(axis=0) >= full
         if bright_columns.any():  # else (the common case) one reduction
             seen = cv2.bitwise_and(bright, self.mask)  # each column's region of interest
@@ -536,7 +520,7 @@ class FastPipeline:
                 h = p.half_width
                 rows = clamp(np.rint(row[ok]).astype(np.intp)[None, :] - self.top + np.arange(-h, h + 1)[:, None], 0,
                              self.rows - 1)
-                hidden[ok] |= (seen.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
+                hidden[ok] = (seen.ravel().take(rows * W + ok[None, :]) >= full).any(axis=0)
         return np.where(hidden, STATUS_U8[ColumnStatus.SATURATED], status)
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
@@ -710,9 +694,7 @@ class FastPipeline:
 
     def _search(self, lum_lit: np.ndarray, background: np.ndarray, noise_background: np.ndarray | None, t0: int, t1: int):
         """Find the line in rows [t0, t1) of the band (whole blocks) of ``lum_lit`` against
-        ``background`` (the band's rows of the unlit frame(s)): steps 1-5 of the module docstring.
-        Returns (found, row, peak, status, seen, noise, dim): rows in image coordinates, ``dim``
-        the columns whose strongest smoothed peak is under ``min_peak`` (no line seen), ``seen``
+        ``background`` (the band's rows of the unlit frame(s)): steps 1-5 of the module docstring. Returns (found, row, peak, status, seen): rows in image coordinates, ``seen``
         the first and last band row of the line or a run of second candidates (a ghost; (t1, -1)
         if none), from which tracking sizes the next frame's band; ``noise`` the column's noise
         level (its largest smoothed negative difference)."""
@@ -742,11 +724,10 @@ class FastPipeline:
         k, sv = np.empty(2 * W, np.intp), np.empty(2 * W)  # first candidates, then second ones
         self._kernel.candidates(sm, padded, pad, p.half_width + 1, k, sv)
         k2, s2 = k[W:], sv[W:]
-        thr = np.maximum(p.run_min_peak, p.noise_ratio * noise)
+        thr = np.maximum(p.min_peak, p.noise_ratio * noise)
         c1 = self._refine(padded, k[:W], self.cols, lo, hi)
-        # second candidates: refined only where they are strong enough to matter (few columns),
-        # a line seen (min_peak): the run's floor would let noise beside a clean line compete
-        idx = np.nonzero(s2 >= np.maximum(thr, p.min_peak))[0]
+        # second candidates: refined only where they are strong enough to matter (few columns)
+        idx = np.nonzero(s2 >= thr)[0]
         c2 = self._refine(padded, k2[idx], idx, lo[idx], hi[idx]) if idx.size else _NO_PEAKS
         found, row, peak = np.empty(W, bool), np.empty(W), np.empty(W)
         status = np.empty(W, np.uint8)
@@ -754,7 +735,7 @@ class FastPipeline:
                                     (idx, c2.row, c2.peak, c2.valid, c2.spread),
                                     (self.geometry.inv_depth, self.geometry.top), (self.top, t0, t1),
                                     self._resolve_params, (found, row, peak, status))
-        return found, row, peak, status, seen, noise, sv[:W] < p.min_peak
+        return found, row, peak, status, seen, noise
 
     def _padded(self, n: int) -> np.ndarray:
         """A (n + 2 pad, W) uint8 buffer whose first and last ``pad`` rows are zero."""

@@ -708,16 +708,11 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
         label[i + 1] = label[i] + !cont;
     }
     /* run limits; the dim-column rule: a column counts only between bright columns of its run */
-    for (idx_t i = 0; i < W; i++) start[i] = (i && label[i] == label[i - 1]) ? start[i - 1] : i;
-    /* a run with a line seen (min_peak) ends at one: the smoothing carries a line's tail, under
-     * min_peak, two columns past a surface's end; a run all under it (a dark surface) ends anywhere */
-    for (idx_t a = 0, b; a < W; a = b) {
-        bool seen = false;
-        for (b = a; b < W && label[b] == label[a]; b++) seen |= found[b] && snorm[b] >= p.min_peak;
-        for (idx_t i = a; i < b; i++)
-            bright[i] = found[i] && peak[i] >= p.own_peak_fraction * snorm[i] && (!seen || snorm[i] >= p.min_peak);
+    for (idx_t i = 0; i < W; i++) {
+        start[i] = (i && label[i] == label[i - 1]) ? start[i - 1] : i;
+        bright[i] = found[i] && peak[i] >= p.own_peak_fraction * snorm[i];
+        lastb[i] = bright[i] ? i : (i ? lastb[i - 1] : -1);
     }
-    for (idx_t i = 0; i < W; i++) lastb[i] = bright[i] ? i : (i ? lastb[i - 1] : -1);
     for (idx_t i = W - 1; i >= 0; i--) {
         stop[i] = (i < W - 1 && label[i] == label[i + 1]) ? stop[i + 1] : i;
         nextb[i] = bright[i] ? i : (i < W - 1 ? nextb[i + 1] : W);
@@ -733,8 +728,7 @@ ColumnsResult columns_resolve(const ColumnsResolveInput *in, const ColumnsResolv
     }
     for (idx_t i = 0; i < W; i++) {
         status[i] = found[i] ? COLUMNS_OK : COLUMNS_NO_RETURN;
-        /* a line, not measurable; one dimmer than min_peak is seen only as part of a run (run_min_peak) */
-        if (!found[i] && s1[i] >= p.min_peak && (s1[i] >= thr[i] || failed[i])) status[i] = COLUMNS_REJECTED;
+        if (!found[i] && (s1[i] >= thr[i] || failed[i])) status[i] = COLUMNS_REJECTED; /* a line, not measurable */
     }
     if (p.smooth_half) {
         for (idx_t i = 0; i < W; i++) weight[i] = found[i] && !outlier[i] ? (peak[i] >= 1.0 || isnan(peak[i]) ? peak[i] : 1.0) : 0.0;

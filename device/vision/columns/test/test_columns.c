@@ -519,40 +519,6 @@ static void test_resolve_keeps_runs_of_min_run_columns(void)
     scene_free(sc);
 }
 
-/* below min_peak (3, "a line seen") a detection counts only as part of a run: the Python side
- * passes thr = max(run_min_peak, noise_ratio x noise), here 2 */
-static void test_resolve_a_dim_line_counts_only_in_a_run(void)
-{
-    Scene *sc = scene_new(0);
-    for (ptrdiff_t i = 0; i < RW; i++) sc->thr[i] = 2.0;
-    for (ptrdiff_t i = 2; i < 6; i++) first_line(sc, i, 30.0, 2.0);   /* dim, 4 columns: noise */
-    for (ptrdiff_t i = 10; i < 15; i++) first_line(sc, i, 30.0, 2.0); /* dim, 5: a line */
-    for (ptrdiff_t i = 20; i < 24; i++) first_line(sc, i, 30.0, 3.0); /* seen, 4: not measurable */
-    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
-    for (ptrdiff_t i = 2; i < 6; i++) CHECK(!sc->found[i] && sc->status[i] == COLUMNS_NO_RETURN, "column %td", i);
-    for (ptrdiff_t i = 10; i < 15; i++)
-        CHECK(sc->found[i] && sc->status[i] == COLUMNS_OK && sc->row[i] == image_row(30.0), "column %td", i);
-    for (ptrdiff_t i = 20; i < 24; i++) CHECK(!sc->found[i] && sc->status[i] == COLUMNS_REJECTED, "column %td", i);
-    scene_free(sc);
-}
-
-/* the 5-column smoothing carries a line two columns past its surface's end, under min_peak: a
- * run with a line seen ends at a column that reaches min_peak; a run all under it ends anywhere */
-static void test_resolve_a_bright_run_does_not_end_in_its_smoothed_tail(void)
-{
-    Scene *sc = scene_new(0);
-    for (ptrdiff_t i = 0; i < RW; i++) sc->thr[i] = 2.0;
-    for (ptrdiff_t i = 2; i < 10; i++) first_line(sc, i, 30.0, 20.0);
-    for (ptrdiff_t i = 10; i < 12; i++) first_line(sc, i, 30.0, 2.0); /* the tail: own peak 1.5, bright for 2 */
-    for (ptrdiff_t i = 10; i < 12; i++) sc->first.peak[i] = 1.5;
-    for (ptrdiff_t i = 20; i < 28; i++) first_line(sc, i, 40.0, 2.0); /* a dark surface */
-    CHECK(scene_resolve(sc) == COLUMNS_DONE, "call");
-    for (ptrdiff_t i = 2; i < 10; i++) CHECK(sc->found[i], "the surface: column %td", i);
-    for (ptrdiff_t i = 10; i < 12; i++) CHECK(!sc->found[i], "past its end: column %td", i);
-    for (ptrdiff_t i = 20; i < 28; i++) CHECK(sc->found[i], "the dark surface: column %td", i);
-    scene_free(sc);
-}
-
 static void test_resolve_separates_surfaces_at_a_depth_jump(void)
 {
     Scene *sc = scene_new(6);
@@ -884,8 +850,6 @@ static void (*const TESTS[])(void) = {
     test_resolve_measures_a_straight_line_as_it_is,
     test_resolve_without_a_line,
     test_resolve_keeps_runs_of_min_run_columns,
-    test_resolve_a_dim_line_counts_only_in_a_run,
-    test_resolve_a_bright_run_does_not_end_in_its_smoothed_tail,
     test_resolve_separates_surfaces_at_a_depth_jump,
     test_resolve_outliers,
     test_resolve_fills_short_gaps_where_the_line_was_seen,
