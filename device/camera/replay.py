@@ -35,8 +35,9 @@ OPTIONAL_FIELDS = {"readout_offset_rows": (0, "image row 0 is taken as the senso
                                               "above the crop")}
 INDEX_FILE = "frames.json"
 #: what reading a damaged or foreign .npz raises (numpy and zipfile, not ours): its wrong CRC,
-#: header or deflate stream, an unknown compression method or zip version, an encrypted member
-NPZ_READ_ERRORS = (OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError)
+#: header or deflate stream, an unknown compression method or zip version, an encrypted member;
+#: ValueError: numpy's refusal of an array of Python objects, a .npy's header
+NPZ_READ_ERRORS = (OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError, ValueError)
 #: ``lit`` as recorded -> Frame.lit (JSON's true/false/null are 1/0/-1)
 LIT_CODES = {1: True, 0: False, -1: None}
 #: per-frame fields that count (frames, nanoseconds, rows): whole numbers
@@ -84,6 +85,23 @@ def save_recording(path: str | Path, frames: Sequence[Frame]) -> None:
             raise OSError(f"could not write {path / name}")
         index.append({"file": name, **{k: getattr(f, k) for k in (*FIELDS, *OPTIONAL_FIELDS)}, "lit": f.lit})
     (path / INDEX_FILE).write_text(json.dumps({"frames": index}, indent=1))
+
+
+class NpzUnreadable(ValueError):
+    """A file numpy cannot read as an archive of arrays; its message is numpy's or zipfile's."""
+
+
+def read_npz(path, keys: Sequence[str]) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` that the .npz at ``path`` holds (the others absent), read whole; a file
+    that is no such archive (a .npy, a damaged or foreign file) raises :class:`NpzUnreadable`."""
+    try:
+        loaded = np.load(path)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy's one array
+            raise ValueError(f"one {type(loaded).__name__}, not an archive of arrays")
+        with loaded as z:
+            return {k: z[k] for k in keys if k in z.files}
+    except NPZ_READ_ERRORS as exc:
+        raise NpzUnreadable(str(exc)) from None
 
 
 def check_frames(where: str, fields: dict[str, np.ndarray], height: int) -> None:
@@ -195,20 +213,15 @@ class ReplayCamera:
         if not zipfile.is_zipfile(self.path):
             raise ValueError(f"{self.path}: not an .npz recording (not a zip archive of arrays)")
         try:
-            with np.load(self.path) as z:
-                missing = [k for k in ("images", "lit", *FIELDS) if k not in z.files]
-                if missing:
-                    raise ValueError(f"{self.path}: not a recording, missing array(s) {', '.join(missing)}")
-                images = z["images"]
-                fields = {k: z[k] for k in (*FIELDS, "lit", *OPTIONAL_FIELDS) if k in z.files}
-        except NPZ_READ_ERRORS as exc:
-            raise ValueError(f"{self.path}: not a readable .npz recording ({exc})") from None
-        except ValueError as exc:
-            if str(exc).startswith(str(self.path)):
-                raise
+            fields = read_npz(self.path, ("images", *FIELDS, "lit", *OPTIONAL_FIELDS))
+        except NpzUnreadable as exc:
             pickled = "allow_pickle" in str(exc)  # numpy refuses an array of Python objects so
             raise ValueError(f"{self.path}: " + ("an array holds Python objects, not numbers" if pickled else
                                                  "not a readable .npz recording") + f" ({exc})") from None
+        missing = [k for k in ("images", "lit", *FIELDS) if k not in fields]
+        if missing:
+            raise ValueError(f"{self.path}: not a recording, missing array(s) {', '.join(missing)}")
+        images = fields.pop("images")
         if images.ndim != 3 or images.dtype != np.uint8:
             raise ValueError(f"{self.path}: images must be (frames, height, width) uint8 luminance (the Y plane), got "
                              f"{images.shape} {images.dtype}" + ("; colour frames: convert them to luminance first"

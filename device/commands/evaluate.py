@@ -236,19 +236,14 @@ def _load_truth(path: str, cfg) -> dict:
     """{seq: FrameTruth} of a truth.npz as ``laserpi simulate`` writes it."""
     import numpy as np
 
-    from ..camera.replay import NPZ_READ_ERRORS
+    from ..camera.replay import NpzUnreadable, read_npz
     from ..sim.truth import FrameTruth
 
     required = ("row", "range_m", "angle_rad", "points", "surface", "lit_rows")  # FrameTruth's fields in order,
     optional = ("time_ns", "range_span_m")  # then these (older truth files lack them)
-    keys = ("seq", *required, *optional)
     try:
-        loaded = np.load(path)
-        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy's one array
-            raise ValueError(f"one {type(loaded).__name__}, not an archive of arrays")
-        with loaded as z:
-            arrays = {k: z[k] for k in keys if k in z.files}
-    except (*NPZ_READ_ERRORS, ValueError) as exc:  # numpy's own words, not ours
+        arrays = read_npz(path, ("seq", *required, *optional))
+    except NpzUnreadable as exc:
         raise ValueError(f"--truth {path}: not a readable truth .npz of laserpi simulate ({exc})") from None
     missing = [k for k in ("seq", *required) if k not in arrays]
     if missing:
