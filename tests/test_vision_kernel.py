@@ -59,6 +59,130 @@ def test_noise_level_equals_the_opencv_operations(shape):
     np.testing.assert_array_equal(out, cv2.blur(cv2.subtract(b, a), (5, 3)).max(axis=0))
 
 
+def _opencv_moved(a, b, unlit, p):
+    """The OpenCV and numpy sequence the kernel's moved replaced (FastPipeline._moved before it,
+    for a multiple of 8 columns: INTER_AREA's blocks are 8 columns wide only then)."""
+    W, n = a.shape[1], a.shape[0] // 8
+    blocks = lambda rows: cv2.resize(rows, (-(-W // 8), n), interpolation=cv2.INTER_AREA)  # noqa: E731
+    diff = cv2.absdiff(blocks(a[: 8 * n : 2]), blocks(b[: 8 * n : 2]))
+    change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
+    local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
+    mean_level, block_level = p.moved_level * n, p.moved_block_level
+    if change.max() > mean_level or local.max() >= block_level:
+        upper, lower = (blocks(unlit[r : 8 * n : 4].astype(np.float32)) for r in (0, 2))
+        block_level = max(block_level, p.moved_block_ratio * float(np.median(np.abs(np.rint(upper) - np.rint(lower)))))
+        within = np.abs(upper - lower).T
+        within = np.concatenate([within[:1], within, within[-1:]])
+        noise = np.median(np.concatenate([within[:-2], within[1:-1], within[2:]], axis=1), axis=1)
+        mean_level = np.maximum(mean_level, p.moved_mean_ratio * n * noise)
+    return np.repeat((change > mean_level) | (local >= block_level), 8)[:W]
+
+
+def _kernel_moved(a, b, unlit, p):
+    out = np.empty(a.shape[1], bool)
+    K.moved(a, b, unlit, (p.moved_level, p.moved_block_level, p.moved_block_ratio, p.moved_mean_ratio), out)
+    return out
+
+
+def _moving_bands(rng, rows, W, light, shift):
+    """Two unlit neighbours of a textured band under sensor noise (``light``: its standard
+    deviation in levels), the second's texture moved ``shift`` columns, and the first's own band."""
+    texture = cv2.GaussianBlur(rng.uniform(20, 200, (rows, W + 16)), (0, 0), 3)
+    noisy = lambda t: np.clip(np.rint(t + rng.normal(0, light, t.shape)), 0, 255).astype(np.uint8)  # noqa: E731
+    a = noisy(texture[:, 8 : 8 + W])
+    return a, noisy(texture[:, 8 - shift : 8 - shift + W]), a
+
+
+@pytest.mark.parametrize("rows, W", [(8, 8), (16, 16), (24, 40), (48, 208), (160, 1664), (168, 1640)])
+def test_moved_equals_the_opencv_operations(rows, W):
+    rng = np.random.default_rng(rows * 7 + W)
+    p = FastParams()
+    for light, shift in ((0.0, 0), (0.7, 0), (2.0, 0), (4.0, 0), (1.0, 1), (1.0, 5), (3.0, 2)):
+        a, b, unlit = _moving_bands(rng, rows, W, light, shift)
+        want = _opencv_moved(a, b, unlit, p)
+        np.testing.assert_array_equal(_kernel_moved(a, b, unlit, p), want, err_msg=f"light {light}, shift {shift}")
+    # whole-band random bytes: every bar reached, many ties in the rounding; the unlit band its own
+    for trial in range(3):
+        a, b, u = (rng.integers(0, 256 if trial else 2, (rows, W), dtype=np.uint8) for _ in range(3))
+        np.testing.assert_array_equal(_kernel_moved(a, b, u, p), _opencv_moved(a, b, u, p))
+    # other bars: each of them deciding somewhere
+    for params in (FastParams(moved_level=0.2), FastParams(moved_block_level=1.0, moved_block_ratio=0.5),
+                   FastParams(moved_mean_ratio=4.0), FastParams(moved_block_ratio=0.0, moved_mean_ratio=0.0)):
+        a, b, unlit = _moving_bands(rng, rows, W, 1.5, 1)
+        np.testing.assert_array_equal(_kernel_moved(a, b, unlit, params), _opencv_moved(a, b, unlit, params))
+
+
+def test_moved_does_not_count_sensor_noise_as_motion_and_finds_a_moved_texture():
+    rng = np.random.default_rng(3)
+    p, no_noise_bars = FastParams(), FastParams(moved_block_ratio=0.0, moved_mean_ratio=0.0)
+    for light in (4.0, 6.0):  # a still band in bright light: its noise alone passes the fixed bars
+        a, b, unlit = _moving_bands(rng, 160, 1664, light, 0)
+        assert _kernel_moved(a, b, unlit, no_noise_bars).mean() > 0.2
+        assert _kernel_moved(a, b, unlit, p).mean() < 0.02
+    a, b, unlit = _moving_bands(rng, 160, 1664, 2.0, 5)  # the texture moved 5 columns
+    assert _kernel_moved(a, b, unlit, p).mean() > 0.9
+
+
+def _moved_by_its_definition(a, b, unlit, p):
+    """columns_moved as columns.h states it, for any width, in numpy (the groups' sums and the
+    rounding in float64, exact for these sizes)."""
+    rows, W = a.shape
+    n, starts = rows // 8, np.arange(0, W, 8)
+    k = np.minimum(8, W - starts)  # the columns of each group
+
+    def sums(x, offsets):  # (n, groups): the group's columns of the block's rows at these offsets
+        return np.add.reduceat(sum(x[r : 8 * n : 8].astype(np.int64) for r in offsets), starts, axis=1)
+
+    d = np.abs(np.rint(sums(a, (0, 2, 4, 6)) / (4 * k)) - np.rint(sums(b, (0, 2, 4, 6)) / (4 * k)))
+    change, local = d.sum(axis=0), d.max(axis=0)
+    level, block_level = p.moved_level * n, p.moved_block_level
+    if not ((change > level).any() or (local >= block_level).any()):
+        return np.zeros(W, bool)
+    upper, lower = sums(unlit, (0, 4)), sums(unlit, (2, 6))
+    block_level = max(block_level, p.moved_block_ratio * np.median(np.abs(np.rint(upper / (2 * k)) - np.rint(lower / (2 * k)))))
+    sixteenths = np.rint(8 * np.abs(upper - lower) / k)
+    G = starts.size
+    bar = np.empty(G, np.float32)
+    for g in range(G):
+        window = sixteenths[:, [max(g - 1, 0), g, min(g + 1, G - 1)]]
+        noise = np.float32(np.median(window) / 16)
+        bar[g] = max(np.float32(level), np.float32(p.moved_mean_ratio * n) * noise)
+    return np.repeat((change > bar) | (local >= block_level), 8)[:W]
+
+
+@pytest.mark.parametrize("W", [19, 1642, 1650, 1664])
+def test_moved_is_its_definition_for_any_width(W):
+    rng = np.random.default_rng(W)
+    for light, shift in ((0.7, 0), (4.0, 0), (1.0, 5), (3.0, 2)):
+        a, b, unlit = _moving_bands(rng, 96, W, light, shift)
+        want = _moved_by_its_definition(a, b, unlit, FastParams())
+        np.testing.assert_array_equal(_kernel_moved(a, b, unlit, FastParams()), want, err_msg=f"{light}, {shift}")
+        if W % 8 == 0:
+            np.testing.assert_array_equal(want, _opencv_moved(a, b, unlit, FastParams()))
+
+
+def test_moved_groups_a_width_not_divisible_by_8_by_its_own_columns():
+    # the last group is the 3 columns left: a change there moves those columns, not the group before
+    rows, W = 16, 19
+    a = np.full((rows, W), 100, np.uint8)
+    b = a.copy()
+    b[:, 16:] = 130
+    out = _kernel_moved(a, b, a, FastParams())
+    np.testing.assert_array_equal(out, np.arange(W) >= 16)
+    b = a.copy()
+    b[:, 8:16] = 130
+    np.testing.assert_array_equal(_kernel_moved(a, b, a, FastParams()), (np.arange(W) >= 8) & (np.arange(W) < 16))
+
+
+def test_moved_refuses_a_band_of_fewer_than_8_rows():
+    a = np.zeros((7, 16), np.uint8)
+    with pytest.raises(ValueError, match="moved: need >= 8 rows and >= 1 column, got 7 rows x 16 columns"):
+        _kernel_moved(a, a, a, FastParams())
+    with pytest.raises(ValueError, match="unlit has length 8 along axis 1, expected 16"):
+        K.moved(np.zeros((8, 16), np.uint8), np.zeros((8, 16), np.uint8), np.zeros((8, 8), np.uint8),
+                (0.9, 3.0, 5.0, 1.5), np.empty(16, bool))
+
+
 def test_box_mean_rounds_as_opencv_for_every_sum():
     # the middle row's 5x3 boxes centred on every fifth column take every sum 0..3825 once
     sums = np.arange(0, 15 * 255 + 1)

@@ -525,50 +525,41 @@ class FastPipeline:
 
     def _moved(self, a: np.ndarray, b: np.ndarray, unlit: np.ndarray) -> np.ndarray:
         """Step 0: the columns where the neighbours' bands ``a`` and ``b`` differ (moved);
-        ``unlit``: the unlit frame's own band, whose sensor noise sets the bar for one block."""
-        import cv2
+        ``unlit``: the unlit frame's own band, whose sensor noise sets the bar for one block.
+        One pass of the kernel (columns_moved in columns/columns.h, which states the arithmetic);
+        the reasons for each bar are here.
 
+        Each band is averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
+        a texture that moved stays), then their mean |difference| per 8 columns is held against
+        ``moved_level``. A change over the whole band, or a local one (an edge a few rows high
+        that moved: under forward motion a horizontal edge crosses the rows, its residue a bright
+        band): a block changed by ``moved_block_level``, and by ``moved_block_ratio`` x the median
+        change sensor noise alone makes between such blocks (higher on a bright scene). That is
+        measured within one frame, between the blocks of every 4th row and of the rows 2 below
+        them, of a texture that hardly changes over 2 rows: motion inflates the median change
+        between the neighbours' blocks (at 90 deg/s in 1x light an edge crossing the rows of a
+        few blocks went unseen: a phantom line). These blocks are 8 columns x 2 rows, so their
+        noise is sqrt(2) that of the 8 x 4 above; rounded to whole levels (as the 8 x 4 blocks
+        are), the two medians came out equal on still 90 % walls (1), where this term sets the bar.
+
+        The mean change sensor noise alone makes grows with the light (shot noise): on a still
+        90 % wall at a 40 ms exposure it is ~0.9 levels, and half of the columns counted as moved
+        and lost lines to step 0's checks. In noise the mean |difference| of the neighbours' 8 x 4
+        blocks is ~0.84 x the median |difference| of these 8 x 2 ones (half-normal: E|d| of
+        sqrt(2) sigma against the median of 2 sigma); the bar is ``moved_mean_ratio`` times that
+        median, ~4 standard deviations of a still column's mean over n = 20 blocks above it. The
+        median is taken over each 8-column group's blocks and its two neighbours' (their own
+        light: over the frame, a bright wall before a dark backdrop took the backdrop's, and its
+        columns counted as moved). On still 90 % walls at 40 ms 0.9 % of the groups still count
+        as moved (by either bar; the block means are rounded to whole levels). A texture's change
+        over 2 rows raises the median too (the office in 10x light: 1.06, noise alone ~0.5), which
+        moves the bar only where that exceeds ``moved_level``. The noise is measured only where
+        some group reaches a bar: else no column reaches one, whatever the noise."""
         p = self.params
-        # each averaged over blocks of 8 columns x 4 of every other row (sensor noise / 5.7;
-        # a texture that moved stays), then their mean |difference| per 8 columns
-        W, n = a.shape[1], self.rows // 8
-        blocks = lambda rows: cv2.resize(rows, (-(-W // 8), n), interpolation=cv2.INTER_AREA)  # noqa: E731
-        diff = cv2.absdiff(blocks(a[: 8 * n : 2]), blocks(b[: 8 * n : 2]))
-        change = cv2.reduce(diff, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[0]
-        # a change over the whole band, or a local one (an edge a few rows high that moved:
-        # under forward motion a horizontal edge crosses the rows, its residue a bright
-        # band): a block changed by moved_block_level, and by moved_block_ratio x the
-        # median change sensor noise alone makes between such blocks (higher on a bright
-        # scene). That is measured within one frame, between the blocks of every 4th row and
-        # of the rows 2 below them, of a texture that hardly changes over 2 rows: motion
-        # inflates the median change between the neighbours' blocks (at 90 deg/s in 1x light
-        # an edge crossing the rows of a few blocks went unseen: a phantom line). These
-        # blocks are 8 columns x 2 rows, so their noise is sqrt(2) that of the 8 x 4 above;
-        # rounded to whole levels (as the 8 x 4 blocks are), the two medians came out equal on
-        # still 90 % walls (1), where this term sets the bar
-        local = cv2.reduce(diff, 0, cv2.REDUCE_MAX)[0]
-        mean_level, block_level = p.moved_level * n, p.moved_block_level
-        if change.max() > mean_level or local.max() >= block_level:  # else no column reaches a bar, whatever the noise
-            upper, lower = (blocks(unlit[r : 8 * n : 4].astype(np.float32)) for r in (0, 2))
-            block_level = max(block_level, p.moved_block_ratio * float(np.median(np.abs(np.rint(upper) - np.rint(lower)))))
-            # the mean change sensor noise alone makes grows with the light (shot noise): on a
-            # still 90 % wall at a 40 ms exposure it is ~0.9 levels, and half of the columns
-            # counted as moved and lost lines to step 0's checks. In noise the mean |difference|
-            # of the neighbours' 8 x 4 blocks is ~0.84 x the median |difference| of these 8 x 2
-            # ones (half-normal: E|d| of sqrt(2) sigma against the median of 2 sigma); the bar is
-            # moved_mean_ratio times that median, ~4 standard deviations of a still column's
-            # mean over n = 20 blocks above it. The median is taken over each 8-column group's
-            # blocks and its two neighbours' (their own light: over the frame, a bright wall
-            # before a dark backdrop took the backdrop's, and its columns counted as moved). On
-            # still 90 % walls at 40 ms 0.9 % of the groups still count as moved (by either
-            # bar; the block means are rounded to whole levels). A texture's change over 2 rows
-            # raises the median too (the office in 10x light: 1.06, noise alone ~0.5), which
-            # moves the bar only where that exceeds moved_level
-            within = np.abs(upper - lower).T  # a group's blocks in a row: the median along rows is the faster
-            within = np.concatenate([within[:1], within, within[-1:]])  # the first and last group twice
-            noise = np.median(np.concatenate([within[:-2], within[1:-1], within[2:]], axis=1), axis=1)
-            mean_level = np.maximum(mean_level, p.moved_mean_ratio * n * noise)
-        return np.repeat((change > mean_level) | (local >= block_level), 8)[:W]
+        moved = np.empty(a.shape[1], bool)
+        self._kernel.moved(a, b, unlit, (p.moved_level, p.moved_block_level, p.moved_block_ratio, p.moved_mean_ratio),
+                           moved)
+        return moved
 
     def _turned(self, grid, lum_lit: np.ndarray, lum_unlit: np.ndarray, lum_other: np.ndarray, background: np.ndarray,
                 other: np.ndarray, moved: np.ndarray, shares: tuple[float, float] | None):

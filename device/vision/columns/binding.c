@@ -12,6 +12,7 @@
  *           (found, row, peak, status)) -> (seen_first, seen_last)
  *   running_median(x, found, out)
  *   noise_level(lit, unlit, out)
+ *   moved(a, b, unlit, (level, block_level, block_ratio, mean_ratio), out)
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
  *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
@@ -153,6 +154,28 @@ static PyObject *py_noise_level(PyObject *self, PyObject *args)
     ColumnsResult r;
     Py_BEGIN_ALLOW_THREADS
     r = columns_noise_level(A, B, shp[0], shp[1], out, &err);
+    Py_END_ALLOW_THREADS
+    return done(&vs, r, &err, NULL);
+}
+
+static PyObject *py_moved(PyObject *self, PyObject *args)
+{
+    PyObject *o_a, *o_b, *o_u, *o_out;
+    ColumnsMovedParams p;
+    if (!PyArg_ParseTuple(args, "OOO(dddd)O", &o_a, &o_b, &o_u, &p.level, &p.block_level, &p.block_ratio,
+                          &p.mean_ratio, &o_out))
+        return NULL;
+    Views vs = {.n = 0};
+    idx_t shp[2];
+    const uint8_t *A = arg(&vs, o_a, 'u', -1, -1, 2, 0, "a", shp);
+    const uint8_t *B = A ? arg(&vs, o_b, 'u', shp[0], shp[1], 2, 0, "b", NULL) : NULL;
+    const uint8_t *U = B ? arg(&vs, o_u, 'u', shp[0], shp[1], 2, 0, "unlit", NULL) : NULL;
+    bool *out = U ? arg(&vs, o_out, 'b', shp[1], 0, 1, 1, "out", NULL) : NULL;
+    if (!out) return failed(&vs);
+    ColumnsError err;
+    ColumnsResult r;
+    Py_BEGIN_ALLOW_THREADS
+    r = columns_moved(A, B, U, shp[0], shp[1], &p, out, &err);
     Py_END_ALLOW_THREADS
     return done(&vs, r, &err, NULL);
 }
@@ -350,6 +373,7 @@ static PyMethodDef methods[] = {
      "(inv_depth, inv_depth_top), (top, t0, t1), params, (found, row, peak, status)) -> (seen_first, seen_last)"},
     {"running_median", py_running_median, METH_VARARGS, "running_median(x, found, out)"},
     {"noise_level", py_noise_level, METH_VARARGS, "noise_level(lit, unlit, out)"},
+    {"moved", py_moved, METH_VARARGS, "moved(a, b, unlit, (level, block_level, block_ratio, mean_ratio), out)"},
     {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
     {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},

@@ -255,6 +255,134 @@ ColumnsResult columns_noise_level(const uint8_t *A, const uint8_t *B, ptrdiff_t 
     return COLUMNS_DONE;
 }
 
+/* acc[c] = sum over j < k of px[j * step + c], for n columns (the step-apart rows of a band). */
+PIXEL_LOOP static void column_sums(uint16_t *restrict acc, const uint8_t *restrict px, idx_t step, int k, idx_t n)
+{
+    memset(acc, 0, (size_t)n * sizeof *acc);
+    for (int j = 0; j < k; j++)
+        for (idx_t c = 0; c < n; c++) acc[c] += px[j * step + c];
+}
+
+/* sum / area rounded to the nearest integer, ties to even (as OpenCV's INTER_AREA blocks and rint) */
+static int32_t round_half_even(int32_t sum, int32_t area)
+{
+    int32_t q = sum / area, twice_rem = 2 * (sum % area);
+    return q + (twice_rem > area || (twice_rem == area && (q & 1)));
+}
+
+/* Counts of integer keys below 64 x 64, in bins of 64 and of 1: a rank is found in at most 64 + 64 steps. */
+typedef struct {
+    uint16_t coarse[64], fine[64 * 64];
+} KeyHistogram;
+
+static void key_count(KeyHistogram *h, const uint16_t *keys, idx_t n, int step)
+{
+    for (idx_t i = 0; i < n; i++) {
+        h->coarse[keys[i] >> 6] = (uint16_t)(h->coarse[keys[i] >> 6] + step);
+        h->fine[keys[i]] = (uint16_t)(h->fine[keys[i]] + step);
+    }
+}
+
+/* the key at 0-based rank r of the counted keys */
+static int key_at_rank(const KeyHistogram *h, idx_t r)
+{
+    int b = 0;
+    for (; r >= h->coarse[b]; b++) r -= h->coarse[b];
+    int k = 64 * b;
+    for (; r >= h->fine[k]; k++) r -= h->fine[k];
+    return k;
+}
+
+/* numpy's median of the N counted keys / 16, in float32: the middle one, or the mean of the middle two */
+static float median_16ths(const KeyHistogram *h, idx_t N)
+{
+    int lo = key_at_rank(h, (N - 1) / 2), hi = N % 2 ? lo : key_at_rank(h, N / 2);
+    return N % 2 ? (float)lo / 16.0f : (float)(lo + hi) / 32.0f;
+}
+
+/* One pass over the rows the blocks use (half of them), and the noise pass only where a bar is
+ * reached, in integers: instead of ~25 OpenCV and numpy calls. A block of 8 x 2 pixels averaged in
+ * float32, as numpy had it, is its sum / 16 exactly, so |upper - lower| is a key |sum_u - sum_l| of
+ * 0..4080 sixteenths and its median over 3 groups' blocks a rank in their counts (a histogram
+ * slid along the groups). A last group of k < 8 columns takes the same grid, its keys
+ * 8 |sum_u - sum_l| / k rounded. */
+ColumnsResult columns_moved(const uint8_t *A, const uint8_t *B, const uint8_t *U, ptrdiff_t rows, ptrdiff_t W,
+                            const ColumnsMovedParams *p, bool *moved, ColumnsError *err)
+{
+    if (rows < 8 || W < 1)
+        return bad_argument(err, "moved: need >= 8 rows and >= 1 column, got %td rows x %td columns", rows, W);
+    idx_t n = rows / 8, G = (W + 7) / 8;
+    uint16_t *sa = malloc((size_t)(2 * W) * sizeof *sa), *sb = sa ? sa + W : NULL;
+    int32_t *change = calloc((size_t)G, sizeof *change);
+    uint8_t *local = calloc((size_t)G, 1);
+    if (!sa || !change || !local) {
+        free(sa), free(change), free(local);
+        return no_memory(err, "moved");
+    }
+    for (idx_t i = 0; i < n; i++) {
+        column_sums(sa, A + 8 * i * W, 2 * W, 4, W);
+        column_sums(sb, B + 8 * i * W, 2 * W, 4, W);
+        for (idx_t g = 0; g < G; g++) {
+            idx_t c0 = 8 * g, c1 = MIN(c0 + 8, W);
+            int32_t suma = 0, sumb = 0, area = (int32_t)(4 * (c1 - c0));
+            for (idx_t c = c0; c < c1; c++) suma += sa[c], sumb += sb[c];
+            int32_t d = abs(round_half_even(suma, area) - round_half_even(sumb, area));
+            change[g] += d;
+            local[g] = (uint8_t)MAX(local[g], d);
+        }
+    }
+    double level = p->level * (double)n, block_level = p->block_level;
+    bool reached = false;
+    for (idx_t g = 0; g < G && !reached; g++) reached = change[g] > level || local[g] >= block_level;
+    if (!reached) { /* no group reaches a bar, whatever the noise raises them to */
+        memset(moved, 0, (size_t)W);
+        free(sa), free(change), free(local);
+        return COLUMNS_DONE;
+    }
+    uint16_t *keys = malloc((size_t)(n * G) * sizeof *keys); /* |upper - lower| in 16ths, group by group */
+    KeyHistogram *within = calloc(1, sizeof *within);
+    idx_t whole[256] = {0}; /* |rint(upper) - rint(lower)|: whole levels */
+    if (!keys || !within) {
+        free(sa), free(change), free(local), free(keys), free(within);
+        return no_memory(err, "moved");
+    }
+    for (idx_t i = 0; i < n; i++) {
+        column_sums(sa, U + 8 * i * W, 4 * W, 2, W);       /* upper: rows 8i, 8i + 4 */
+        column_sums(sb, U + (8 * i + 2) * W, 4 * W, 2, W); /* lower: rows 8i + 2, 8i + 6 */
+        for (idx_t g = 0; g < G; g++) {
+            idx_t c0 = 8 * g, c1 = MIN(c0 + 8, W);
+            int32_t sumu = 0, suml = 0, k = (int32_t)(c1 - c0);
+            for (idx_t c = c0; c < c1; c++) sumu += sa[c], suml += sb[c];
+            keys[g * n + i] = (uint16_t)round_half_even(8 * abs(sumu - suml), k);
+            whole[abs(round_half_even(sumu, 2 * k) - round_half_even(suml, 2 * k))]++;
+        }
+    }
+    /* the median over all blocks: the value at rank N / 2, and for an even N the mean with the one below */
+    idx_t N = n * G, seen = 0, hi = -1, lo = -1;
+    for (int v = 0; v < 256 && hi < 0; v++) {
+        if (lo < 0 && seen + whole[v] > (N - 1) / 2) lo = v;
+        if (seen + whole[v] > N / 2) hi = v;
+        seen += whole[v];
+    }
+    float median = N % 2 ? (float)hi : ((float)lo + (float)hi) / 2.0f;
+    block_level = MAX(block_level, p->block_ratio * (double)median);
+    /* each group's bar from its blocks and its neighbours' (the first and last group twice) */
+    float level32 = (float)level, ratio32 = (float)(p->mean_ratio * (double)n);
+    key_count(within, keys, n, 2);
+    key_count(within, keys + MIN(1, G - 1) * n, n, 1);
+    for (idx_t g = 0; g < G; g++) {
+        if (g > 0) { /* the window moves on by a group */
+            key_count(within, keys + (g - 2 < 0 ? 0 : g - 2) * n, n, -1);
+            key_count(within, keys + MIN(g + 1, G - 1) * n, n, 1);
+        }
+        float bar = MAX(level32, ratio32 * median_16ths(within, 3 * n));
+        bool m = (double)change[g] > (double)bar || (double)local[g] >= block_level;
+        memset(moved + 8 * g, m, (size_t)(MIN(8 * g + 8, W) - 8 * g));
+    }
+    free(sa), free(change), free(local), free(keys), free(within);
+    return COLUMNS_DONE;
+}
+
 /* In two passes instead of OpenCV's six. */
 ColumnsResult columns_band_difference(const uint8_t *A, const uint8_t *B, const uint8_t *M, ptrdiff_t sat_min,
                                       const ColumnsPadded *diff, uint8_t *S, ColumnsError *err)

@@ -112,6 +112,28 @@ typedef struct {
 ColumnsResult columns_noise_level(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t rows, ptrdiff_t cols, double *out,
                                   ColumnsError *err);
 
+/* Step 0's bars (FastParams' moved_level, moved_block_level, moved_block_ratio, moved_mean_ratio). */
+typedef struct {
+    double level, block_level, block_ratio, mean_ratio;
+} ColumnsMovedParams;
+
+/* Step 0, motion (FastPipeline._moved, whose comments give the reasons): which of the cols
+ * columns of the rows x cols bands a and b (the unlit neighbours) moved between them. With
+ * n = rows / 8 and the columns in groups of 8 (the last group holds what is left), each group's
+ * n blocks of 4 rows (rows 8i, 8i+2, 8i+4, 8i+6) are averaged in each band and rounded half to
+ * even; a group moved where the sum over its blocks of |block a - block b| exceeds level x n,
+ * or one block's |difference| reaches block_level. Only where some group reaches a bar are the
+ * bars raised by the sensor noise of `unlit` (the unlit frame's own band): its blocks of rows
+ * 8i, 8i+4 ("upper") and 8i+2, 8i+6 ("lower") averaged; block_level at least block_ratio x the
+ * median over all blocks of |rint(upper) - rint(lower)|, and a group's level at least
+ * mean_ratio x n x the median of |upper - lower| (in 16ths of a level: exact for 8 columns, and
+ * rounded to them for a last group of fewer) over its blocks and its two neighbour groups' (the
+ * first and last group standing in for their missing neighbour), both bars in numpy's float32
+ * arithmetic. For a multiple of 8 columns, the bytes of the OpenCV and numpy formulation it
+ * replaced (INTER_AREA blocks; tests/test_vision_kernel.py). Needs rows >= 8, cols >= 1. */
+ColumnsResult columns_moved(const uint8_t *a, const uint8_t *b, const uint8_t *unlit, ptrdiff_t rows, ptrdiff_t cols,
+                            const ColumnsMovedParams *params, bool *moved, ColumnsError *err);
+
 /* Step 1, difference: d = max(lit - unlit, 0), 255 on both pixels of a vertical pair saturated
  * in the lit frame and brightened by >= sat_min (a saturated line's flat top), then d &= mask,
  * into the image rows of `diff` (its pad rows untouched); sm = cv2.blur(d, (5, 3)) exactly.

@@ -211,6 +211,81 @@ static ColumnsResult candidates_run(Candidates *c, ptrdiff_t sep, ColumnsError *
 
 static void candidates_free(Candidates *c) { free(c->sm), free(c->padded), free(c->k), free(c->s); }
 
+/* rows x W bands a, b and unlit of `level`, each at its exact size; moved into `out` (W) */
+static ColumnsResult moved_of(const uint8_t *a, const uint8_t *b, const uint8_t *u, ptrdiff_t rows, ptrdiff_t W,
+                              bool *out)
+{
+    const ColumnsMovedParams p = {.level = 0.9, .block_level = 3.0, .block_ratio = 5.0, .mean_ratio = 1.5};
+    ColumnsError err;
+    return columns_moved(a, b, u, rows, W, &p, out, &err);
+}
+
+static void test_moved_marks_the_groups_whose_blocks_changed(void)
+{
+    enum { ROWS = 16, W = 20 }; /* 2 blocks of rows; groups of columns 0-7, 8-15 and 16-19 */
+    uint8_t *a = alloc(ROWS * W), *b = alloc(ROWS * W);
+    bool *out = alloc(W);
+    memset(a, 100, ROWS * W), memset(b, 100, ROWS * W);
+    CHECK(moved_of(a, b, a, ROWS, W, out) == COLUMNS_DONE, "%s", "a still band");
+    int any = 0;
+    for (int c = 0; c < W; c++) any |= out[c];
+    CHECK(!any, "%s", "nothing moved in a still band");
+    /* one block of group 1 brighter by 3 levels (its block_level) on the rows the blocks read */
+    for (int r = 8; r < 16; r += 2)
+        for (int c = 8; c < 16; c++) b[r * W + c] = 103;
+    CHECK(moved_of(a, b, a, ROWS, W, out) == COLUMNS_DONE, "%s", "one block changed");
+    for (int c = 0; c < W; c++) CHECK(out[c] == (c >= 8 && c < 16), "column %d: %d", c, out[c]);
+    /* the odd rows are not read: a change there alone moves nothing */
+    memset(b, 100, ROWS * W);
+    for (int r = 1; r < ROWS; r += 2)
+        for (int c = 0; c < W; c++) b[r * W + c] = 200;
+    CHECK(moved_of(a, b, a, ROWS, W, out) == COLUMNS_DONE, "%s", "odd rows changed");
+    any = 0;
+    for (int c = 0; c < W; c++) any |= out[c];
+    CHECK(!any, "%s", "the rows between the blocks' rows are not read");
+    /* the last, partial group (columns 16-19) is averaged over its own 4 columns */
+    memset(b, 100, ROWS * W);
+    for (int r = 0; r < 8; r += 2)
+        for (int c = 16; c < W; c++) b[r * W + c] = 104;
+    CHECK(moved_of(a, b, a, ROWS, W, out) == COLUMNS_DONE, "%s", "the partial group changed");
+    for (int c = 0; c < W; c++) CHECK(out[c] == (c >= 16), "column %d: %d", c, out[c]);
+    free(a), free(b), free(out);
+}
+
+static void test_moved_raises_the_bars_by_the_unlit_bands_noise(void)
+{
+    enum { ROWS = 8, W = 16 }; /* one block row, two groups */
+    uint8_t *a = alloc(ROWS * W), *b = alloc(ROWS * W), *u = alloc(ROWS * W);
+    bool *out = alloc(W);
+    memset(a, 50, ROWS * W), memset(b, 50, ROWS * W);
+    for (int r = 0; r < ROWS; r += 2)
+        for (int c = 0; c < 8; c++) b[r * W + c] = 56; /* group 0: a block 6 levels brighter */
+    /* unlit: its rows 0 and 4 at 52, 2 and 6 at 50 in both groups: the noise's median is 2 levels,
+     * so block_level becomes 5 x 2 = 10 and the mean's bar 1.5 x 1 x 2 = 3 */
+    memset(u, 50, ROWS * W);
+    for (int r = 0; r < ROWS; r += 4)
+        for (int c = 0; c < W; c++) u[r * W + c] = 52;
+    CHECK(moved_of(a, b, u, ROWS, W, out) == COLUMNS_DONE, "%s", "a noisy unlit band");
+    /* group 0 changed by 6: above the mean's bar of 3, under the block's 10 */
+    for (int c = 0; c < W; c++) CHECK(out[c] == (c < 8), "column %d: %d", c, out[c]);
+    for (int r = 0; r < ROWS; r += 4)
+        for (int c = 0; c < W; c++) u[r * W + c] = 54; /* the noise's median 4: bars 20 and 6 */
+    CHECK(moved_of(a, b, u, ROWS, W, out) == COLUMNS_DONE, "%s", "a noisier unlit band");
+    for (int c = 0; c < W; c++) CHECK(!out[c], "column %d: %d (6 levels is not above a bar of 6)", c, out[c]);
+    free(a), free(b), free(u), free(out);
+}
+
+static void test_moved_refuses_bad_sizes(void)
+{
+    uint8_t px[8 * 4] = {0};
+    bool out[4];
+    const ColumnsMovedParams p = {0.9, 3.0, 5.0, 1.5};
+    ColumnsError err;
+    CHECK(columns_moved(px, px, px, 7, 4, &p, out, &err) == COLUMNS_BAD_ARGUMENT
+          && strstr(err.message, "moved: need >= 8 rows and >= 1 column, got 7 rows x 4 columns"), "%s", err.message);
+    CHECK(columns_moved(px, px, px, 8, 0, &p, out, &err) == COLUMNS_BAD_ARGUMENT, "%s", err.message);
+}
+
 static void test_candidates_find_the_largest_and_a_separated_second_peak(void)
 {
     Candidates c = candidates_new(64, 6);
@@ -838,6 +913,9 @@ static void (*const TESTS[])(void) = {
     test_noise_level_rounds_every_box_sum_as_opencv,
     test_band_difference_is_the_saturation_aware_difference_and_its_blur,
     test_image_passes_refuse_bad_sizes,
+    test_moved_marks_the_groups_whose_blocks_changed,
+    test_moved_raises_the_bars_by_the_unlit_bands_noise,
+    test_moved_refuses_bad_sizes,
     test_candidates_find_the_largest_and_a_separated_second_peak,
     test_candidates_take_the_first_of_equal_rows_and_the_unsmoothed_maximum,
     test_candidates_in_a_band_whose_last_block_is_partial,
