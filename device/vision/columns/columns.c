@@ -272,14 +272,14 @@ static int32_t round_half_even(int32_t sum, int32_t area)
 
 /* Counts of integer keys below 64 x 64, in bins of 64 and of 1: a rank is found in at most 64 + 64 steps. */
 typedef struct {
-    uint16_t coarse[64], fine[64 * 64];
+    idx_t coarse[64], fine[64 * 64];
 } KeyHistogram;
 
 static void key_count(KeyHistogram *h, const uint16_t *keys, idx_t n, int step)
 {
     for (idx_t i = 0; i < n; i++) {
-        h->coarse[keys[i] >> 6] = (uint16_t)(h->coarse[keys[i] >> 6] + step);
-        h->fine[keys[i]] = (uint16_t)(h->fine[keys[i]] + step);
+        h->coarse[keys[i] >> 6] += step;
+        h->fine[keys[i]] += step;
     }
 }
 
