@@ -4,6 +4,8 @@ clear errors for bad arguments (each step on its own, in C: columns/test/test_co
 in test_vision_pipelines.py and test_vision_simulated.py; its centre of mass against the general
 estimator in test_vision_peaks.py."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -110,6 +112,31 @@ def test_moved_equals_the_opencv_operations(rows, W):
                    FastParams(moved_mean_ratio=4.0), FastParams(moved_block_ratio=0.0, moved_mean_ratio=0.0)):
         a, b, unlit = _moving_bands(rng, rows, W, 1.5, 1)
         np.testing.assert_array_equal(_kernel_moved(a, b, unlit, params), _opencv_moved(a, b, unlit, params))
+
+
+def test_moved_takes_non_finite_bars_as_the_opencv_operations_did():
+    # np.maximum propagates a NaN mean bar (no column moves by it); Python's max() keeps the block
+    # bar where an infinite ratio meets a noise median of 0 (inf x 0 is NaN); infinite bars move nothing
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(11)
+    moving = _moving_bands(rng, 96, 416, 1.0, 5)
+    a, b, _ = _moving_bands(rng, 96, 416, 0.0, 2)
+    flat_unlit = np.full_like(a, 80)
+    base = dict(moved_level=0.9, moved_block_level=3.0, moved_block_ratio=5.0, moved_mean_ratio=1.5)
+    for change, bands in (({"moved_level": math.nan}, moving), ({"moved_block_ratio": math.inf}, (a, b, flat_unlit)),
+                          ({"moved_level": math.inf}, moving), ({"moved_block_level": math.inf}, moving),
+                          ({"moved_mean_ratio": math.inf}, moving)):
+        p = SimpleNamespace(**{**base, **change})
+        want = _opencv_moved(*bands, p)
+        np.testing.assert_array_equal(_kernel_moved(*bands, p), want, err_msg=str(change))
+        assert 0 < want.sum() < want.size or change == {"moved_block_level": math.inf}, change
+
+
+def test_fast_params_refuse_a_moved_level_that_is_not_a_level():
+    for level in (math.nan, -0.1):
+        with pytest.raises(ValueError, match="need moved_level >= 0"):
+            FastParams(moved_level=level)
 
 
 def test_moved_does_not_count_sensor_noise_as_motion_and_finds_a_moved_texture():

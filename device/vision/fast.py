@@ -274,9 +274,11 @@ class FastParams:
                              f"{self.track_margin}, {self.track_full_every}, {self.track_lost_run}")
         if math.isfinite(self.max_range_sigma) and self.smooth_half == 0:
             raise ValueError("max_range_sigma needs the line fit (smooth_half > 0): the range gate propagates its sigma")
-        if not (self.moved_block_level > 0 and self.moved_block_ratio >= 0 and self.moved_mean_ratio >= 0):
-            raise ValueError(f"need moved_block_level > 0, moved_block_ratio >= 0 and moved_mean_ratio >= 0, got "
-                             f"{self.moved_block_level}, {self.moved_block_ratio}, {self.moved_mean_ratio}")
+        if not (self.moved_level >= 0 and self.moved_block_level > 0 and self.moved_block_ratio >= 0
+                and self.moved_mean_ratio >= 0):
+            raise ValueError(f"need moved_level >= 0, moved_block_level > 0, moved_block_ratio >= 0 and "
+                             f"moved_mean_ratio >= 0, got {self.moved_level}, {self.moved_block_level}, "
+                             f"{self.moved_block_ratio}, {self.moved_mean_ratio}")
         if not (self.turn_share > 0 and 0 < self.max_turn_deg <= 45 and self.agree_ratio >= 0
                 and self.agree_reach_columns >= 0 and self.agree_share > 0 and self.resample_slack >= 0
                 and self.edge_ratio >= 0):

@@ -365,7 +365,8 @@ ColumnsResult columns_moved(const uint8_t *A, const uint8_t *B, const uint8_t *U
         seen += whole[v];
     }
     float median = N % 2 ? (float)hi : ((float)lo + (float)hi) / 2.0f;
-    block_level = MAX(block_level, p->block_ratio * (double)median);
+    double raised = p->block_ratio * (double)median; /* NaN for an infinite ratio over a median of 0 */
+    if (raised > block_level) block_level = raised;   /* Python's max(): a NaN leaves the bar as it was */
     /* each group's bar from its blocks and its neighbours' (the first and last group twice) */
     float level32 = (float)level, ratio32 = (float)(p->mean_ratio * (double)n);
     key_count(within, keys, n, 2);
@@ -375,7 +376,8 @@ ColumnsResult columns_moved(const uint8_t *A, const uint8_t *B, const uint8_t *U
             key_count(within, keys + (g - 2 < 0 ? 0 : g - 2) * n, n, -1);
             key_count(within, keys + MIN(g + 1, G - 1) * n, n, 1);
         }
-        float bar = MAX(level32, ratio32 * median_16ths(within, 3 * n));
+        float noise_bar = ratio32 * median_16ths(within, 3 * n);
+        float bar = isnan(level32) || isnan(noise_bar) ? NAN : MAX(level32, noise_bar); /* np.maximum */
         bool m = (double)change[g] > (double)bar || (double)local[g] >= block_level;
         memset(moved + 8 * g, m, (size_t)(MIN(8 * g + 8, W) - 8 * g));
     }

@@ -128,8 +128,8 @@ typedef struct {
  * median over all blocks of |rint(upper) - rint(lower)|, and a group's level at least
  * mean_ratio x n x the median of |upper - lower| (in 16ths of a level: exact for 8 columns, and
  * rounded to them for a last group of fewer) over its blocks and its two neighbour groups' (the
- * first and last group standing in for their missing neighbour), both bars in numpy's float32
- * arithmetic. For a multiple of 8 columns, the bytes of the OpenCV and numpy formulation it
+ * first and last group standing in for their missing neighbour), in numpy's float32 arithmetic (the
+ * block's bar in double, as Python's max(): a NaN product leaves it). For a multiple of 8 columns, the bytes of the OpenCV and numpy formulation it
  * replaced (INTER_AREA blocks; tests/test_vision_kernel.py). Needs rows >= 8, cols >= 1. */
 ColumnsResult columns_moved(const uint8_t *a, const uint8_t *b, const uint8_t *unlit, ptrdiff_t rows, ptrdiff_t cols,
                             const ColumnsMovedParams *params, bool *moved, ColumnsError *err);
