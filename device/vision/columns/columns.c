@@ -283,21 +283,26 @@ static void key_count(KeyHistogram *h, const uint16_t *keys, idx_t n, int step)
     }
 }
 
+/* the bin of counts[] that holds the value at 0-based rank *r; *r becomes its rank within the bin */
+static int rank_in(const idx_t *counts, idx_t *r)
+{
+    int b = 0;
+    for (; *r >= counts[b]; b++) *r -= counts[b];
+    return b;
+}
+
 /* the key at 0-based rank r of the counted keys */
 static int key_at_rank(const KeyHistogram *h, idx_t r)
 {
-    int b = 0;
-    for (; r >= h->coarse[b]; b++) r -= h->coarse[b];
-    int k = 64 * b;
-    for (; r >= h->fine[k]; k++) r -= h->fine[k];
-    return k;
+    int b = rank_in(h->coarse, &r);
+    return 64 * b + rank_in(h->fine + 64 * b, &r);
 }
 
-/* numpy's median of the N counted keys / 16, in float32: the middle one, or the mean of the middle two */
-static float median_16ths(const KeyHistogram *h, idx_t N)
+/* numpy's float32 median of N values counted as whole multiples of 1 / per_level, lo and hi those at
+ * ranks (N - 1) / 2 and N / 2: the middle one, or the mean of the middle two */
+static float counted_median(int lo, int hi, idx_t N, int per_level)
 {
-    int lo = key_at_rank(h, (N - 1) / 2), hi = N % 2 ? lo : key_at_rank(h, N / 2);
-    return N % 2 ? (float)lo / 16.0f : (float)(lo + hi) / 32.0f;
+    return N % 2 ? (float)lo / (float)per_level : (float)(lo + hi) / (2.0f * (float)per_level);
 }
 
 /* One pass over the rows the blocks use (half of them), and the noise pass only where a bar is
@@ -357,14 +362,8 @@ ColumnsResult columns_moved(const uint8_t *A, const uint8_t *B, const uint8_t *U
             whole[abs(round_half_even(sumu, 2 * k) - round_half_even(suml, 2 * k))]++;
         }
     }
-    /* the median over all blocks: the value at rank N / 2, and for an even N the mean with the one below */
-    idx_t N = n * G, seen = 0, hi = -1, lo = -1;
-    for (int v = 0; v < 256 && hi < 0; v++) {
-        if (lo < 0 && seen + whole[v] > (N - 1) / 2) lo = v;
-        if (seen + whole[v] > N / 2) hi = v;
-        seen += whole[v];
-    }
-    float median = N % 2 ? (float)hi : ((float)lo + (float)hi) / 2.0f;
+    idx_t N = n * G, lo = (N - 1) / 2, hi = N / 2; /* the median over all blocks */
+    float median = counted_median(rank_in(whole, &lo), rank_in(whole, &hi), N, 1);
     double raised = p->block_ratio * (double)median; /* NaN for an infinite ratio over a median of 0 */
     if (raised > block_level) block_level = raised;   /* Python's max(): a NaN leaves the bar as it was */
     /* each group's bar from its blocks and its neighbours' (the first and last group twice) */
@@ -376,7 +375,8 @@ ColumnsResult columns_moved(const uint8_t *A, const uint8_t *B, const uint8_t *U
             key_count(within, keys + (g - 2 < 0 ? 0 : g - 2) * n, n, -1);
             key_count(within, keys + MIN(g + 1, G - 1) * n, n, 1);
         }
-        float noise_bar = ratio32 * median_16ths(within, 3 * n);
+        float noise_bar = ratio32 * counted_median(key_at_rank(within, (3 * n - 1) / 2), key_at_rank(within, 3 * n / 2),
+                                                   3 * n, 16);
         float bar = isnan(level32) || isnan(noise_bar) ? NAN : MAX(level32, noise_bar); /* np.maximum */
         bool m = (double)change[g] > (double)bar || (double)local[g] >= block_level;
         memset(moved + 8 * g, m, (size_t)(MIN(8 * g + 8, W) - 8 * g));
