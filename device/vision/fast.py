@@ -355,6 +355,9 @@ class FastPipeline:
         self._resolve_params = (params.dim_peak_fraction, params.own_peak_fraction, params.max_spread_px, params.jump_rel,
                                 params.jump_factor, params.min_peak, params.max_range_sigma, params.min_run,
                                 params.smooth_half, params.support_half, params.max_gap)
+        # and its ColumnsMovedParams (step 0's bars)
+        self._moved_params = (params.moved_level, params.moved_block_level, params.moved_block_ratio,
+                              params.moved_mean_ratio)
         self._pad = rows_read(params.estimator, params.half_width)  # zero rows around the difference
         # image-sized temporaries kept between frame pairs (a search uses their first rows): one
         # allocated per frame costs page faults whenever the allocator returns it to the system
@@ -557,10 +560,8 @@ class FastPipeline:
         over 2 rows raises the median too (the office in 10x light: 1.06, noise alone ~0.5), which
         moves the bar only where that exceeds ``moved_level``. The noise is measured only where
         some group reaches a bar: else no column reaches one, whatever the noise."""
-        p = self.params
         moved = np.empty(a.shape[1], bool)
-        self._kernel.moved(a, b, unlit, (p.moved_level, p.moved_block_level, p.moved_block_ratio, p.moved_mean_ratio),
-                           moved)
+        self._kernel.moved(a, b, unlit, self._moved_params, moved)
         return moved
 
     def _turned(self, grid, lum_lit: np.ndarray, lum_unlit: np.ndarray, lum_other: np.ndarray, background: np.ndarray,
