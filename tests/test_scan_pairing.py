@@ -71,6 +71,50 @@ def test_scan_timing_is_exact_for_rays_on_a_line_and_reports_the_residual_otherw
     assert (none.first_ray_ns, none.ray_interval_ns) == (760_000_000, 0)
 
 
+def _scan_timing_numpy(times_ns, fallback_ns):
+    """scan_timing's definition as numpy states it (the device's own before the kernel took it)."""
+    t = np.asarray(times_ns, dtype=np.float64)
+    i = np.nonzero(np.isfinite(t))[0]
+    if i.size < 2:
+        return int(round(fallback_ns)), 0, 0.0
+    x, y = i - i.mean(), t[i] - t[i].mean()
+    slope = round(float(np.dot(x, y) / np.dot(x, x)))
+    first = float(np.mean(t[i] - slope * i))
+    return int(round(first)), int(slope), float(np.max(np.abs(t[i] - (first + slope * i))))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_scan_timing_is_its_least_squares_definition(seed):
+    """Rays' times as a scan has them (a line of a few us per ray, bent and stepped by the rows,
+    rays without a time), on a clock that has run for an hour: the same line as numpy's."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 2000))
+    i = np.arange(n)
+    t = 3.6e12 + rng.uniform(-5e3, 5e3) * i + rng.normal(0, 3e4, n) + 2e5 * (i > n // 2)
+    t[rng.random(n) < rng.choice([0.0, 0.3, 0.95])] = np.nan
+    t[rng.random(n) < 0.01] = np.inf  # not a time either
+    s = scan_timing(t, fallback_ns=1.5e12)
+    first, interval, residual = _scan_timing_numpy(t, 1.5e12)
+    assert (s.first_ray_ns, s.ray_interval_ns) == (first, interval)
+    assert s.residual_ns == pytest.approx(residual, rel=1e-9, abs=1e-3)
+
+
+def test_scan_timing_keeps_every_ns_on_a_clock_that_ran_for_weeks():
+    """CLOCK_MONOTONIC at 30 days is 2.6e15 ns: a sum of 1640 such times (4e18) keeps no digit
+    below ~500 ns, so a mean taken that way is off by a fraction of that. The kernel sums relative
+    to the first ray's time: rays exactly on a line come out exact, residual 0."""
+    i = np.arange(1640)
+    t0 = 2_592_000 * 10**9 + 123_456_789
+    times = (t0 + 1718 * i).astype(np.float64)
+    s = scan_timing(times, fallback_ns=0.0)
+    assert (s.first_ray_ns, s.ray_interval_ns, s.residual_ns) == (t0, 1718, 0.0)
+
+
+def test_scan_timing_names_a_fallback_that_is_no_time():
+    with pytest.raises(ValueError, match="fallback_ns"):
+        scan_timing(np.full(3, np.nan), fallback_ns=float("nan"))
+
+
 def test_a_scans_rays_are_timed_from_the_rows_their_line_was_found_in():
     from device.config import load_preset
     from device.scan.pipeline import ScanPipeline

@@ -360,14 +360,15 @@ def test_resolve_takes_its_arguments_grouped_as_the_kernels_structs():
         _resolve(idx=(3, 3))
 
 
-def _scan_rays_numpy(angle, rng, quality, row, grid, max_gap):
-    """scan_rays' definition in numpy: resample_scan, and quality and row of the measured column
-    each ray with a finite range came from (of the two it was interpolated between, the one
-    nearer in angle)."""
+def _scan_rays_numpy(angle, rng, quality, row, grid):
+    """scan_rays' definition in numpy: resample_scan over the columns in angle_order, bridging
+    bridged_gap, and quality and row of the measured column each ray with a finite range came
+    from (of the two it was interpolated between, the one nearer in angle)."""
     from device.model.scan_frame import angle_order, resample_scan
+    from device.vision.measurements import bridged_gap
 
-    out = resample_scan(angle, rng, grid, max_gap)
     order = angle_order(angle)
+    out = resample_scan(angle, rng, grid, bridged_gap(angle[order], grid), order=order)
     ok = order[np.isfinite(rng[order])]  # the measured columns in increasing angle, as resample_scan takes them
     a, q, r = angle[ok], quality[ok], row[ok]
     measured = np.isfinite(out)
@@ -379,16 +380,28 @@ def _scan_rays_numpy(angle, rng, quality, row, grid, max_gap):
     return out, np.where(measured, np.clip(np.rint(q[nearest]), 0, 255), 0).astype(np.uint8), np.where(measured, r[nearest], np.nan)
 
 
-@pytest.mark.parametrize("seed", range(40))
-def test_scan_rays_equals_resample_scan_and_the_nearest_columns(seed):
-    from device.model.scan_frame import angle_order
+def _kernel_scan_rays(angle, r, quality, row, grid):
+    m = grid.size
+    out, q, rows = np.empty(m), np.empty(m, np.uint8), np.empty(m)
+    K.scan_rays(angle, r, quality, row, grid, 3.0, 0.05, out, q, rows)
+    return out, q, rows
 
+
+@pytest.mark.parametrize("seed", range(60))
+def test_scan_rays_equals_resample_scan_and_the_nearest_columns(seed):
+    """Random columns, a camera's order (angle falling with the column) but for inversions, equal
+    angles (a stable order: which of two columns at one angle is taken decides the range), a few
+    columns or thousands (the angle order's merges and the median's selection at every size)."""
     rng = np.random.default_rng(seed)
-    n, m = int(rng.integers(1, 300)), int(rng.integers(2, 400))
+    n = int(rng.choice([1, 2, 3, 4, int(rng.integers(5, 300)), int(rng.integers(1000, 4000))]))
+    m = int(rng.integers(2, 400))
     grid = np.linspace(-1.0, 1.0, m)
-    angle = np.sort(rng.uniform(-1.2, 1.2, n))[::-1].copy()  # a camera's columns: angle falls with the column
-    angle += rng.normal(0, 0.002, n) * (rng.random(n) < 0.3)  # out of order near depth jumps
+    angle = np.sort(rng.uniform(-1.2, 1.2, n))[::-1].copy()
+    angle += rng.normal(0, 0.002, n) * (rng.random(n) < rng.choice([0.0, 0.3, 1.0]))  # out of order near depth jumps
+    if seed % 3 == 0:
+        angle = np.round(angle, 2)  # many equal angles
     angle[rng.random(n) < 0.05] = np.nan
+    angle[rng.random(n) < 0.01] = np.inf
     r = np.where(rng.random(n) < 0.5, 2.0, rng.choice([1.0, 2.0, 3.5], n)) * rng.uniform(0.97, 1.03, n)
     codes = rng.random(n)
     r[codes < 0.15] = np.inf
@@ -398,14 +411,32 @@ def test_scan_rays_equals_resample_scan_and_the_nearest_columns(seed):
     row = rng.uniform(0, 900, n)
     if not np.isfinite(angle).any():
         angle[0] = 0.0
-    max_gap = float(rng.choice([0.005, 0.02, 0.3]))
-    order = angle_order(angle)
-    out, q, rows = np.empty(m), np.empty(m, np.uint8), np.empty(m)
-    K.scan_rays(angle, r, quality, row, order, grid, max_gap, 0.05, np.empty_like(order), out, q, rows)
-    want = _scan_rays_numpy(angle, r, quality, row, grid, max_gap)
-    for got, expected in zip((out, q, rows), want):
-        assert got.dtype == expected.dtype
-        np.testing.assert_array_equal(got, expected)
+    got = _kernel_scan_rays(angle, r, quality, row, grid)
+    want = _scan_rays_numpy(angle, r, quality, row, grid)
+    for g, expected in zip(got, want):
+        assert g.dtype == expected.dtype
+        np.testing.assert_array_equal(g, expected)
+
+
+def test_scan_rays_takes_equal_angles_in_column_order():
+    """Columns 1 and 2 share an angle, with different ranges: the stable order takes column 1
+    first (numpy's argsort kind="stable"), so the ray just above the angle interpolates from
+    column 2, the one just below from column 1."""
+    angle = np.array([0.2, 0.1, 0.1, 0.0])
+    r = np.array([2.0, 2.0, 2.02, 2.02])
+    grid = np.array([0.0, 0.0999, 0.1001, 0.2])
+    out, _, rows = _kernel_scan_rays(angle, r, np.ones(4), np.arange(4.0), grid)
+    assert rows.tolist() == [3.0, 1.0, 2.0, 0.0]
+    np.testing.assert_array_equal(out, _scan_rays_numpy(angle, r, np.ones(4), np.arange(4.0), grid)[0])
+
+
+def test_scan_rays_bridges_three_median_spacings():
+    """Columns 0.01 rad apart with a hole of 0.025 rad (bridged: within three spacings) and one of
+    0.035 rad (not): the median spacing, not the mean (0.0167), sets the gap."""
+    angle = np.array([0.0, 0.01, 0.02, 0.045, 0.055, 0.09, 0.10])
+    grid = np.array([0.035, 0.0725, 0.095])  # 0.0725: beyond half a gap from either side
+    out, _, _ = _kernel_scan_rays(angle, np.full(7, 2.0), np.ones(7), np.zeros(7), grid)
+    assert out[0] == 2.0 and out[1] == np.inf and out[2] == 2.0
 
 
 def test_a_ray_with_a_range_has_the_row_and_quality_of_a_measured_column():
@@ -413,8 +444,6 @@ def test_a_ray_with_a_range_has_the_row_and_quality_of_a_measured_column():
     columns 4 and 6, and its row and quality are theirs (the nearer in angle), so it has a time.
     Before, they were column 5's: no row (no time, the host fell back to the scan's line) and
     quality 0 (dropped by a host's min_quality)."""
-    from device.model.scan_frame import angle_order
-
     angle = np.linspace(0.1, -0.1, 11)  # a camera's columns: angle falls with the column
     r = np.full(11, 2.0)
     r[5] = np.nan
@@ -423,19 +452,21 @@ def test_a_ray_with_a_range_has_the_row_and_quality_of_a_measured_column():
     row[5] = np.nan
     grid = np.linspace(-0.1, 0.1, 11)  # ray i at column 10 - i
     grid[5] += 0.001  # a little nearer column 4
-    out, q, rows = np.empty(11), np.empty(11, np.uint8), np.empty(11)
-    order = angle_order(angle)
-    K.scan_rays(angle, r, quality, row, order, grid, 0.05, 0.05, np.empty_like(order), out, q, rows)
+    out, q, rows = _kernel_scan_rays(angle, r, quality, row, grid)
     assert np.isfinite(out).all() and np.isfinite(rows).all()
     assert (rows[5], q[5]) == (104.0, 40)
     np.testing.assert_array_equal(rows[:5], row[:5:-1][:5])
 
 
-def test_scan_rays_names_a_bad_order():
+def test_scan_rays_names_bad_arguments():
     a = np.zeros(3)
-    with pytest.raises(ValueError, match="order"):
-        K.scan_rays(a, a, a, a, np.array([0, 5]), np.linspace(0, 1, 4), 0.1, 0.05, np.empty(2, np.intp),
-                    np.empty(4), np.empty(4, np.uint8), np.empty(4))
+    with pytest.raises(ValueError, match="no column has a finite angle"):
+        K.scan_rays(np.full(3, np.nan), a, a, a, np.linspace(0, 1, 4), 3.0, 0.05, np.empty(4), np.empty(4, np.uint8),
+                    np.empty(4))
+    with pytest.raises(ValueError, match="gap_spacings >= 0"):
+        K.scan_rays(a, a, a, a, np.linspace(0, 1, 4), np.nan, 0.05, np.empty(4), np.empty(4, np.uint8), np.empty(4))
+    with pytest.raises(ValueError, match="m >= 2"):
+        K.scan_rays(a, a, a, a, np.zeros(1), 3.0, 0.05, np.empty(1), np.empty(1, np.uint8), np.empty(1))
 
 
 def test_resolve_refuses_a_range_gate_that_is_not_positive():

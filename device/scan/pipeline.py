@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from device.camera.frame import Frame
-from device.model.scan_frame import MAX_JUMP_RATIO, angle_order, uniform_angles
+from device.model.scan_frame import MAX_JUMP_RATIO, uniform_angles
 from device.scan.timing import column_times_ns, scan_timing
 from device.vision.kernel import columns_kernel
-from device.vision.measurements import STATUS_U8, ColumnStatus, bridged_gap
+from device.vision.measurements import BRIDGED_SPACINGS, STATUS_U8, ColumnStatus
 
 if TYPE_CHECKING:
     from device.vision.measurements import Pipeline
@@ -56,15 +56,13 @@ class ScanPipeline:
 
     def __call__(self, lit: Frame, dark: Frame, other_dark: Frame | None = None) -> ScanRays:
         meas = self.pipeline.process(lit, dark, other_unlit=other_dark)
-        angle = np.ascontiguousarray(meas.angle, dtype=np.float64)
-        order = angle_order(angle)
         n = self.angles.size
         ranges, quality, rows = np.empty(n), np.empty(n, np.uint8), np.empty(n)
-        # resample_scan's arithmetic and the nearest column's quality and row in one compiled pass
-        # (one call instead of ~100 numpy ones: no GIL hand-over to other threads between them)
-        columns_kernel().scan_rays(angle, *(np.ascontiguousarray(x, dtype=np.float64) for x in (meas.range, meas.quality, meas.row)),
-                                   order, self.angles, bridged_gap(angle[order], self.angles), MAX_JUMP_RATIO,
-                                   np.empty_like(order), ranges, quality, rows)
+        # the columns' angle order, the bridged gap, resample_scan's arithmetic and the nearest
+        # column's quality and row in one compiled pass (one call instead of ~100 numpy ones, each
+        # paying a cold cache after the frame's wait)
+        columns_kernel().scan_rays(*(np.ascontiguousarray(x, dtype=np.float64) for x in (meas.angle, meas.range, meas.quality, meas.row)),
+                                   self.angles, BRIDGED_SPACINGS, MAX_JUMP_RATIO, ranges, quality, rows)
         ray_times = column_times_ns(lit, rows)  # NaN where the ray has no range (the kernel's row)
         timing = scan_timing(ray_times, column_times_ns(lit, self._middle_row))
         return ScanRays(ranges.astype(np.float32), quality, timing.first_ray_ns, timing.ray_interval_ns, ray_times,

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from device.camera.frame import Frame
+from device.vision.kernel import columns_kernel
 
 
 def column_times_ns(frame: Frame, rows: np.ndarray) -> np.ndarray:
@@ -50,14 +51,12 @@ class ScanTiming:
 
 
 def scan_timing(times_ns: np.ndarray, fallback_ns: float) -> ScanTiming:
-    """The line ``first + i interval`` through the rays' times (NaN: no time), least squares;
-    ``fallback_ns`` for every ray when fewer than two have a time."""
-    t = np.asarray(times_ns, dtype=np.float64)
-    i = np.nonzero(np.isfinite(t))[0]
-    if i.size < 2:
-        return ScanTiming(int(round(fallback_ns)), 0, 0.0)
-    x, y = i - i.mean(), t[i] - t[i].mean()
-    slope = round(float(np.dot(x, y) / np.dot(x, x)))  # least squares (x has >= 2 distinct values)
-    first = float(np.mean(t[i] - slope * i))
-    residual = float(np.max(np.abs(t[i] - (first + slope * i))))
-    return ScanTiming(int(round(first)), int(slope), residual)
+    """The line ``first + i interval`` through the rays' times (NaN: no time), least squares:
+    its slope rounded to whole ns, then the offset that is the mean of ``time - slope i``, both
+    rounded to nearest (ties to even); ``residual_ns`` the largest |time - line| over the rays
+    with a time; ``fallback_ns`` for every ray when fewer than two have a time. One compiled pass
+    (columns_scan_timing in device/vision/columns/columns.h), its sums taken relative to the
+    first ray's time, where a clock's ~1e15 ns would cost digits."""
+    t = np.ascontiguousarray(times_ns, dtype=np.float64).reshape(-1)
+    first, interval, residual = columns_kernel().scan_timing(t, float(fallback_ns))
+    return ScanTiming(first, interval, residual)

@@ -141,9 +141,14 @@ def to_laser_scan(meas: ColumnMeasurements, angle_min: float, angle_max: float, 
     return grid, resample_scan(a, meas.range, grid, max_gap, order=order)
 
 
+#: The default largest gap a scan bridges between two measured columns, in median column spacings.
+BRIDGED_SPACINGS = 3.0
+
+
 def bridged_gap(sorted_angles: np.ndarray, grid: np.ndarray) -> float:
-    """The default largest gap (rad) a scan bridges between two measured columns: three times
-    the median spacing of the columns' ``sorted_angles`` (the grid's step with fewer than 3)."""
+    """The default largest gap (rad) a scan bridges between two measured columns:
+    BRIDGED_SPACINGS times the median spacing of the columns' ``sorted_angles`` (the grid's step
+    with fewer than 3)."""
     if sorted_angles.size > 2:
-        return 3.0 * float(np.median(np.diff(sorted_angles)))
+        return BRIDGED_SPACINGS * float(np.median(np.diff(sorted_angles)))
     return grid[1] - grid[0]

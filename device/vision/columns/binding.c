@@ -16,8 +16,9 @@
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
  *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
- *   scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out,
- *             quality_out, row_out)
+ *   scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out,
+ *             row_out)
+ *   scan_timing(times_ns, fallback_ns) -> (first_ns, interval_ns, residual_ns)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -336,32 +337,47 @@ static PyObject *py_triangulate(PyObject *self, PyObject *args)
     return done(&vs, r, &err, NULL);
 }
 
-/* scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out,
- *           quality_out, row_out): columns_scan_rays; `measured` is workspace of order's length. */
+/* scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out,
+ *           row_out): columns_scan_rays. */
 static PyObject *py_scan_rays(PyObject *self, PyObject *args)
 {
-    PyObject *o_a, *o_r, *o_q, *o_row, *o_order, *o_grid, *o_meas, *o_rout, *o_qout, *o_rowout;
-    double max_gap, ratio;
-    if (!PyArg_ParseTuple(args, "OOOOOOddOOOO", &o_a, &o_r, &o_q, &o_row, &o_order, &o_grid, &max_gap, &ratio,
-                          &o_meas, &o_rout, &o_qout, &o_rowout))
+    PyObject *o_a, *o_r, *o_q, *o_row, *o_grid, *o_rout, *o_qout, *o_rowout;
+    double gap_spacings, ratio;
+    if (!PyArg_ParseTuple(args, "OOOOOddOOO", &o_a, &o_r, &o_q, &o_row, &o_grid, &gap_spacings, &ratio, &o_rout,
+                          &o_qout, &o_rowout))
         return NULL;
     Views vs = {.n = 0};
-    idx_t N, K, M;
+    idx_t N, M;
     const double *a = arg(&vs, o_a, 'd', -1, 0, 1, 0, "angle", &N);
     const double *r = a ? arg(&vs, o_r, 'd', N, 0, 1, 0, "range", NULL) : NULL;
     const double *q = r ? arg(&vs, o_q, 'd', N, 0, 1, 0, "quality", NULL) : NULL;
     const double *row = q ? arg(&vs, o_row, 'd', N, 0, 1, 0, "row", NULL) : NULL;
-    const idx_t *order = row ? arg(&vs, o_order, 'i', -1, 0, 1, 0, "order", &K) : NULL;
-    const double *grid = order ? arg(&vs, o_grid, 'd', -1, 0, 1, 0, "grid", &M) : NULL;
-    idx_t *meas = grid ? arg(&vs, o_meas, 'i', K, 0, 1, 1, "measured", NULL) : NULL;
-    double *rout = meas ? arg(&vs, o_rout, 'd', M, 0, 1, 1, "range_out", NULL) : NULL;
+    const double *grid = row ? arg(&vs, o_grid, 'd', -1, 0, 1, 0, "grid", &M) : NULL;
+    double *rout = grid ? arg(&vs, o_rout, 'd', M, 0, 1, 1, "range_out", NULL) : NULL;
     uint8_t *qout = rout ? arg(&vs, o_qout, 'u', M, 0, 1, 1, "quality_out", NULL) : NULL;
     double *rowout = qout ? arg(&vs, o_rowout, 'd', M, 0, 1, 1, "row_out", NULL) : NULL;
     if (!rowout) return failed(&vs);
     ColumnsError err;
-    ColumnsResult res = columns_scan_rays(N, a, r, q, row, K, order, M, grid, max_gap, ratio, meas, rout, qout, rowout,
-                                          &err);
+    ColumnsResult res = columns_scan_rays(N, a, r, q, row, M, grid, gap_spacings, ratio, rout, qout, rowout, &err);
     return done(&vs, res, &err, NULL);
+}
+
+/* scan_timing(times_ns, fallback_ns) -> (first_ns, interval_ns, residual_ns): columns_scan_timing. */
+static PyObject *py_scan_timing(PyObject *self, PyObject *args)
+{
+    PyObject *o_t;
+    double fallback;
+    if (!PyArg_ParseTuple(args, "Od", &o_t, &fallback)) return NULL;
+    Views vs = {.n = 0};
+    idx_t N;
+    const double *t = arg(&vs, o_t, 'd', -1, 0, 1, 0, "times_ns", &N);
+    if (!t) return failed(&vs);
+    ColumnsError err;
+    ColumnsScanTiming out;
+    ColumnsResult res = columns_scan_timing(N, t, fallback, &out, &err);
+    if (res != COLUMNS_DONE) return done(&vs, res, &err, NULL);
+    release(&vs);
+    return Py_BuildValue("(LLd)", (long long)out.first_ns, (long long)out.interval_ns, out.residual_ns);
 }
 
 static PyMethodDef methods[] = {
@@ -378,8 +394,8 @@ static PyMethodDef methods[] = {
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
     {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},
     {"scan_rays", py_scan_rays, METH_VARARGS,
-     "scan_rays(angle, range, quality, row, order, grid, max_gap, max_jump_ratio, measured, range_out, quality_out, "
-     "row_out)"},
+     "scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out, row_out)"},
+    {"scan_timing", py_scan_timing, METH_VARARGS, "scan_timing(times_ns, fallback_ns) -> (first_ns, interval_ns, residual_ns)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -997,17 +997,91 @@ static idx_t lower_bound_from(const double *a, const idx_t *at, idx_t n, idx_t l
     return lo;
 }
 
-ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
-                                const double *row, ptrdiff_t n_order, const ptrdiff_t *order, ptrdiff_t m,
-                                const double *grid, double max_gap, double max_jump_ratio, ptrdiff_t *measured,
-                                double *range_out, uint8_t *quality_out, double *row_out, ColumnsError *err)
+/* order[0..k) <- the columns of the n whose angle is finite, in increasing angle, equal angles
+ * in column order (device.model.scan_frame.angle_order: numpy's stable sort): merges of the
+ * ascending runs (a camera's columns come as one run, but for the few where the line's row bends
+ * a column's azimuth), into tmp and back; returns k. */
+static idx_t finite_angle_order(idx_t n, const double *angle, idx_t *order, idx_t *tmp)
 {
-    if (n_order < 1 || n_order > n || m < 2)
-        return bad_argument(err, "columns_scan_rays: need 1 <= n_order <= n and m >= 2, got %td, %td, %td", n_order,
-                            n, m);
-    for (idx_t j = 0; j < n_order; j++)
-        if (order[j] < 0 || order[j] >= n)
-            return bad_argument(err, "columns_scan_rays: order[%td] = %td is not a column of %td", j, order[j], n);
+    idx_t k = 0;
+    for (idx_t i = 0; i < n; i++)
+        if (isfinite(angle[i])) order[k++] = i;
+    for (;;) {
+        idx_t runs = 0;
+        for (idx_t i = 0; i < k; runs++) {
+            idx_t mid = i + 1;
+            while (mid < k && angle[order[mid - 1]] <= angle[order[mid]]) mid++;
+            idx_t end = mid;
+            while (end < k && (end == mid || angle[order[end - 1]] <= angle[order[end]])) end++;
+            idx_t a = i, b = mid, out = i;
+            while (a < mid && b < end) tmp[out++] = angle[order[b]] < angle[order[a]] ? order[b++] : order[a++];
+            while (a < mid) tmp[out++] = order[a++];
+            while (b < end) tmp[out++] = order[b++];
+            i = end;
+        }
+        if (k) memcpy(order, tmp, (size_t)k * sizeof *order);
+        if (runs <= 1) return k;
+    }
+}
+
+/* The median of the n >= 1 values x (the middle one, or the mean of the middle two as numpy's
+ * median: (a + b) / 2), reordering x: a quickselect. */
+static double median_in_place(double *x, idx_t n)
+{
+    idx_t want = n / 2, lo = 0, hi = n - 1;
+    while (lo < hi) { /* x[want] <- the value of rank `want` (Hoare's partition about the middle's value) */
+        const double pivot = x[lo + (hi - lo) / 2];
+        idx_t i = lo, j = hi;
+        while (i <= j) {
+            while (x[i] < pivot) i++;
+            while (pivot < x[j]) j--;
+            if (i <= j) {
+                const double t = x[i];
+                x[i++] = x[j], x[j--] = t;
+            }
+        }
+        if (want <= j)
+            hi = j;
+        else if (want >= i)
+            lo = i;
+        else
+            break;
+    }
+    if (n % 2) return x[want];
+    double below = x[0]; /* rank want - 1: the largest of x[0..want) (all <= x[want]) */
+    for (idx_t i = 1; i < want; i++)
+        if (x[i] > below) below = x[i];
+    return (below + x[want]) / 2;
+}
+
+ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
+                                const double *row, ptrdiff_t m, const double *grid, double gap_spacings,
+                                double max_jump_ratio, double *range_out, uint8_t *quality_out, double *row_out,
+                                ColumnsError *err)
+{
+    if (n < 1 || m < 2 || !(gap_spacings >= 0))
+        return bad_argument(err, "columns_scan_rays: need n >= 1, m >= 2 and gap_spacings >= 0, got %td, %td, %g", n, m,
+                            gap_spacings);
+    idx_t *order = malloc((size_t)(3 * n) * sizeof *order), *tmp = order ? order + n : NULL,
+          *measured = order ? order + 2 * n : NULL;
+    double *spacing = malloc((size_t)n * sizeof *spacing);
+    if (!order || !spacing) {
+        free(order), free(spacing);
+        return no_memory(err, "columns_scan_rays");
+    }
+    const idx_t n_order = finite_angle_order(n, angle, order, tmp);
+    if (n_order < 1) {
+        free(order), free(spacing);
+        return bad_argument(err, "columns_scan_rays: no column has a finite angle");
+    }
+    /* the largest gap bridged: gap_spacings x the median spacing of the columns' angles, the
+     * grid's step with fewer than 3 columns (device.vision.measurements.bridged_gap) */
+    double max_gap = grid[1] - grid[0];
+    if (n_order > 2) {
+        for (idx_t j = 0; j + 1 < n_order; j++) spacing[j] = angle[order[j + 1]] - angle[order[j]];
+        max_gap = gap_spacings * median_in_place(spacing, n_order - 1);
+    }
+    free(spacing);
     /* the measured columns (finite range) in increasing angle: resample_scan's a, r */
     idx_t nm = 0;
     for (idx_t j = 0; j < n_order; j++)
@@ -1055,5 +1129,48 @@ ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *
         const double cell = rint((angle[j] - grid[0]) / step);
         if (cell >= 0 && cell < (double)m && range_out[(idx_t)cell] == INFINITY) range_out[(idx_t)cell] = code;
     }
+    free(order);
+    return COLUMNS_DONE;
+}
+
+/* ---- the scan's timing (device/scan/timing.py scan_timing) ---------------------------------- */
+
+ColumnsResult columns_scan_timing(ptrdiff_t n, const double *times_ns, double fallback_ns, ColumnsScanTiming *out,
+                                  ColumnsError *err)
+{
+    const double limit = 4611686018427387904.0; /* 2^62 ns: rounds to an int64_t with room */
+    idx_t count = 0, first = -1;
+    double sum_i = 0, sum_y = 0;
+    for (idx_t i = 0; i < n; i++) {
+        if (!isfinite(times_ns[i])) continue;
+        if (first < 0) first = i;
+        count++, sum_i += (double)i, sum_y += times_ns[i] - times_ns[first];
+    }
+    if (count < 2) {
+        if (!(fabs(fallback_ns) < limit))
+            return bad_argument(err, "columns_scan_timing: fallback_ns %g is not a time", fallback_ns);
+        *out = (ColumnsScanTiming){(int64_t)rint(fallback_ns), 0, 0.0};
+        return COLUMNS_DONE;
+    }
+    const double t0 = times_ns[first], mean_i = sum_i / (double)count, mean_y = sum_y / (double)count;
+    double sxy = 0, sxx = 0;
+    for (idx_t i = first; i < n; i++) {
+        if (!isfinite(times_ns[i])) continue;
+        const double x = (double)i - mean_i;
+        sxy += x * (times_ns[i] - t0 - mean_y), sxx += x * x;
+    }
+    const double slope = rint(sxy / sxx); /* sxx > 0: two rays have two indices */
+    double offset = 0;
+    for (idx_t i = first; i < n; i++)
+        if (isfinite(times_ns[i])) offset += times_ns[i] - t0 - slope * (double)i;
+    offset /= (double)count;
+    double residual = 0;
+    for (idx_t i = first; i < n; i++)
+        if (isfinite(times_ns[i])) residual = fmax(residual, fabs(times_ns[i] - t0 - (offset + slope * (double)i)));
+    const double first_ns = t0 + offset;
+    if (!(fabs(first_ns) < limit) || !(fabs(slope) < limit))
+        return bad_argument(err, "columns_scan_timing: the line's first ray at %g ns, %g ns a ray, is not a time",
+                            first_ns, slope);
+    *out = (ColumnsScanTiming){(int64_t)rint(first_ns), (int64_t)slope, residual};
     return COLUMNS_DONE;
 }

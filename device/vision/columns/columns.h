@@ -184,17 +184,34 @@ void columns_running_median(const double *x, const bool *found, ptrdiff_t n, dou
 void columns_run_length(const bool *mask, ptrdiff_t n, ptrdiff_t *out);
 
 /* One frame's columns (n of them: angle, range with REP 117 codes, quality, row) on a scan's m
- * ascending uniform angles `grid` (device/scan/pipeline.py ScanPipeline): `order` (n_order indices) lists
- * the columns with a finite angle in increasing angle. range_out: the columns' ranges resampled
- * as device.model.scan_frame.resample_scan does (bridging at most max_gap rad, never a depth
- * jump of max_jump_ratio; its arithmetic in its order, so bit for bit); quality_out and row_out:
- * the quality (rounded, clipped to 0..255) and row of the measured column (finite range) each ray
- * with a finite range came from (of the two it was interpolated between the one nearer in angle),
- * 0 and NaN at the others. `measured`: n_order indices of workspace. Needs
- * n_order >= 1 and m >= 2. */
+ * ascending uniform angles `grid` (device/scan/pipeline.py ScanPipeline). The columns with a
+ * finite angle are taken in increasing angle, equal angles in column order
+ * (device.model.scan_frame.angle_order), and bridged across at most gap_spacings x the median
+ * spacing of their angles (the grid's step with fewer than 3 such columns:
+ * device.vision.measurements.bridged_gap). range_out: the columns' ranges resampled as
+ * device.model.scan_frame.resample_scan does (never across a depth jump of max_jump_ratio; its
+ * arithmetic in its order, so bit for bit); quality_out and row_out: the quality (rounded,
+ * clipped to 0..255) and row of the measured column (finite range) each ray with a finite range
+ * came from (of the two it was interpolated between the one nearer in angle), 0 and NaN at the
+ * others. Needs n >= 1 with a finite angle, m >= 2, gap_spacings >= 0. */
 ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *range, const double *quality,
-                                const double *row, ptrdiff_t n_order, const ptrdiff_t *order, ptrdiff_t m,
-                                const double *grid, double max_gap, double max_jump_ratio, ptrdiff_t *measured,
-                                double *range_out, uint8_t *quality_out, double *row_out, ColumnsError *err);
+                                const double *row, ptrdiff_t m, const double *grid, double gap_spacings,
+                                double max_jump_ratio, double *range_out, uint8_t *quality_out, double *row_out,
+                                ColumnsError *err);
+
+/* A scan's timing (device/scan/timing.py scan_timing): the least-squares line
+ * first_ns + i interval_ns through the n rays' times (CLOCK_MONOTONIC ns; not finite: none),
+ * its slope rounded to whole ns first and then its offset, and the largest |time - line| of the
+ * rays with one; with fewer than two such rays first_ns = fallback_ns rounded, interval 0,
+ * residual 0. Rounding is to nearest, ties to even (Python's round). The sums are taken relative
+ * to the first ray's time and the rays' mean index (no digits lost to a clock's ~1e15 ns).
+ * Needs a finite first_ns within +-2^62 ns. */
+typedef struct {
+    int64_t first_ns, interval_ns;
+    double residual_ns;
+} ColumnsScanTiming;
+
+ColumnsResult columns_scan_timing(ptrdiff_t n, const double *times_ns, double fallback_ns, ColumnsScanTiming *out,
+                                  ColumnsError *err);
 
 #endif

@@ -908,6 +908,85 @@ static void test_triangulate_refuses_bad_arguments(void)
     CHECK(depth[0] == -1.0, "nothing written");
 }
 
+/* Columns at angles j / 1000 rad in a random order (every run length, down to one column a
+ * run), ranges 2 + angle: each ray inside them interpolates 2 + its angle from the two columns
+ * around it, whatever order they came in, and has the row of the nearer one. */
+static void test_scan_rays_orders_shuffled_columns_by_angle(void)
+{
+    const ptrdiff_t sizes[] = {1, 2, 3, 4, 5, 8, 33, 64, 3000};
+    for (size_t t = 0; t < sizeof sizes / sizeof sizes[0]; t++) {
+        const ptrdiff_t n = sizes[t], m = 97;
+        double *angle = alloc((size_t)n * sizeof *angle), *range = alloc((size_t)n * sizeof *range);
+        double *quality = alloc((size_t)n * sizeof *quality), *row = alloc((size_t)n * sizeof *row);
+        double *grid = alloc((size_t)m * sizeof *grid), *rout = alloc((size_t)m * sizeof *rout);
+        double *rowout = alloc((size_t)m * sizeof *rowout);
+        uint8_t *qout = alloc((size_t)m);
+        for (ptrdiff_t j = 0; j < n; j++) angle[j] = (double)j / 1000;
+        for (ptrdiff_t j = n - 1; j > 0; j--) { /* Fisher-Yates */
+            const ptrdiff_t k = (ptrdiff_t)(rnd() % (uint32_t)(j + 1));
+            const double a = angle[j];
+            angle[j] = angle[k], angle[k] = a;
+        }
+        for (ptrdiff_t j = 0; j < n; j++) range[j] = 2 + angle[j], quality[j] = 100, row[j] = angle[j] * 1000;
+        const double top = n > 1 ? (double)(n - 1) / 1000 : 1e-3;
+        for (ptrdiff_t i = 0; i < m; i++) grid[i] = top * (double)i / (double)(m - 1);
+        CHECK(columns_scan_rays(n, angle, range, quality, row, m, grid, 3.0, 0.05, rout, qout, rowout, NULL)
+                  == COLUMNS_DONE, "n %td", n);
+        int wrong = 0;
+        for (ptrdiff_t i = 0; i < m; i++) {
+            if (n <= 2) { /* fewer than 3 columns bridge one grid step: a ray on a column or beyond */
+                const int on = i == 0 || (n == 2 && i == m - 1);
+                wrong += on ? !(rout[i] == 2 + grid[i] && rowout[i] == (double)(i > 0)) : !(rout[i] == INFINITY && isnan(rowout[i]));
+                continue;
+            }
+            const double at = grid[i] * 1000, lo = floor(at), below = at - lo, above = lo + 1 - at;
+            const int row_ok = fabs(below - above) < 1e-9 ? (near(rowout[i], lo, 1e-9) || near(rowout[i], lo + 1, 1e-9))
+                                                          : near(rowout[i], below <= above ? lo : lo + 1, 1e-9);
+            wrong += !near(rout[i], 2 + grid[i], 1e-12) || !row_ok || qout[i] != 100;
+        }
+        CHECK(wrong == 0, "n %td: %d of %td rays wrong", n, wrong, m);
+        free(angle), free(range), free(quality), free(row), free(grid), free(rout), free(rowout), free(qout);
+    }
+}
+
+static void test_scan_rays_refuses_bad_arguments(void)
+{
+    double nan3[3] = {NAN, NAN, NAN}, z[3] = {0, 0, 0}, grid[2] = {0, 1}, out[2], rows[2];
+    uint8_t q[2];
+    ColumnsError err;
+    CHECK(columns_scan_rays(3, nan3, z, z, z, 2, grid, 3.0, 0.05, out, q, rows, &err) == COLUMNS_BAD_ARGUMENT, "%s",
+          "no finite angle");
+    CHECK(strstr(err.message, "no column has a finite angle") != NULL, "%s", err.message);
+    CHECK(columns_scan_rays(3, z, z, z, z, 1, grid, 3.0, 0.05, out, q, rows, &err) == COLUMNS_BAD_ARGUMENT, "%s",
+          "one ray");
+    CHECK(columns_scan_rays(0, z, z, z, z, 2, grid, 3.0, 0.05, out, q, rows, &err) == COLUMNS_BAD_ARGUMENT, "%s",
+          "no column");
+    CHECK(columns_scan_rays(3, z, z, z, z, 2, grid, -1.0, 0.05, out, q, rows, &err) == COLUMNS_BAD_ARGUMENT, "%s",
+          "a negative gap");
+}
+
+static void test_scan_timing_line_fallback_and_rounding(void)
+{
+    enum { N = 1640 };
+    static double t[N];
+    const double t0 = 2592000123456789.0; /* a clock 30 days on */
+    for (int i = 0; i < N; i++) t[i] = i % 7 == 3 ? NAN : t0 + 1718.0 * i;
+    ColumnsScanTiming out;
+    CHECK(columns_scan_timing(N, t, 0, &out, NULL) == COLUMNS_DONE, "%s", "a line");
+    CHECK(out.first_ns == 2592000123456789 && out.interval_ns == 1718 && out.residual_ns == 0.0,
+          "first %lld, interval %lld, residual %g", (long long)out.first_ns, (long long)out.interval_ns, out.residual_ns);
+    for (int i = 0; i < N; i++) t[i] = i == 5 ? 100.0 : INFINITY; /* one time: the fallback */
+    CHECK(columns_scan_timing(N, t, 2.5, &out, NULL) == COLUMNS_DONE && out.first_ns == 2 && out.interval_ns == 0,
+          "fallback 2.5 -> %lld (ties to even: 2)", (long long)out.first_ns);
+    double two[2] = {10.0, 13.5}; /* slope 3.5 -> 4 (ties to even), then the offset: mean(10, 9.5) */
+    CHECK(columns_scan_timing(2, two, 0, &out, NULL) == COLUMNS_DONE && out.interval_ns == 4 && out.first_ns == 10
+              && out.residual_ns == 0.25,
+          "interval %lld, first %lld, residual %g", (long long)out.interval_ns, (long long)out.first_ns, out.residual_ns);
+    ColumnsError err;
+    CHECK(columns_scan_timing(1, two, NAN, &out, &err) == COLUMNS_BAD_ARGUMENT, "%s", "a NaN fallback");
+    CHECK(strstr(err.message, "fallback_ns") != NULL, "%s", err.message);
+}
+
 static void (*const TESTS[])(void) = {
     test_noise_level_is_the_largest_box_mean_of_the_negative_difference,
     test_noise_level_rounds_every_box_sum_as_opencv,
@@ -943,6 +1022,9 @@ static void (*const TESTS[])(void) = {
     test_triangulate_statuses_and_interpolation,
     test_triangulate_rounds_each_operation,
     test_triangulate_refuses_bad_arguments,
+    test_scan_rays_orders_shuffled_columns_by_angle,
+    test_scan_rays_refuses_bad_arguments,
+    test_scan_timing_line_fallback_and_rounding,
 };
 
 int main(void)
