@@ -241,6 +241,76 @@ def test_run_length():
     np.testing.assert_array_equal(out, [2, 2, 0, 1, 0, 0, 3, 3, 3])
 
 
+def _spans_numpy(mask, join):
+    """_spans' definition in numpy (the device's own before the kernel took it)."""
+    runs = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False])).astype(np.int8))).reshape(-1, 2)
+    if len(runs) < 2:
+        return runs
+    apart = np.flatnonzero(runs[1:, 0] - runs[:-1, 1] >= join)
+    return np.stack([np.concatenate(([runs[0, 0]], runs[apart + 1, 0])),
+                     np.concatenate((runs[apart, 1], [runs[-1, 1]]))], axis=1)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_spans_join_runs_closer_than_join(seed):
+    from device.vision.fast import _spans
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 3000))
+    mask = rng.random(n) < rng.choice([0.0, 0.01, 0.3, 0.9, 1.0])
+    join = int(rng.choice([0, 1, 2, 64]))
+    got = _spans(mask, join)
+    assert got.dtype == np.intp and got.shape[1:] == (2,)
+    np.testing.assert_array_equal(got, _spans_numpy(mask, join).reshape(-1, 2))
+
+
+def test_spans_refuses_too_small_an_output():
+    with pytest.raises(ValueError, match="out holds 1 spans, a mask of 4 can have 2"):
+        K.spans(np.array([1, 0, 1, 0], bool), 1, np.empty((1, 2), np.intp))
+
+
+def _near_rows_opencv(lit, unlit, mask, r0, r1, c0, c1):
+    """Step 7's near rows as the OpenCV sequence the device ran before the kernel took them."""
+    la, ua, m = lit[r0:r1:2, c0:c1], unlit[r0:r1:2, c0:c1], mask[:, c0:c1]
+    u = cv2.bitwise_and(ua, m)
+    return (cv2.bitwise_and(cv2.subtract(la, ua), m).max(axis=0), cv2.bitwise_and(cv2.subtract(ua, la), m).max(axis=0),
+            np.minimum(u[:-1], u[1:]).max(axis=0, initial=0))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_near_rows_is_the_opencv_sequence(seed):
+    """Random frames, masks of whole rows nearer than the range (255 from a column's own row on,
+    0 above), one to hundreds of near rows, odd and even counts, spans at the image's edges."""
+    rng = np.random.default_rng(seed)
+    H, W = int(rng.integers(2, 300)), int(rng.integers(1, 200))
+    lit, unlit = (rng.integers(0, 256, (H, W)).astype(np.uint8) for _ in range(2))
+    if seed % 4 == 0:
+        unlit[rng.random((H, W)) < 0.2] = 255  # saturated pixels: pairs of them
+    r0 = int(rng.integers(0, H - 1))
+    r1 = int(rng.integers(r0 + 1, H + 1))
+    rows = np.arange(r0, r1, 2)
+    mask = np.where(rows[:, None] >= rng.integers(r0, r1 + 1, W)[None, :], 255, 0).astype(np.uint8)
+    c0 = int(rng.integers(0, W))
+    c1 = int(rng.integers(c0 + 1, W + 1))
+    got = tuple(np.empty(c1 - c0, np.uint8) for _ in range(3))
+    K.near_rows(lit, unlit, mask, (r0, r1, 2), (c0, c1), *got)
+    for g, want in zip(got, _near_rows_opencv(lit, unlit, mask, r0, r1, c0, c1)):
+        np.testing.assert_array_equal(g, want)
+
+
+def test_near_rows_names_bad_arguments():
+    f = np.zeros((10, 8), np.uint8)
+    out = tuple(np.empty(4, np.uint8) for _ in range(3))
+    with pytest.raises(ValueError, match="mask has length 4 along axis 0, expected 5"):
+        K.near_rows(f, f, np.zeros((4, 8), np.uint8), (0, 10, 2), (0, 4), *out)
+    with pytest.raises(ValueError, match="need 0 <= r0 < r1 <= H"):
+        K.near_rows(f, f, np.zeros((1, 8), np.uint8), (10, 11, 2), (0, 4), *out)
+    with pytest.raises(ValueError, match="step must be >= 1"):
+        K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 0), (0, 4), *out)
+    with pytest.raises(ValueError, match="above has length 4 along axis 0, expected 2"):
+        K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (6, 8), *out)
+
+
 def _candidates(sm, sep=5, pad=4):
     """The kernel's candidates (k, s) for a smoothed difference that is also the difference."""
     n, W = sm.shape

@@ -211,6 +211,9 @@ MAX_HALF_WIDTH = (BLOCK_ROWS - 3) // 2
 #: would cost more than the columns between them; a span over the whole image, as before, read
 #: 1664 columns for 70).
 SPAN_JOIN = 64
+#: RangeStatus.TOO_CLOSE as the triangulation's status array holds it (numpy compares an IntEnum
+#: member ~7x slower: it asks the member for the array protocols first)
+_TOO_CLOSE_RANGE = np.uint8(RangeStatus.TOO_CLOSE)
 _NO_PEAKS = ColumnPeaks(*(np.empty(0, t) for t in (np.float64, np.float64, np.intp, bool, bool, np.float64)))
 
 
@@ -396,7 +399,7 @@ class FastPipeline:
             other = lum_other[self.top : self.top + self.rows]
             grid = self._yaw_grid if math.isfinite(p.turn_share) else None  # built at the first call with both
             moved = moved_raw = self._moved(background, other, background)
-            if grid is not None and moved.mean() >= p.turn_share:
+            if grid is not None and _share(moved) >= p.turn_share:
                 shares = readout_shares(lit, (unlit, other_unlit))
                 background, other, moved, brought_in, turn_rad = self._turned(grid, lum_lit, lum_unlit, lum_other,
                                                                               background, other, moved, shares)
@@ -442,18 +445,17 @@ class FastPipeline:
         if len(spans):
             close = np.zeros(W, bool)
             for c0, c1 in spans:  # only these columns are read (a wall's dim ends: ~70 of 1664 columns)
-                # every other row: a line is at least two rows high
-                la = lum_lit[self.near_top : self.near_bottom : 2, c0:c1]
-                ua = lum_unlit[self.near_top : self.near_bottom : 2, c0:c1]
-                mask = self.near_mask[:, c0:c1]
-                near = cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)
-                near_noise = cv2.bitwise_and(cv2.subtract(ua, la), mask).max(axis=0)
+                # every other row (a line is at least two rows high), in one kernel pass: the
+                # largest rise of the lit frame over the unlit one, its largest fall (the noise),
+                # and the brightest two rows in a row of the unlit frame
+                near, near_noise, pair = (np.empty(c1 - c0, np.uint8) for _ in range(3))
+                self._kernel.near_rows(lum_lit, lum_unlit, self.near_mask, (self.near_top, self.near_bottom, 2),
+                                       (int(c0), int(c1)), near, near_noise, pair)
                 # stricter than in range (twice the noise ratio): a false "too close" stops a robot
                 close[c0:c1] = near >= np.maximum(2 * p.min_peak, 2 * p.noise_ratio * near_noise)
                 # a saturated background there (step 5, _saturated: two of these rows in a row,
                 # a line's height) could hide a return nearer than the range
-                u = cv2.bitwise_and(ua, mask)
-                near_hidden[c0:c1] = np.minimum(u[:-1], u[1:]).max(axis=0, initial=0) >= 255 - p.min_peak
+                near_hidden[c0:c1] = pair >= 255 - p.min_peak
             close &= empty
             # the near rows are outside the band and not turned: there the neighbours moved as they are
             if moved_raw is not None and np.any(close & moved_raw):
@@ -466,7 +468,7 @@ class FastPipeline:
                 status[close & moved_raw & above & unseen] = STATUS_U8[ColumnStatus.REJECTED]
                 close &= ~moved_raw | (above & ~unseen)
             if close.any():
-                status[_run_length(close) >= p.min_run] = ColumnStatus.TOO_CLOSE
+                status[_run_length(close) >= p.min_run] = STATUS_U8[ColumnStatus.TOO_CLOSE]
         if moved is not None:
             status = self._untrusted(status, row, peak, noise, noise if residue_noise is None else residue_noise,
                                      moved, neighbours, lit_band, t0)
@@ -477,7 +479,7 @@ class FastPipeline:
                               STATUS_U8[ColumnStatus.REJECTED], status)
             status = self._disagreed(status, row, peak, moved, neighbours, np.ones(moved.size, bool), gated,
                                      turned_mean)
-        elif moved is not None and moved.mean() >= p.agree_share:
+        elif moved is not None and _share(moved) >= p.agree_share:
             near = cv2.dilate(moved.astype(np.uint8)[None, :], np.ones((1, 2 * p.agree_reach_columns + 1), np.uint8))[0]
             status = self._disagreed(status, row, peak, moved, neighbours, near > 0, gated)
         if lit_rows is not None:
@@ -490,7 +492,7 @@ class FastPipeline:
             # a line in a moved column that triangulates nearer than the range lies at the region of
             # interest's near edge, where a moved edge's residue passes for one as well: it is no
             # "too close" (step 7 judges the near rows of columns without a line), it is REJECTED
-            _reject(moved_raw & found & (tri.status == RangeStatus.TOO_CLOSE), status, found, row)
+            _reject(moved_raw & found & (tri.status == _TOO_CLOSE_RANGE), status, found, row)
         if turn_rad is not None:
             _reject(self._mixed(tri.depth, found, turn_rad * exposure_share(lit, self.config.operating_point)),
                     status, found, row)
@@ -835,11 +837,11 @@ class FastPipeline:
         lo, hi = self.lo + self.top, self.hi + self.top
         roi_dark = dark[hi] - dark[lo] > 0
         status = status.copy()
-        status[(status == ColumnStatus.NO_RETURN) & roi_dark] = ColumnStatus.UNLIT
+        status[(status == STATUS_U8[ColumnStatus.NO_RETURN]) & roi_dark] = STATUS_U8[ColumnStatus.UNLIT]
         r = np.where(found, np.rint(row), 0).astype(np.intp)
         w = self.params.half_width
         near_dark = dark[clamp(r + w + 1, 0, H)] - dark[clamp(r - w, 0, H)] > 0
-        status[found & near_dark] = ColumnStatus.UNLIT
+        status[found & near_dark] = STATUS_U8[ColumnStatus.UNLIT]
         return status
 
 
@@ -954,12 +956,8 @@ def _moved_backgrounds(lit: np.ndarray, background: np.ndarray, moved: np.ndarra
 def _spans(mask: np.ndarray, join: int) -> np.ndarray:
     """[start, end) of the runs of True in a 1-D ``mask``, runs less than ``join`` apart joined
     into one span (with the False elements between them), shape (spans, 2)."""
-    runs = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False])).astype(np.int8))).reshape(-1, 2)
-    if len(runs) < 2:
-        return runs
-    apart = np.flatnonzero(runs[1:, 0] - runs[:-1, 1] >= join)
-    return np.stack([np.concatenate(([runs[0, 0]], runs[apart + 1, 0])),
-                     np.concatenate((runs[apart, 1], [runs[-1, 1]]))], axis=1)
+    out = np.empty(((mask.size + 1) // 2, 2), np.intp)
+    return out[: columns_kernel().spans(np.ascontiguousarray(mask, bool), join, out)]
 
 
 def _lines_in_run(ok: np.ndarray, gated: np.ndarray, depth: np.ndarray, jump: float) -> np.ndarray:
@@ -976,6 +974,11 @@ def _lines_in_run(ok: np.ndarray, gated: np.ndarray, depth: np.ndarray, jump: fl
     run = np.cumsum(starts)
     totals = np.bincount(run, weights=ok, minlength=int(run[-1]) + 1)
     return np.where(line, totals[run], 0).astype(np.intp)
+
+
+def _share(mask: np.ndarray) -> float:
+    """The share of True in ``mask``: its mean, counted (numpy's mean of bools converts them first)."""
+    return np.count_nonzero(mask) / mask.size
 
 
 def _run_length(mask: np.ndarray) -> np.ndarray:

@@ -15,6 +15,8 @@
  *   moved(a, b, unlit, (level, block_level, block_ratio, mean_ratio), out)
  *   band_difference(lit, unlit, mask, padded, pad, sm, sat_min)
  *   run_length(mask, out)
+ *   spans(mask, join, out) -> count
+ *   near_rows(lit, unlit, mask, (r0, r1, step), (c0, c1), above, below, pair)
  *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
  *   scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out,
  *             row_out)
@@ -217,6 +219,50 @@ static PyObject *py_run_length(PyObject *self, PyObject *args)
     return done(&vs, COLUMNS_DONE, NULL, NULL);
 }
 
+/* spans(mask, join, out) -> count: columns_spans; out (>= (n + 1) // 2, 2) intp. */
+static PyObject *py_spans(PyObject *self, PyObject *args)
+{
+    PyObject *o_m, *o_out;
+    idx_t join;
+    if (!PyArg_ParseTuple(args, "OnO", &o_m, &join, &o_out)) return NULL;
+    Views vs = {.n = 0};
+    idx_t W, shp[2];
+    const bool *m = arg(&vs, o_m, 'b', -1, 0, 1, 0, "mask", &W);
+    idx_t *out = m ? arg(&vs, o_out, 'i', -1, 2, 2, 1, "out", shp) : NULL;
+    if (!out) return failed(&vs);
+    if (shp[0] < (W + 1) / 2) {
+        release(&vs);
+        return PyErr_Format(PyExc_ValueError, "out holds %zd spans, a mask of %zd can have %zd", shp[0], W, (W + 1) / 2);
+    }
+    idx_t k = columns_spans(m, W, join, out);
+    release(&vs);
+    return PyLong_FromSsize_t(k);
+}
+
+/* near_rows(lit, unlit, mask, (r0, r1, step), (c0, c1), above, below, pair): columns_near_rows. */
+static PyObject *py_near_rows(PyObject *self, PyObject *args)
+{
+    PyObject *o_l, *o_u, *o_m, *o_a, *o_b, *o_p;
+    idx_t r0, r1, step, c0, c1;
+    if (!PyArg_ParseTuple(args, "OOO(nnn)(nn)OOO", &o_l, &o_u, &o_m, &r0, &r1, &step, &c0, &c1, &o_a, &o_b, &o_p))
+        return NULL;
+    if (step < 1) return PyErr_Format(PyExc_ValueError, "near_rows: step must be >= 1, got %zd", step);
+    Views vs = {.n = 0};
+    idx_t shp[2];
+    const uint8_t *L = arg(&vs, o_l, 'u', -1, -1, 2, 0, "lit", shp);
+    const uint8_t *U = L ? arg(&vs, o_u, 'u', shp[0], shp[1], 2, 0, "unlit", NULL) : NULL;
+    const idx_t rows_m = r1 > r0 ? (r1 - r0 + step - 1) / step : 0;
+    const uint8_t *M = U ? arg(&vs, o_m, 'u', rows_m, shp[1], 2, 0, "mask", NULL) : NULL;
+    const idx_t n = c1 > c0 ? c1 - c0 : 0;
+    uint8_t *A = M ? arg(&vs, o_a, 'u', n, 0, 1, 1, "above", NULL) : NULL;
+    uint8_t *B = A ? arg(&vs, o_b, 'u', n, 0, 1, 1, "below", NULL) : NULL;
+    uint8_t *P = B ? arg(&vs, o_p, 'u', n, 0, 1, 1, "pair", NULL) : NULL;
+    if (!P) return failed(&vs);
+    ColumnsError err;
+    ColumnsResult r = columns_near_rows(L, U, shp[0], shp[1], M, r0, r1, step, c0, c1, A, B, P, &err);
+    return done(&vs, r, &err, NULL);
+}
+
 static PyObject *py_running_median(PyObject *self, PyObject *args)
 {
     PyObject *o_x, *o_found, *o_out;
@@ -392,6 +438,8 @@ static PyMethodDef methods[] = {
     {"moved", py_moved, METH_VARARGS, "moved(a, b, unlit, (level, block_level, block_ratio, mean_ratio), out)"},
     {"band_difference", py_band_difference, METH_VARARGS, "band_difference(lit, unlit, mask, padded, pad, sm, sat_min)"},
     {"run_length", py_run_length, METH_VARARGS, "run_length(mask, out)"},
+    {"spans", py_spans, METH_VARARGS, "spans(mask, join, out) -> count"},
+    {"near_rows", py_near_rows, METH_VARARGS, "near_rows(lit, unlit, mask, (r0, r1, step), (c0, c1), above, below, pair)"},
     {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},
     {"scan_rays", py_scan_rays, METH_VARARGS,
      "scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out, row_out)"},

@@ -433,6 +433,51 @@ void columns_run_length(const bool *m, ptrdiff_t W, ptrdiff_t *out)
     }
 }
 
+ptrdiff_t columns_spans(const bool *m, ptrdiff_t W, ptrdiff_t join, ptrdiff_t *spans)
+{
+    idx_t k = 0;
+    for (idx_t a = 0; a < W;) {
+        if (!m[a]) {
+            a++;
+            continue;
+        }
+        idx_t b = a;
+        while (b < W && m[b]) b++;
+        if (k > 0 && a - spans[2 * k - 1] < join)
+            spans[2 * k - 1] = b; /* fewer than `join` apart: the previous span reaches on */
+        else
+            spans[2 * k] = a, spans[2 * k + 1] = b, k++;
+        a = b;
+    }
+    return k;
+}
+
+ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t H, ptrdiff_t W, const uint8_t *mask,
+                                ptrdiff_t r0, ptrdiff_t r1, ptrdiff_t step, ptrdiff_t c0, ptrdiff_t c1, uint8_t *above,
+                                uint8_t *below, uint8_t *pair, ColumnsError *err)
+{
+    if (!(0 <= r0 && r0 < r1 && r1 <= H) || step < 1 || !(0 <= c0 && c0 < c1 && c1 <= W))
+        return bad_argument(err, "near_rows: need 0 <= r0 < r1 <= H, step >= 1, 0 <= c0 < c1 <= W, got rows %td-%td "
+                            "of %td step %td, columns %td-%td of %td", r0, r1, H, step, c0, c1, W);
+    const idx_t n = c1 - c0;
+    uint8_t *prev = malloc((size_t)n); /* the previous row's unlit & mask */
+    if (!prev) return no_memory(err, "near_rows");
+    memset(above, 0, (size_t)n), memset(below, 0, (size_t)n), memset(pair, 0, (size_t)n);
+    for (idx_t r = r0, k = 0; r < r1; r += step, k++) {
+        const uint8_t *l = lit + r * W + c0, *u = unlit + r * W + c0, *mk = mask + k * W + c0;
+        for (idx_t c = 0; c < n; c++) {
+            const uint8_t up = l[c] > u[c] ? (uint8_t)(l[c] - u[c]) : 0, down = u[c] > l[c] ? (uint8_t)(u[c] - l[c]) : 0;
+            const uint8_t seen = u[c] & mk[c];
+            above[c] = MAX(above[c], up & mk[c]);
+            below[c] = MAX(below[c], down & mk[c]);
+            if (k > 0) pair[c] = MAX(pair[c], MIN(prev[c], seen));
+            prev[c] = seen;
+        }
+    }
+    free(prev);
+    return COLUMNS_DONE;
+}
+
 /* ------------------------------------------------------------------ centre of mass */
 
 /* numpy's maximum(x, 0) (NaN propagates), then the square root */

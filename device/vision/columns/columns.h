@@ -183,6 +183,23 @@ void columns_running_median(const double *x, const bool *found, ptrdiff_t n, dou
 /* The length of the run of true elements each of n elements belongs to (0 where false). */
 void columns_run_length(const bool *mask, ptrdiff_t n, ptrdiff_t *out);
 
+/* [start, end) of the runs of true elements of mask (n), runs fewer than `join` elements apart
+ * joined into one span with the false ones between them (FastPipeline's _spans): spans[2 i],
+ * spans[2 i + 1] for i < the count returned, at most (n + 1) / 2. */
+ptrdiff_t columns_spans(const bool *mask, ptrdiff_t n, ptrdiff_t join, ptrdiff_t *spans);
+
+/* Step 7, the rows nearer than the range (FastPipeline.process): rows r0, r0 + step, ... < r1
+ * of the frames lit and unlit (H x W), in columns [c0, c1), each row masked by the same row of
+ * mask (one row per such row, W columns: 255 where the row is nearer than the column's range,
+ * 0 elsewhere). Per column: above = the largest max(lit - unlit, 0) & mask, below = the largest
+ * max(unlit - lit, 0) & mask, pair = the largest min(unlit & mask) of two such rows in a row (0
+ * with one row): `cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)`, the same of ua - la,
+ * and `np.minimum(u[:-1], u[1:]).max(axis=0, initial=0)` of u = ua & mask. Needs
+ * 0 <= r0 < r1 <= H, step >= 1, 0 <= c0 < c1 <= W. above, below, pair: c1 - c0. */
+ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t H, ptrdiff_t W, const uint8_t *mask,
+                                ptrdiff_t r0, ptrdiff_t r1, ptrdiff_t step, ptrdiff_t c0, ptrdiff_t c1, uint8_t *above,
+                                uint8_t *below, uint8_t *pair, ColumnsError *err);
+
 /* One frame's columns (n of them: angle, range with REP 117 codes, quality, row) on a scan's m
  * ascending uniform angles `grid` (device/scan/pipeline.py ScanPipeline). The columns with a
  * finite angle are taken in increasing angle, equal angles in column order

@@ -987,6 +987,54 @@ static void test_scan_timing_line_fallback_and_rounding(void)
     CHECK(strstr(err.message, "fallback_ns") != NULL, "%s", err.message);
 }
 
+static void test_spans(void)
+{
+    const bool m[] = {1, 1, 0, 0, 1, 0, 0, 0, 1, 1};
+    ptrdiff_t sp[10] = {0};
+    CHECK(columns_spans(m, 10, 3, sp) == 2 && sp[0] == 0 && sp[1] == 5 && sp[2] == 8 && sp[3] == 10,
+          "join 3: %td-%td, %td-%td", sp[0], sp[1], sp[2], sp[3]);
+    CHECK(columns_spans(m, 10, 1, sp) == 3 && sp[2] == 4 && sp[3] == 5, "join 1: %td-%td", sp[2], sp[3]);
+    CHECK(columns_spans(m, 10, 4, sp) == 1 && sp[0] == 0 && sp[1] == 10, "join 4: %td-%td", sp[0], sp[1]);
+    CHECK(columns_spans(m, 0, 4, sp) == 0, "%s", "no columns");
+    const bool alt[] = {1, 0, 1, 0, 1}; /* the most spans a mask can have: (n + 1) / 2 */
+    const ptrdiff_t k = columns_spans(alt, 5, 0, sp);
+    CHECK(k == 3 && sp[4] == 4 && sp[5] == 5, "alternating: %td spans", k);
+}
+
+/* Against a direct reading of columns_near_rows' definition, on random frames at each step. */
+static void test_near_rows_definition(void)
+{
+    enum { H = 23, W = 9 };
+    uint8_t lit[H * W], unlit[H * W], mask[H * W], above[W], below[W], pair[W];
+    for (int trial = 0; trial < 50; trial++) {
+        for (int i = 0; i < H * W; i++) lit[i] = (uint8_t)rnd(), unlit[i] = rnd() % 4 ? (uint8_t)rnd() : 255;
+        for (int i = 0; i < H * W; i++) mask[i] = rnd() % 3 ? 255 : 0;
+        const ptrdiff_t step = 1 + trial % 3, r0 = trial % 5, r1 = r0 + 1 + (ptrdiff_t)(rnd() % (uint32_t)(H - r0));
+        const ptrdiff_t c0 = trial % 4, c1 = c0 + 1 + (ptrdiff_t)(rnd() % (uint32_t)(W - c0));
+        CHECK(columns_near_rows(lit, unlit, H, W, mask, r0, r1, step, c0, c1, above, below, pair, NULL) == COLUMNS_DONE,
+              "trial %d", trial);
+        int wrong = 0;
+        for (ptrdiff_t c = c0; c < c1; c++) {
+            int a = 0, b = 0, p = 0, last = -1;
+            for (ptrdiff_t r = r0, k = 0; r < r1; r += step, k++) {
+                const int l = lit[r * W + c], u = unlit[r * W + c], mk = mask[k * W + c];
+                const int up = (l > u ? l - u : 0) & mk, down = (u > l ? u - l : 0) & mk, seen = u & mk;
+                a = up > a ? up : a, b = down > b ? down : b;
+                if (last >= 0 && (last < seen ? last : seen) > p) p = last < seen ? last : seen;
+                last = u & mk;
+            }
+            wrong += above[c - c0] != a || below[c - c0] != b || pair[c - c0] != p;
+        }
+        CHECK(wrong == 0, "trial %d: %d columns wrong", trial, wrong);
+    }
+    ColumnsError err;
+    CHECK(columns_near_rows(lit, unlit, H, W, mask, 5, 5, 2, 0, 1, above, below, pair, &err) == COLUMNS_BAD_ARGUMENT,
+          "%s", "no rows");
+    CHECK(strstr(err.message, "rows 5-5 of 23") != NULL, "%s", err.message);
+    CHECK(columns_near_rows(lit, unlit, H, W, mask, 0, 5, 2, 3, 10, above, below, pair, &err) == COLUMNS_BAD_ARGUMENT,
+          "%s", "columns beyond the frame");
+}
+
 static void (*const TESTS[])(void) = {
     test_noise_level_is_the_largest_box_mean_of_the_negative_difference,
     test_noise_level_rounds_every_box_sum_as_opencv,
@@ -1025,6 +1073,8 @@ static void (*const TESTS[])(void) = {
     test_scan_rays_orders_shuffled_columns_by_angle,
     test_scan_rays_refuses_bad_arguments,
     test_scan_timing_line_fallback_and_rounding,
+    test_spans,
+    test_near_rows_definition,
 };
 
 int main(void)
