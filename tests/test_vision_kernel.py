@@ -311,6 +311,37 @@ def test_near_rows_names_bad_arguments():
         K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (6, 8), *out)
 
 
+def test_scan_plane_rounds_each_operation_as_stated():
+    """columns_scan_plane against its definition with every product and sum rounded (numpy's
+    elementwise ufuncs), libm's atan2 (math.atan2, as the kernel's C) and hypot, and within
+    an ulp or two of to_scan_plane (whose matmul goes through BLAS, fused multiply-adds
+    included); NaN points stay NaN."""
+    import math
+
+    from device.config import load_preset
+    from device.model.scan_frame import to_scan_plane
+    from device.vision.geometry import column_geometry
+
+    g = column_geometry(load_preset("thesis-calibrated"))
+    rng = np.random.default_rng(0)
+    p = rng.normal(0, 2, (5000, 3))
+    p[::17] = np.nan
+    angle, r = g.angle_range(p)
+    R, o = g.scan.rotation, g.scan.origin
+    d = p - o
+    q0 = (d[:, 0] * R[0, 0] + d[:, 1] * R[0, 1]) + d[:, 2] * R[0, 2]
+    q1 = (d[:, 0] * R[1, 0] + d[:, 1] * R[1, 1]) + d[:, 2] * R[1, 2]
+    np.testing.assert_array_equal(angle, [math.atan2(b, a) for a, b in zip(q0, q1)])
+    np.testing.assert_allclose(r, np.hypot(q0, q1), rtol=2.3e-16, atol=0)
+    want_angle, want_r = to_scan_plane(p, g.scan)
+    np.testing.assert_allclose(angle, want_angle, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(r, want_r, rtol=1e-14)
+    assert np.isnan(angle[::17]).all() and np.isnan(r[::17]).all()
+    assert g.angle_range(p.reshape(50, 100, 3))[0].shape == (50, 100)
+    with pytest.raises(ValueError, match="points must have shape"):
+        g.angle_range(np.zeros((4, 2)))
+
+
 def _candidates(sm, sep=5, pad=4):
     """The kernel's candidates (k, s) for a smoothed difference that is also the difference."""
     n, W = sm.shape

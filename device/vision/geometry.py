@@ -102,8 +102,19 @@ class ColumnGeometry:
         return np.where(inside, a + (b - a) * t, np.nan), np.where(inside, b - a, np.nan)
 
     def angle_range(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Camera-frame points (..., 3) -> (scan angle, scan range); NaN stays NaN."""
-        return to_scan_plane(points, self.scan)
+        """Camera-frame points (..., 3) -> (scan angle, scan range); NaN stays NaN.
+
+        to_scan_plane's arithmetic in the compiled kernel (columns_scan_plane), each operation
+        rounded: numpy's matmul there goes through BLAS, whose fused multiply-adds give other last
+        bits on other machines (an aarch64 Pi's among them)."""
+        p = np.ascontiguousarray(points, dtype=np.float64)
+        if p.ndim < 1 or p.shape[-1] != 3:
+            raise ValueError(f"points must have shape (..., 3), got {p.shape}")
+        angle, rng = np.empty(p.shape[:-1]), np.empty(p.shape[:-1])
+        sf = self.scan
+        columns_kernel().scan_plane(p.reshape(-1, 3), np.ascontiguousarray(sf.rotation, np.float64),
+                                    np.ascontiguousarray(sf.origin, np.float64), angle.reshape(-1), rng.reshape(-1))
+        return angle, rng
 
 
 def column_geometry(config: SensorConfig, min_m: float | None = None, max_m: float | None = None,

@@ -110,9 +110,13 @@ def finish(
     (``geom.active_width``) hold no pixel, where "no return" (+inf) would claim free space."""
     columns = np.asarray(columns)
     image = columns < geom.active_width
-    if not image.all():
-        columns, rows, quality, line_status = columns[image], rows[image], quality[image], line_status[image]
-        tri = Triangulation(tri.points[image], tri.depth[image], tri.status[image])
+    n = int(np.count_nonzero(image))
+    if n < image.size:
+        # the image's columns first, the padding after them (the fast pipeline's order): views of
+        # the inputs (the columns copied: the measurements' own, not a pipeline's table)
+        keep = slice(0, n) if image[:n].all() else image
+        columns, rows, quality, line_status = columns[keep].copy(), rows[keep], quality[keep], line_status[keep]
+        tri = Triangulation(tri.points[keep], tri.depth[keep], tri.status[keep])
     status = np.asarray(line_status, dtype=np.uint8)
     ok_u8 = STATUS_U8[ColumnStatus.OK]
     status = np.where(status == ok_u8, _FROM_RANGE_STATUS.take(tri.status), status)

@@ -18,6 +18,7 @@
  *   spans(mask, join, out) -> count
  *   near_rows(lit, unlit, mask, (r0, r1, step), (c0, c1), above, below, pair)
  *   triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)
+ *   scan_plane(points, rotation, origin, angle, range)
  *   scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out,
  *             row_out)
  *   scan_timing(times_ns, fallback_ns) -> (first_ns, interval_ns, residual_ns)
@@ -383,6 +384,23 @@ static PyObject *py_triangulate(PyObject *self, PyObject *args)
     return done(&vs, r, &err, NULL);
 }
 
+/* scan_plane(points, rotation, origin, angle, range): columns_scan_plane. */
+static PyObject *py_scan_plane(PyObject *self, PyObject *args)
+{
+    PyObject *o_p, *o_r, *o_o, *o_a, *o_rng;
+    if (!PyArg_ParseTuple(args, "OOOOO", &o_p, &o_r, &o_o, &o_a, &o_rng)) return NULL;
+    Views vs = {.n = 0};
+    idx_t shp[2];
+    const double *pts = arg(&vs, o_p, 'd', -1, 3, 2, 0, "points", shp);
+    const double *rot = pts ? arg(&vs, o_r, 'd', 3, 3, 2, 0, "rotation", NULL) : NULL;
+    const double *org = rot ? arg(&vs, o_o, 'd', 3, 0, 1, 0, "origin", NULL) : NULL;
+    double *ang = org ? arg(&vs, o_a, 'd', shp[0], 0, 1, 1, "angle", NULL) : NULL;
+    double *rng = ang ? arg(&vs, o_rng, 'd', shp[0], 0, 1, 1, "range", NULL) : NULL;
+    if (!rng) return failed(&vs);
+    columns_scan_plane(shp[0], pts, rot, org, ang, rng);
+    return done(&vs, COLUMNS_DONE, NULL, NULL);
+}
+
 /* scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out,
  *           row_out): columns_scan_rays. */
 static PyObject *py_scan_rays(PyObject *self, PyObject *args)
@@ -441,6 +459,7 @@ static PyMethodDef methods[] = {
     {"spans", py_spans, METH_VARARGS, "spans(mask, join, out) -> count"},
     {"near_rows", py_near_rows, METH_VARARGS, "near_rows(lit, unlit, mask, (r0, r1, step), (c0, c1), above, below, pair)"},
     {"triangulate", py_triangulate, METH_VARARGS, "triangulate(rows, cols, xn, yn, top, plane, limits, codes, points, depth, status)"},
+    {"scan_plane", py_scan_plane, METH_VARARGS, "scan_plane(points, rotation, origin, angle, range)"},
     {"scan_rays", py_scan_rays, METH_VARARGS,
      "scan_rays(angle, range, quality, row, grid, gap_spacings, max_jump_ratio, range_out, quality_out, row_out)"},
     {"scan_timing", py_scan_timing, METH_VARARGS, "scan_timing(times_ns, fallback_ns) -> (first_ns, interval_ns, residual_ns)"},

@@ -1025,6 +1025,19 @@ ColumnsResult columns_triangulate(const ColumnsRays *rays, const ColumnsPlane *p
     return COLUMNS_DONE;
 }
 
+void columns_scan_plane(ptrdiff_t n, const double *points, const double *rotation, const double *origin, double *angle,
+                        double *range)
+{
+    const double *r = rotation;
+    for (idx_t i = 0; i < n; i++) {
+        const double d0 = points[3 * i] - origin[0], d1 = points[3 * i + 1] - origin[1], d2 = points[3 * i + 2] - origin[2];
+        const double q0 = (d0 * r[0] + d1 * r[1]) + d2 * r[2];
+        const double q1 = (d0 * r[3] + d1 * r[4]) + d2 * r[5];
+        angle[i] = atan2(q1, q0);
+        range[i] = hypot(q0, q1);
+    }
+}
+
 /* ---- the scan's rays (device.model.scan_frame.resample_scan's arithmetic) ---------------- */
 
 /* The first of the n ascending values a[lo..n) that is >= g (numpy's searchsorted, side left),

@@ -176,6 +176,14 @@ ColumnsResult columns_triangulate(const ColumnsRays *rays, const ColumnsPlane *p
                                   const double *rows, const ptrdiff_t *cols, double *points, double *depth,
                                   uint8_t *status, ColumnsError *err);
 
+/* Camera-frame points (n x 3, NaN: none) -> (angle, range) in the scan frame
+ * (device.model.scan_frame.to_scan_plane): q = rotation (p - origin), angle = atan2(q1, q0),
+ * range = hypot(q0, q1). Each q_k summed as (d0 r_k0 + d1 r_k1) + d2 r_k2, rounded at every
+ * operation: numpy's matmul goes through BLAS, whose fused multiply-adds differ in the last bit
+ * from machine to machine. rotation: 3 x 3 row-major, origin: 3. */
+void columns_scan_plane(ptrdiff_t n, const double *points, const double *rotation, const double *origin, double *angle,
+                        double *range);
+
 /* The median of the found values of x within +-2 of each of n elements, NaN where not found
  * (the middle one or the mean of the middle two); found values must be finite. */
 void columns_running_median(const double *x, const bool *found, ptrdiff_t n, double *med);

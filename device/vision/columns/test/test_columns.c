@@ -1035,6 +1035,18 @@ static void test_near_rows_definition(void)
           "%s", "columns beyond the frame");
 }
 
+static void test_scan_plane(void)
+{
+    /* the scan frame: x forward = camera z, y left = camera -x, origin 0.1 m along camera y */
+    const double rot[9] = {0, 0, 1, -1, 0, 0, 0, -1, 0}, origin[3] = {0, 0.1, 0};
+    const double pts[9] = {0, 0.1, 2, -2, 0.1, 2, NAN, NAN, NAN};
+    double angle[3], range[3];
+    columns_scan_plane(3, pts, rot, origin, angle, range);
+    CHECK(angle[0] == 0 && range[0] == 2, "ahead: %g rad, %g m", angle[0], range[0]);
+    CHECK(near(angle[1], M_PI / 4, 1e-15) && near(range[1], 2 * sqrt(2), 1e-15), "left: %g rad, %g m", angle[1], range[1]);
+    CHECK(isnan(angle[2]) && isnan(range[2]), "%s", "NaN stays NaN");
+}
+
 static void (*const TESTS[])(void) = {
     test_noise_level_is_the_largest_box_mean_of_the_negative_difference,
     test_noise_level_rounds_every_box_sum_as_opencv,
@@ -1075,6 +1087,7 @@ static void (*const TESTS[])(void) = {
     test_scan_timing_line_fallback_and_rounding,
     test_spans,
     test_near_rows_definition,
+    test_scan_plane,
 };
 
 int main(void)
