@@ -309,6 +309,11 @@ def test_near_rows_names_bad_arguments():
         K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 0), (0, 4), *out)
     with pytest.raises(ValueError, match="above has length 4 along axis 0, expected 2"):
         K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (6, 8), *out)
+    shared = np.empty(4, np.uint8)
+    with pytest.raises(ValueError, match="above shares memory with below"):
+        K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (0, 4), shared, shared, out[2])
+    with pytest.raises(ValueError, match="pair shares memory with lit"):
+        K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (0, 4), *out[:2], f[0, :4])
 
 
 def test_scan_plane_rounds_each_operation_as_stated():

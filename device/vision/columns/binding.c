@@ -259,6 +259,17 @@ static PyObject *py_near_rows(PyObject *self, PyObject *args)
     uint8_t *B = A ? arg(&vs, o_b, 'u', n, 0, 1, 1, "below", NULL) : NULL;
     uint8_t *P = B ? arg(&vs, o_p, 'u', n, 0, 1, 1, "pair", NULL) : NULL;
     if (!P) return failed(&vs);
+    /* the kernel's loops take restrict pointers: no output may share a byte with another buffer */
+    const uint8_t *bufs[6] = {A, B, P, L, U, M};
+    const idx_t sizes[6] = {n, n, n, shp[0] * shp[1], shp[0] * shp[1], rows_m * shp[1]};
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 6; j++)
+            if (i != j && bufs[i] < bufs[j] + sizes[j] && bufs[j] < bufs[i] + sizes[i]) {
+                release(&vs);
+                return PyErr_Format(PyExc_ValueError, "near_rows: %s shares memory with %s",
+                                    (const char *[]){"above", "below", "pair"}[i],
+                                    (const char *[]){"above", "below", "pair", "lit", "unlit", "mask"}[j]);
+            }
     ColumnsError err;
     ColumnsResult r = columns_near_rows(L, U, shp[0], shp[1], M, r0, r1, step, c0, c1, A, B, P, &err);
     return done(&vs, r, &err, NULL);

@@ -452,6 +452,33 @@ ptrdiff_t columns_spans(const bool *m, ptrdiff_t W, ptrdiff_t join, ptrdiff_t *s
     return k;
 }
 
+/* columns_near_rows' first row, and each further one: branch-free loops over restrict pointers,
+ * which the compiler vectorises (saturating subtractions, byte maxima and minima). */
+static void near_rows_start(const uint8_t *restrict l, const uint8_t *restrict u, const uint8_t *restrict mk, idx_t n,
+                            uint8_t *restrict above, uint8_t *restrict below, uint8_t *restrict prev)
+{
+    for (idx_t c = 0; c < n; c++) {
+        above[c] = (uint8_t)((l[c] > u[c] ? l[c] - u[c] : 0) & mk[c]);
+        below[c] = (uint8_t)((u[c] > l[c] ? u[c] - l[c] : 0) & mk[c]);
+        prev[c] = u[c] & mk[c];
+    }
+}
+
+static void near_rows_add(const uint8_t *restrict l, const uint8_t *restrict u, const uint8_t *restrict mk, idx_t n,
+                          uint8_t *restrict above, uint8_t *restrict below, uint8_t *restrict pair,
+                          uint8_t *restrict prev)
+{
+    for (idx_t c = 0; c < n; c++) {
+        const uint8_t up = (uint8_t)((l[c] > u[c] ? l[c] - u[c] : 0) & mk[c]);
+        const uint8_t down = (uint8_t)((u[c] > l[c] ? u[c] - l[c] : 0) & mk[c]);
+        const uint8_t seen = u[c] & mk[c];
+        above[c] = MAX(above[c], up);
+        below[c] = MAX(below[c], down);
+        pair[c] = MAX(pair[c], MIN(prev[c], seen));
+        prev[c] = seen;
+    }
+}
+
 ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t H, ptrdiff_t W, const uint8_t *mask,
                                 ptrdiff_t r0, ptrdiff_t r1, ptrdiff_t step, ptrdiff_t c0, ptrdiff_t c1, uint8_t *above,
                                 uint8_t *below, uint8_t *pair, ColumnsError *err)
@@ -462,18 +489,10 @@ ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdif
     const idx_t n = c1 - c0;
     uint8_t *prev = malloc((size_t)n); /* the previous row's unlit & mask */
     if (!prev) return no_memory(err, "near_rows");
-    memset(above, 0, (size_t)n), memset(below, 0, (size_t)n), memset(pair, 0, (size_t)n);
-    for (idx_t r = r0, k = 0; r < r1; r += step, k++) {
-        const uint8_t *l = lit + r * W + c0, *u = unlit + r * W + c0, *mk = mask + k * W + c0;
-        for (idx_t c = 0; c < n; c++) {
-            const uint8_t up = l[c] > u[c] ? (uint8_t)(l[c] - u[c]) : 0, down = u[c] > l[c] ? (uint8_t)(u[c] - l[c]) : 0;
-            const uint8_t seen = u[c] & mk[c];
-            above[c] = MAX(above[c], up & mk[c]);
-            below[c] = MAX(below[c], down & mk[c]);
-            if (k > 0) pair[c] = MAX(pair[c], MIN(prev[c], seen));
-            prev[c] = seen;
-        }
-    }
+    near_rows_start(lit + r0 * W + c0, unlit + r0 * W + c0, mask + c0, n, above, below, prev);
+    memset(pair, 0, (size_t)n);
+    for (idx_t r = r0 + step, k = 1; r < r1; r += step, k++)
+        near_rows_add(lit + r * W + c0, unlit + r * W + c0, mask + k * W + c0, n, above, below, pair, prev);
     free(prev);
     return COLUMNS_DONE;
 }

@@ -203,7 +203,8 @@ ptrdiff_t columns_spans(const bool *mask, ptrdiff_t n, ptrdiff_t join, ptrdiff_t
  * max(unlit - lit, 0) & mask, pair = the largest min(unlit & mask) of two such rows in a row (0
  * with one row): `cv2.bitwise_and(cv2.subtract(la, ua), mask).max(axis=0)`, the same of ua - la,
  * and `np.minimum(u[:-1], u[1:]).max(axis=0, initial=0)` of u = ua & mask. Needs
- * 0 <= r0 < r1 <= H, step >= 1, 0 <= c0 < c1 <= W. above, below, pair: c1 - c0. */
+ * 0 <= r0 < r1 <= H, step >= 1, 0 <= c0 < c1 <= W. above, below, pair: c1 - c0, sharing no byte
+ * with each other or the inputs. */
 ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdiff_t H, ptrdiff_t W, const uint8_t *mask,
                                 ptrdiff_t r0, ptrdiff_t r1, ptrdiff_t step, ptrdiff_t c0, ptrdiff_t c1, uint8_t *above,
                                 uint8_t *below, uint8_t *pair, ColumnsError *err);
