@@ -1060,29 +1060,35 @@ void columns_scan_plane(ptrdiff_t n, const double *points, const double *rotatio
 /* ---- the scan's rays (device.model.scan_frame.resample_scan's arithmetic) ---------------- */
 
 /* The first of the n ascending values a[lo..n) that is >= g (numpy's searchsorted, side left),
- * from lo on: the grid ascends, so each search starts where the previous one ended. */
+ * from lo on: the grid ascends, so each search starts where the previous one ended, and a step
+ * at a time (the rays and the columns are about as dense: O(n + m) in all, where a bisection
+ * from lo on costs log n a ray). */
 static idx_t lower_bound_from(const double *a, const idx_t *at, idx_t n, idx_t lo, double g)
 {
-    idx_t hi = n;
-    while (lo < hi) {
-        idx_t mid = lo + (hi - lo) / 2;
-        if (a[at[mid]] < g)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
+    while (lo < n && a[at[lo]] < g) lo++;
     return lo;
 }
 
 /* order[0..k) <- the columns of the n whose angle is finite, in increasing angle, equal angles
- * in column order (device.model.scan_frame.angle_order: numpy's stable sort): merges of the
- * ascending runs (a camera's columns come as one run, but for the few where the line's row bends
- * a column's azimuth), into tmp and back; returns k. */
+ * in column order (device.model.scan_frame.angle_order: numpy's stable sort): the falling runs
+ * reversed, then merges of the rising runs (a camera's columns come as one run, but for the few
+ * where the line's row bends a column's azimuth), into tmp and back; returns k. */
 static idx_t finite_angle_order(idx_t n, const double *angle, idx_t *order, idx_t *tmp)
 {
     idx_t k = 0;
     for (idx_t i = 0; i < n; i++)
         if (isfinite(angle[i])) order[k++] = i;
+    /* a strictly falling run reversed is a rising one, equal angles kept in column order (a run
+     * that falls strictly holds none): a camera's angle falls with the column */
+    for (idx_t i = 0; i < k;) {
+        idx_t j = i + 1;
+        while (j < k && angle[order[j]] < angle[order[j - 1]]) j++;
+        for (idx_t a = i, b = j - 1; a < b; a++, b--) {
+            const idx_t t = order[a];
+            order[a] = order[b], order[b] = t;
+        }
+        i = j;
+    }
     for (;;) {
         idx_t runs = 0;
         for (idx_t i = 0; i < k; runs++) {
