@@ -166,7 +166,7 @@ def test_the_serial_port_is_opened_with_non_blocking_writes():
     master, slave = pty.openpty()
     try:
         comcu = open_comcu(os.ttyname(slave))
-        assert comcu.port.write_timeout == 0 and comcu.port.timeout == 0.05
+        assert comcu.port.serial.write_timeout == 0 and comcu.port.timeout == 0.05
         comcu.send_heartbeat()
         assert os.read(master, 64).endswith(mcu.encode_message(mcu.Heartbeat(), HEARTBEAT_SEQ))
         comcu.port.close()
@@ -174,4 +174,36 @@ def test_the_serial_port_is_opened_with_non_blocking_writes():
             open_comcu("/dev/no-such-serial-port")
     finally:
         os.close(master)
+        os.close(slave)
+
+
+def test_the_uart_port_reads_and_writes_as_pyserial_does():
+    """UartPort (open_comcu's port) on a pty: what is there comes at once, a read waits up to its
+    timeout for the rest and returns what came, a write returns the bytes taken, and the far end
+    gone is an OSError, not an endless run of empty reads."""
+    import os
+    import pty
+    import time
+
+    from device.laser.comcu import open_comcu
+
+    master, slave = pty.openpty()
+    try:
+        port = open_comcu(os.ttyname(slave)).port
+        os.write(master, b"abc")
+        time.sleep(0.01)
+        assert port.in_waiting == 3 and port.read(3) == b"abc"
+        t0 = time.monotonic()
+        assert port.read(1) == b"" and 0.04 <= time.monotonic() - t0 < 0.5  # its 0.05 s timeout
+        os.write(master, b"de")
+        assert port.read(5) == b"de"  # what came within the timeout
+        assert port.write(b"xyz") == 3 and os.read(master, 16) == b"xyz"
+        os.close(master)
+        master = None
+        with pytest.raises(OSError):
+            port.read(1)
+        port.close()
+    finally:
+        if master is not None:
+            os.close(master)
         os.close(slave)

@@ -228,7 +228,7 @@ def test_the_simulated_co_mcu_is_reached_through_a_pty_with_pyserial_as_on_a_pi(
         finally:
             os.close(fd)
         comcu = hw.open_comcu()
-        assert isinstance(comcu.port, serial.Serial) and comcu.port.port == hw.tty_path
+        assert isinstance(comcu.port.serial, serial.Serial) and comcu.port.serial.port == hw.tty_path
         t0 = hw.now_ns()
         comcu.ping()  # a request and its reply through the pty, the firmware answering in simavr
         assert hw.now_ns() > t0  # the MCU's (simulated) time passed while it answered

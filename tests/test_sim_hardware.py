@@ -103,7 +103,7 @@ def test_the_pis_uart_hands_over_the_co_mcus_bytes_as_a_pl011_does(hardware):
 
     comcu = hardware.open_comcu()
     comcu.ping()  # the boot announcement and whatever came before are read
-    fd = comcu.port.fileno()
+    fd = comcu.port.fd
     try:
         for seq in range(1, 9):
             os.write(fd, b"\x00" + wire(mcu.Ping(), seq))

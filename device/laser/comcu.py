@@ -2,7 +2,7 @@
 
 The port needs ``write(bytes) -> int`` (the bytes it took), ``read(size) -> bytes`` (returning
 fewer bytes, or none, when its ``timeout`` expires) and ``in_waiting``: a ``serial.Serial`` at
-250000 baud 8N1 on the Pi (``open_comcu``), or device.sim.comcu_emulator.SteppedMcuPort for the
+250000 baud 8N1 on the Pi, its descriptor read and written directly (``open_comcu``, UartPort), or device.sim.comcu_emulator.SteppedMcuPort for the
 firmware running in simavr. Every frame is one write; one the port took only part of is a lost
 link (OSError).
 
@@ -16,6 +16,8 @@ CoMcuNack naming the reason.
 from __future__ import annotations
 
 import logging
+import os
+import select
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -78,9 +80,68 @@ def open_comcu(path: str, clock_ns: Callable[[], int] = time.monotonic_ns) -> Co
     import serial
 
     try:
-        return CoMcu(serial.Serial(path, BAUDRATE, timeout=0.05, write_timeout=0), clock_ns=clock_ns)
+        return CoMcu(UartPort(serial.Serial(path, BAUDRATE, timeout=0.05, write_timeout=0)), clock_ns=clock_ns)
     except serial.SerialException as exc:
         raise OSError(str(exc)) from exc
+
+
+class UartPort:
+    """A ``serial.Serial`` as CoMcu's port: pyserial opens and configures the UART (baud rate, raw
+    8N1, its file descriptor non-blocking: serial/serialposix.py ``Serial.open``), and the bytes
+    move by one read(2) or write(2) on that descriptor. pyserial's ``read`` selects before every
+    read and its ``write`` builds a Timeout object around each; with the caches cold, as between
+    frames, that costs more than the system call: on this machine's pty a 12-byte heartbeat took
+    73 us through ``Serial.write`` after 15 ms idle, 33 us through os.write (BENCHMARKS.md "Device
+    process"), and the co-MCU gets ~110 such calls a second. The semantics are pyserial's with
+    ``write_timeout=0``: ``write`` returns the bytes the kernel took at once (0 when its buffer is
+    full), ``read(size)`` waits up to ``timeout`` for ``size`` bytes and returns what came, and a
+    descriptor that select(2) reports readable but that reads no byte is a disconnected device
+    (OSError), as pyserial's SerialException says."""
+
+    def __init__(self, port):
+        self.serial = port
+        self.fd = port.fileno()
+        self.timeout = port.timeout
+
+    @property
+    def in_waiting(self) -> int:
+        return self.serial.in_waiting
+
+    def read(self, size: int = 1) -> bytes:
+        out = b""
+        deadline = None
+        while len(out) < size:
+            try:
+                chunk = os.read(self.fd, size - len(out))
+            except BlockingIOError:
+                chunk = b""
+            if chunk:
+                out += chunk
+                continue
+            now = time.monotonic()
+            deadline = now + self.timeout if deadline is None else deadline
+            if now >= deadline:
+                break
+            ready, _, _ = select.select([self.fd], [], [], deadline - now)
+            if not ready:
+                break
+            try:
+                chunk = os.read(self.fd, size - len(out))
+            except BlockingIOError:
+                continue
+            if not chunk:
+                raise OSError(f"{self.serial.port}: readable but no data (device disconnected?)")
+            out += chunk
+        return out
+
+    def write(self, data: bytes) -> int:
+        try:
+            return os.write(self.fd, data)
+        except BlockingIOError:
+            return 0
+
+    def close(self) -> None:
+        self.serial.close()
 
 
 class CoMcu:
