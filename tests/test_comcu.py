@@ -202,7 +202,17 @@ def test_the_uart_port_reads_and_writes_as_pyserial_does():
         master = None
         with pytest.raises(OSError):
             port.read(1)
+        hold = os.open(os.devnull, os.O_RDONLY)  # takes the closed master's number
+        number = port.fd
         port.close()
+        other = os.open(os.devnull, os.O_WRONLY)  # the kernel hands out the lowest free number: port's
+        try:
+            assert other == number
+            with pytest.raises(OSError):  # not onto whatever file has the number now
+                port.write(b"x")
+        finally:
+            os.close(other)
+            os.close(hold)
     finally:
         if master is not None:
             os.close(master)

@@ -141,6 +141,8 @@ class UartPort:
             return 0
 
     def close(self) -> None:
+        # no later read or write on the number, which the kernel may give to another file
+        self.fd = -1
         self.serial.close()
 
 
