@@ -217,3 +217,13 @@ def test_the_uart_port_reads_and_writes_as_pyserial_does():
         if master is not None:
             os.close(master)
         os.close(slave)
+
+
+def test_the_uart_port_needs_a_read_timeout():
+    from device.laser.comcu import UartPort
+
+    class Blocking:
+        timeout = None
+
+    with pytest.raises(ValueError, match="finite read timeout, got None"):
+        UartPort(Blocking())

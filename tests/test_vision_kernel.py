@@ -307,6 +307,10 @@ def test_near_rows_names_bad_arguments():
         K.near_rows(f, f, np.zeros((1, 8), np.uint8), (10, 11, 2), (0, 4), *out)
     with pytest.raises(ValueError, match="step must be >= 1"):
         K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 0), (0, 4), *out)
+    with pytest.raises(ValueError, match="got rows 10-9223372036854775807 of 10"):  # not a mask's size overflowing
+        K.near_rows(f, f, np.zeros((5, 8), np.uint8), (10, 2**63 - 1, 2**62), (0, 4), *out)
+    one_row = tuple(np.empty(4, np.uint8) for _ in range(3))
+    K.near_rows(f, f, np.zeros((1, 8), np.uint8), (0, 10, 2**62), (0, 4), *one_row)  # one row: r0
     with pytest.raises(ValueError, match="above has length 4 along axis 0, expected 2"):
         K.near_rows(f, f, np.zeros((5, 8), np.uint8), (0, 10, 2), (6, 8), *out)
     shared = np.empty(4, np.uint8)

@@ -92,13 +92,17 @@ class UartPort:
     read and its ``write`` builds a Timeout object around each; with the caches cold, as between
     frames, that costs more than the system call: on this machine's pty a 12-byte heartbeat took
     73 us through ``Serial.write`` after 15 ms idle, 33 us through os.write (BENCHMARKS.md "Device
-    process"), and the co-MCU gets ~110 such calls a second. The semantics are pyserial's with
-    ``write_timeout=0``: ``write`` returns the bytes the kernel took at once (0 when its buffer is
-    full), ``read(size)`` waits up to ``timeout`` for ``size`` bytes and returns what came, and a
-    descriptor that select(2) reports readable but that reads no byte is a disconnected device
-    (OSError), as pyserial's SerialException says."""
+    process"), and the co-MCU gets ~110 such calls a second. ``read(size)`` waits up to ``timeout``
+    for ``size`` bytes and returns what came, and a descriptor that select(2) reports readable
+    but that reads no byte is a disconnected device (OSError), as in pyserial's read. ``write``
+    returns the bytes the kernel took at once, 0 when its buffer is full (CoMcu: a lost link, as
+    ``open_comcu`` says); pyserial's write with ``write_timeout=0`` instead retried a write(2)
+    that would block in a busy loop until the kernel took a byte (serialposix.py ``write``
+    swallows EAGAIN), which on a stuck UART spun forever holding LockedComcu's lock."""
 
     def __init__(self, port):
+        if not (isinstance(port.timeout, (int, float)) and 0 <= port.timeout < float("inf")):
+            raise ValueError(f"UartPort needs a port with a finite read timeout, got {port.timeout!r}")
         self.serial = port
         self.fd = port.fileno()
         self.timeout = port.timeout

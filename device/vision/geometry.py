@@ -107,9 +107,10 @@ class ColumnGeometry:
         to_scan_plane's arithmetic in the compiled kernel (columns_scan_plane), each operation
         rounded: numpy's matmul there goes through BLAS, whose fused multiply-adds give other last
         bits on other machines (an aarch64 Pi's among them)."""
-        p = np.ascontiguousarray(points, dtype=np.float64)
+        p = np.asarray(points, dtype=np.float64)
         if p.ndim < 1 or p.shape[-1] != 3:
             raise ValueError(f"points must have shape (..., 3), got {p.shape}")
+        p = np.ascontiguousarray(p)
         angle, rng = np.empty(p.shape[:-1]), np.empty(p.shape[:-1])
         sf = self.scan
         columns_kernel().scan_plane(p.reshape(-1, 3), np.ascontiguousarray(sf.rotation, np.float64),

@@ -252,9 +252,14 @@ static PyObject *py_near_rows(PyObject *self, PyObject *args)
     idx_t shp[2];
     const uint8_t *L = arg(&vs, o_l, 'u', -1, -1, 2, 0, "lit", shp);
     const uint8_t *U = L ? arg(&vs, o_u, 'u', shp[0], shp[1], 2, 0, "unlit", NULL) : NULL;
-    const idx_t rows_m = r1 > r0 ? (r1 - r0 + step - 1) / step : 0;
+    if (U && (!(0 <= r0 && r0 < r1 && r1 <= shp[0]) || !(0 <= c0 && c0 < c1 && c1 <= shp[1]))) {
+        release(&vs); /* before the sizes below are computed from them */
+        return PyErr_Format(PyExc_ValueError, "near_rows: need 0 <= r0 < r1 <= H, 0 <= c0 < c1 <= W, got rows %zd-%zd "
+                            "of %zd, columns %zd-%zd of %zd", r0, r1, shp[0], c0, c1, shp[1]);
+    }
+    const idx_t rows_m = U ? (r1 - r0 - 1) / step + 1 : 0;
     const uint8_t *M = U ? arg(&vs, o_m, 'u', rows_m, shp[1], 2, 0, "mask", NULL) : NULL;
-    const idx_t n = c1 > c0 ? c1 - c0 : 0;
+    const idx_t n = c1 - c0;
     uint8_t *A = M ? arg(&vs, o_a, 'u', n, 0, 1, 1, "above", NULL) : NULL;
     uint8_t *B = A ? arg(&vs, o_b, 'u', n, 0, 1, 1, "below", NULL) : NULL;
     uint8_t *P = B ? arg(&vs, o_p, 'u', n, 0, 1, 1, "pair", NULL) : NULL;

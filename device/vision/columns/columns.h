@@ -229,7 +229,8 @@ ColumnsResult columns_scan_rays(ptrdiff_t n, const double *angle, const double *
  * first_ns + i interval_ns through the n rays' times (CLOCK_MONOTONIC ns; not finite: none),
  * its slope rounded to whole ns first and then its offset, and the largest |time - line| of the
  * rays with one; with fewer than two such rays first_ns = fallback_ns rounded, interval 0,
- * residual 0. Rounding is to nearest, ties to even (Python's round). The sums are taken relative
+ * residual 0. Rounding is to nearest, ties to even (Python's round), of the slope's quotient as
+ * computed (an exact half ns may come out either side of it). The sums are taken relative
  * to the first ray's time and the rays' mean index (no digits lost to a clock's ~1e15 ns).
  * Needs a finite first_ns within +-2^62 ns. */
 typedef struct {
