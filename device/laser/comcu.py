@@ -114,28 +114,25 @@ class UartPort:
     def read(self, size: int = 1) -> bytes:
         out = b""
         deadline = None
+        readable = False  # select(2) said so just before this read
         while len(out) < size:
             try:
                 chunk = os.read(self.fd, size - len(out))
             except BlockingIOError:
-                chunk = b""
+                chunk = None
             if chunk:
                 out += chunk
+                readable = False
                 continue
+            if chunk == b"" and readable:
+                raise OSError(f"{self.serial.port}: readable but no data (device disconnected?)")
             now = time.monotonic()
             deadline = now + self.timeout if deadline is None else deadline
             if now >= deadline:
                 break
-            ready, _, _ = select.select([self.fd], [], [], deadline - now)
-            if not ready:
+            readable = bool(select.select([self.fd], [], [], deadline - now)[0])
+            if not readable:
                 break
-            try:
-                chunk = os.read(self.fd, size - len(out))
-            except BlockingIOError:
-                continue
-            if not chunk:
-                raise OSError(f"{self.serial.port}: readable but no data (device disconnected?)")
-            out += chunk
         return out
 
     def write(self, data: bytes) -> int:

@@ -452,18 +452,9 @@ ptrdiff_t columns_spans(const bool *m, ptrdiff_t W, ptrdiff_t join, ptrdiff_t *s
     return k;
 }
 
-/* columns_near_rows' first row, and each further one: branch-free loops over restrict pointers,
- * which the compiler vectorises (saturating subtractions, byte maxima and minima). */
-static void near_rows_start(const uint8_t *restrict l, const uint8_t *restrict u, const uint8_t *restrict mk, idx_t n,
-                            uint8_t *restrict above, uint8_t *restrict below, uint8_t *restrict prev)
-{
-    for (idx_t c = 0; c < n; c++) {
-        above[c] = (uint8_t)((l[c] > u[c] ? l[c] - u[c] : 0) & mk[c]);
-        below[c] = (uint8_t)((u[c] > l[c] ? u[c] - l[c] : 0) & mk[c]);
-        prev[c] = u[c] & mk[c];
-    }
-}
-
+/* One row of columns_near_rows into the column maxima: a branch-free loop over restrict pointers,
+ * which the compiler vectorises (saturating subtractions, byte maxima and minima). prev: the
+ * previous row's unlit & mask, 0 before the first row (a pair needs two rows: min(0, x) = 0). */
 static void near_rows_add(const uint8_t *restrict l, const uint8_t *restrict u, const uint8_t *restrict mk, idx_t n,
                           uint8_t *restrict above, uint8_t *restrict below, uint8_t *restrict pair,
                           uint8_t *restrict prev)
@@ -487,11 +478,10 @@ ColumnsResult columns_near_rows(const uint8_t *lit, const uint8_t *unlit, ptrdif
         return bad_argument(err, "near_rows: need 0 <= r0 < r1 <= H, step >= 1, 0 <= c0 < c1 <= W, got rows %td-%td "
                             "of %td step %td, columns %td-%td of %td", r0, r1, H, step, c0, c1, W);
     const idx_t n = c1 - c0;
-    uint8_t *prev = malloc((size_t)n); /* the previous row's unlit & mask */
+    uint8_t *prev = calloc((size_t)n, 1); /* the previous row's unlit & mask */
     if (!prev) return no_memory(err, "near_rows");
-    near_rows_start(lit + r0 * W + c0, unlit + r0 * W + c0, mask + c0, n, above, below, prev);
-    memset(pair, 0, (size_t)n);
-    for (idx_t r = r0 + step, k = 1; r < r1; r += step, k++)
+    memset(above, 0, (size_t)n), memset(below, 0, (size_t)n), memset(pair, 0, (size_t)n);
+    for (idx_t r = r0, k = 0; r < r1; r += step, k++)
         near_rows_add(lit + r * W + c0, unlit + r * W + c0, mask + k * W + c0, n, above, below, pair, prev);
     free(prev);
     return COLUMNS_DONE;
