@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from device.sync.clock_map import EdgePairing, GpioClockMap, PingClockMap, lower_envelope_fit
+from device.sync.clock_map import (REFIT_EVERY, REFIT_FROM, EdgePairing, GpioClockMap, PingClockMap, Window,
+                                   lower_envelope_fit, refit_due)
 
 TICK_HZ = 2e6
 
@@ -174,3 +175,46 @@ def test_gpio_map_window_follows_a_drift_change():
     nxt = ticks[-1] + 100_000
     truth = (true_s[-1] + 100_000 / (TICK_HZ * (1 + 110e-6))) * 1e9
     assert abs(float(est.mcu_to_pi_ns(nxt)) - truth) < 3e3
+
+
+def test_a_full_window_refits_at_a_share_of_it_and_the_line_between_refits_stays_honest():
+    # below REFIT_FROM every point refits; a full window of 256 every 32nd (REFIT_SHARE), never
+    # more rarely than its share, never more often than REFIT_EVERY
+    assert all(refit_due(n, 1) for n in range(2, REFIT_FROM))
+    assert not refit_due(256, 31) and refit_due(256, 32)
+    assert not refit_due(REFIT_FROM, REFIT_EVERY - 1) and refit_due(REFIT_FROM, REFIT_EVERY)
+    # between refits the map extrapolates its older line: where the controller places the next
+    # pulses (1-3 pulses ahead) it must stay within 5 of its own sigmas of the truth
+    rng = np.random.default_rng(7)
+    ticks, ns, truth = _pairs(rng, 900, drift_ppm=80.0)
+    m = GpioClockMap(TICK_HZ, gpio_latency_min_s=3e-6, window=256)
+    fits, misses, checked = set(), 0, 0
+    for i, (t, n) in enumerate(zip(ticks, ns)):
+        m.add(int(t), int(n))
+        est = m.estimate()
+        if est is None or i < 300:
+            continue
+        fits.add(est.ref_tick)
+        for ahead in (100_000, 300_000):
+            nxt = int(t) + ahead
+            err = abs(float(est.mcu_to_pi_ns(nxt)) - truth(nxt))
+            misses += err > 5 * float(est.sigma_s(nxt)) * 1e9
+            checked += 1
+    assert len(fits) == pytest.approx(600 / 32, abs=2)  # the cadence above, not every point
+    assert misses <= 0.005 * checked
+
+
+def test_window_keeps_its_newest_row_through_compaction_masking_and_clearing():
+    w = Window(4)
+    assert w.last() is None
+    for i in range(11):  # past the buffer's end (2 x size): the rows are moved to its front
+        w.append(i, 10 * i)
+        assert w.last() == (i, 10 * i) and type(w.last()[0]) is int
+    assert w.a.tolist() == [7, 8, 9, 10]
+    w.keep(np.array([True, True, True, False]))  # the newest row removed: the one before is the newest
+    assert w.last() == (9, 90) and w.b.tolist() == [70, 80, 90]
+    w.keep(np.zeros(3, bool))
+    assert w.last() is None and len(w) == 0
+    w.append(1, 2)
+    w.clear()
+    assert w.last() is None

@@ -47,15 +47,18 @@ log = logging.getLogger(__name__)
 
 LN2 = math.log(2.0)
 #: The windowed line fits (GpioClockMap, control.CameraTimeline) refit at every new point while
-#: they hold fewer than REFIT_FROM, then at every REFIT_EVERY-th: the line moves little per point
-#: then, and its sigma grows with the extrapolation meanwhile, so nothing is claimed that was not
-#: fitted.
-REFIT_EVERY, REFIT_FROM = 8, 64
+#: they hold fewer than REFIT_FROM, then once the points since the last fit are REFIT_SHARE of the
+#: window (at least REFIT_EVERY): a line through n points moves by about that share of its spread
+#: when they are replaced, and its sigma grows with the extrapolation meanwhile, so nothing is
+#: claimed that was not fitted. A full window of 256 (SyncConfig's) refits every 32nd point, 0.8 s
+#: at 40 frames a second; each fit is ~25 numpy calls (~80 us here with warm caches), the largest
+#: part of the controller's step per frame (BENCHMARKS.md "Device process").
+REFIT_EVERY, REFIT_FROM, REFIT_SHARE = 8, 64, 1 / 8
 
 
 def refit_due(points: int, since_fit: int) -> bool:
     """Whether a window of ``points`` that got ``since_fit`` points since its last fit refits now."""
-    return points < REFIT_FROM or since_fit >= REFIT_EVERY
+    return points < REFIT_FROM or since_fit >= max(REFIT_EVERY, points * REFIT_SHARE)
 
 
 @dataclass(frozen=True)
@@ -73,9 +76,10 @@ class LineFit:
         return self.a + self.b * x
 
     def sigma(self, x: np.ndarray | float) -> np.ndarray | float:
-        """1-sigma uncertainty of ``predict(x)`` (the line's own uncertainty, extrapolation included)."""
+        """1-sigma uncertainty of ``predict(x)`` (the line's own uncertainty, extrapolation included).
+        ``** 0.5``, not np.sqrt: a float stays a Python float (the controller's per-frame arithmetic)."""
         lever = (x - self.x_mean) ** 2 / self.sxx if self.sxx > 0 else 0.0
-        return self.point_sigma * np.sqrt(1.0 / self.n_points + lever)
+        return self.point_sigma * (1.0 / self.n_points + lever) ** 0.5
 
 
 @functools.lru_cache(maxsize=64)
@@ -182,19 +186,22 @@ def lower_envelope_fit(x: np.ndarray, y: np.ndarray, blocks: int = 16, prior_sig
 
 
 class Window:
-    """The last ``size`` rows of int64 columns, as contiguous numpy views (cheaper than deques per fit)."""
+    """The last ``size`` rows of int64 columns, as contiguous numpy views (cheaper than deques per
+    fit), and the newest row as Python ints (read every frame)."""
 
     def __init__(self, size: int, columns: int = 2) -> None:
         self.size = size
         self._buf = np.zeros((2 * size, columns), np.int64)
         self._lo = 0
         self._hi = 0
+        self._last: tuple[int, ...] | None = None
 
     def __len__(self) -> int:
         return self._hi - self._lo
 
     def clear(self) -> None:
         self._lo = self._hi = 0
+        self._last = None
 
     def append(self, *row: int) -> None:
         if self._hi == self._buf.shape[0]:
@@ -205,11 +212,13 @@ class Window:
         self._hi += 1
         if self._hi - self._lo > self.size:
             self._lo += 1
+        self._last = tuple(int(v) for v in row)
 
     def keep(self, mask: np.ndarray) -> None:
         rows = self._buf[self._lo:self._hi][mask]
         self._buf[:rows.shape[0]] = rows
         self._lo, self._hi = 0, rows.shape[0]
+        self._last = tuple(int(v) for v in rows[-1]) if len(rows) else None
 
     def column(self, i: int) -> np.ndarray:
         return self._buf[self._lo:self._hi, i]
@@ -223,7 +232,7 @@ class Window:
         return self.column(1)
 
     def last(self) -> tuple[int, ...] | None:
-        return tuple(int(v) for v in self._buf[self._hi - 1]) if self._hi > self._lo else None
+        return self._last
 
 
 @dataclass(frozen=True)
