@@ -39,7 +39,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -243,7 +243,10 @@ class LinkServer:
     read returns what arrived, b"" after a short timeout) with scans from ``source``, counting
     into ``counters`` (a fresh LinkCounters if None)."""
 
-    def __init__(self, port, source: ScanSource, config: DeviceConfig, counters: LinkCounters | None = None):
+    def __init__(self, port, source: ScanSource, config: DeviceConfig, counters: LinkCounters | None = None, *,
+                 on_stop: Callable[[], None] | None = None):
+        """on_stop: called when the threads are told to stop (the port failed, or ``close()``), from
+        the thread that did so; it may be called more than once."""
         self.port = port
         self.source = source
         self.config = config
@@ -263,6 +266,7 @@ class LinkServer:
         self._fault: str | None = None
         self._seq = 0
         self._stop = threading.Event()
+        self._on_stop = on_stop
         self._threads: list[threading.Thread] = []
         self._angles_crc = m.angles_crc(self.geometry.angles)
         self._last_config: tuple[int, m.ScanSettings, m.Ack | m.Nack] | None = None  # id, settings, answer
@@ -282,7 +286,7 @@ class LinkServer:
 
     def close(self) -> None:
         """Stop the threads and the source; safe to call twice."""
-        self._stop.set()
+        self._end()
         with self._lock:
             self._lock.notify_all()
         for t in self._threads:
@@ -302,6 +306,12 @@ class LinkServer:
     def stopped(self) -> bool:
         return self._stop.is_set()
 
+    def _end(self) -> None:
+        """Tell the threads to stop, and whoever waits for that (``on_stop``)."""
+        self._stop.set()
+        if self._on_stop is not None:
+            self._on_stop()
+
     def __enter__(self) -> LinkServer:
         return self.start()
 
@@ -316,7 +326,7 @@ class LinkServer:
             except Exception as exc:  # any port failure ends the session, cleanly
                 if not self._stop.is_set():
                     log.warning("link port read failed, stopping: %s", exc)
-                self._stop.set()
+                self._end()
                 break
             for rec in self.decoder.feed(data):
                 self._heard_at = time.monotonic()
@@ -527,7 +537,7 @@ class LinkServer:
             except Exception as exc:
                 if not self._stop.is_set():
                     log.warning("link port write failed, stopping: %s", exc)
-                self._stop.set()
+                self._end()
                 break
             if isinstance(msg, m.ScanMessage):
                 self.counters.scans_sent += 1

@@ -417,3 +417,32 @@ def test_a_failing_port_is_reopened_and_a_new_session_served():
     stop.set()
     t.join(3)
     assert rig.lit_parity is None
+
+
+def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_stop(monkeypatch):
+    # Each timed wake-up of a thread costs CPU (~0.1 ms on the machine of BENCHMARKS.md "Device
+    # process"): between health reports the supervisor waits for the session's end or the stop,
+    # not polling. Its checks of the session are counted; a 10 Hz poll made ~10 a second.
+    from protocol.server import LinkServer
+
+    checks = []
+    monkeypatch.setattr(LinkServer, "stopped", property(lambda self: checks.append(1) or self._stop.is_set()))
+    opened = []
+
+    def open_port():
+        host_end, dev_end = pipe_pair()
+        opened.append(host_end)
+        return dev_end
+
+    rig = FakeRig()
+    sup, stop, t = run_supervised(open_port, rig)
+    time.sleep(1.0)
+    assert len(opened) == 1 and len(checks) <= 2
+    opened[0].close()  # the session ends: the supervisor wakes and opens a new one
+    deadline = time.monotonic() + 1.0
+    while len(opened) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(opened) == 2
+    stop.set()
+    t.join(1.0)
+    assert not t.is_alive()  # the stop woke it (health_log_s is 10 s)
