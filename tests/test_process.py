@@ -385,7 +385,8 @@ def test_slow_link_drops_whole_scans_and_counts_them():
     assert ph.source.scans_made - ph.scans_sent - ph.scans_dropped <= 3
 
 
-def test_a_failing_port_is_reopened_and_a_new_session_served():
+def reopenable_link() -> tuple[list, object]:
+    """The host ends of the in-memory links opened so far, and the supervisor's ``open_port``."""
     opened = []
 
     def open_port():
@@ -393,6 +394,11 @@ def test_a_failing_port_is_reopened_and_a_new_session_served():
         opened.append(host_end)
         return dev_end
 
+    return opened, open_port
+
+
+def test_a_failing_port_is_reopened_and_a_new_session_served():
+    opened, open_port = reopenable_link()
     rig = FakeRig()
     sup, stop, t = run_supervised(open_port, rig)
     time.sleep(0.2)
@@ -427,13 +433,7 @@ def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_s
 
     checks = []
     monkeypatch.setattr(LinkServer, "stopped", property(lambda self: checks.append(1) or self._stop.is_set()))
-    opened = []
-
-    def open_port():
-        host_end, dev_end = pipe_pair()
-        opened.append(host_end)
-        return dev_end
-
+    opened, open_port = reopenable_link()
     rig = FakeRig()
     sup, stop, t = run_supervised(open_port, rig)
     time.sleep(1.0)
