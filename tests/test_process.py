@@ -446,3 +446,47 @@ def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_s
     stop.set()
     t.join(1.0)
     assert not t.is_alive()  # the stop woke it (health_log_s is 10 s)
+
+
+def test_a_thread_that_outlives_its_session_does_not_keep_the_supervisor_awake(monkeypatch):
+    # The first session's writer is stuck in a write (a serial write without a timeout to a host
+    # that stopped reading) past close()'s 2 s join, and fails after its port is closed: its
+    # on_stop comes during the second session, which must then sleep again, not spin.
+    from protocol.server import LinkServer
+
+    checks = []
+    monkeypatch.setattr(LinkServer, "stopped", property(lambda self: checks.append(1) or self._stop.is_set()))
+
+    class StuckWriter:
+        def __init__(self, port):
+            self.port, self.closed = port, threading.Event()
+
+        def read(self, size=4096):
+            return self.port.read(size)
+
+        def write(self, data):
+            self.closed.wait()
+            time.sleep(0.3)
+            raise OSError("write on a closed port")
+
+        def close(self):
+            self.port.close()
+            self.closed.set()
+
+    opened, open_link = reopenable_link()
+    sup, stop, t = run_supervised(lambda: StuckWriter(open_link()) if not opened else open_link(), FakeRig())
+    time.sleep(0.2)
+    Host(opened[0]).send(m.GetInfo())  # the reply's write blocks
+    time.sleep(0.3)
+    opened[0].close()  # the host is gone: the reader fails, the session ends
+    deadline = time.monotonic() + 5
+    while len(opened) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(opened) == 2
+    time.sleep(0.6)  # the stuck writer's late failure has called the first session's on_stop
+    before = len(checks)
+    time.sleep(0.5)
+    assert len(checks) - before <= 2
+    stop.set()
+    t.join(2.0)
+    assert not t.is_alive()

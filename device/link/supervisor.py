@@ -105,11 +105,14 @@ class LinkSupervisor:
                     backoff = min(2 * backoff, self.reopen_backoff_s[1])
                     continue
                 backoff = self.reopen_backoff_s[0]
-                wake.clear()  # before the session and the checks below: a stop set from here on wakes it
                 self.server = LinkServer(port, self.source, self.config, self.counters, on_stop=wake.set).start()
                 log.info("host link session %d open", self.sessions)
                 while not stop.is_set() and not self.server.stopped:
-                    wake.wait(max(0.0, next_log - time.monotonic()))
+                    wake.wait(min(max(0.0, next_log - time.monotonic()), threading.TIMEOUT_MAX))
+                    # cleared after each wake-up, not once a session: a thread of an earlier session
+                    # that outlived its close() (a write blocked on a host that stopped reading) may
+                    # still call its on_stop; both conditions are set before wake is, and checked again
+                    wake.clear()
                     if time.monotonic() >= next_log:
                         self._report(self.health(), "health")
                         next_log = time.monotonic() + self.health_log_s

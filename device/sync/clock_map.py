@@ -204,6 +204,7 @@ class Window:
         self._last = None
 
     def append(self, *row: int) -> None:
+        last = tuple(int(v) for v in row)
         if self._hi == self._buf.shape[0]:
             n = len(self)
             self._buf[:n] = self._buf[self._lo:self._hi]
@@ -212,7 +213,7 @@ class Window:
         self._hi += 1
         if self._hi - self._lo > self.size:
             self._lo += 1
-        self._last = tuple(int(v) for v in row)
+        self._last = last
 
     def keep(self, mask: np.ndarray) -> None:
         rows = self._buf[self._lo:self._hi][mask]
