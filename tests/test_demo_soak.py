@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -114,3 +116,20 @@ def test_bench_process_subtracts_the_simulation_from_the_process_cpu():
     assert r["other_ms_per_scan"] == pytest.approx(12.5)
     with pytest.raises(ValueError, match="no scans"):
         cost_per_scan(a, a)
+
+
+def test_bench_process_measures_the_heartbeat_threads_wait_that_simulation_leaves_out():
+    # a Pi's heartbeat thread wakes every HEARTBEAT_S (SyncedLaser._heartbeat_loop); the probe
+    # does that wait and reports its own CPU, its span and its wake-ups, and ends when stopped
+    from device.bench.process import heartbeat_wait_cpu
+
+    stop, out = threading.Event(), []
+    t = threading.Thread(target=lambda: out.append(heartbeat_wait_cpu(stop, 0.01)))
+    t.start()
+    time.sleep(0.3)
+    stop.set()
+    t.join(1.0)
+    assert not t.is_alive()
+    cpu_s, wall_s, wakeups = out[0]
+    assert 0.3 <= wall_s < 0.6 and 0 <= cpu_s < wall_s
+    assert 5 <= wakeups <= wall_s / 0.01 + 1  # a timed wait's wake-ups, not a busy loop's
