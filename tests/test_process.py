@@ -425,19 +425,25 @@ def test_a_failing_port_is_reopened_and_a_new_session_served():
     assert rig.lit_parity is None
 
 
-def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_stop(monkeypatch):
-    # Each timed wake-up of a thread costs CPU (~0.1 ms on the machine of BENCHMARKS.md "Device
-    # process"): between health reports the supervisor waits for the session's end or the stop,
-    # not polling. Its checks of the session are counted; a 10 Hz poll made ~10 a second.
+@pytest.fixture
+def session_checks(monkeypatch) -> list:
+    """One entry for every look at whether a link session has ended (LinkServer.stopped)."""
     from protocol.server import LinkServer
 
     checks = []
     monkeypatch.setattr(LinkServer, "stopped", property(lambda self: checks.append(1) or self._stop.is_set()))
+    return checks
+
+
+def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_stop(session_checks):
+    # Each timed wake-up of a thread costs CPU (~0.1 ms on the machine of BENCHMARKS.md "Device
+    # process"): between health reports the supervisor waits for the session's end or the stop,
+    # not polling. Its checks of the session are counted; a 10 Hz poll made ~10 a second.
     opened, open_port = reopenable_link()
     rig = FakeRig()
     sup, stop, t = run_supervised(open_port, rig)
     time.sleep(1.0)
-    assert len(opened) == 1 and len(checks) <= 2
+    assert len(opened) == 1 and len(session_checks) <= 2
     opened[0].close()  # the session ends: the supervisor wakes and opens a new one
     deadline = time.monotonic() + 1.0
     while len(opened) < 2 and time.monotonic() < deadline:
@@ -448,14 +454,10 @@ def test_the_supervisor_sleeps_through_a_session_and_wakes_for_its_end_and_for_s
     assert not t.is_alive()  # the stop woke it (health_log_s is 10 s)
 
 
-def test_a_thread_that_outlives_its_session_does_not_keep_the_supervisor_awake(monkeypatch):
+def test_a_thread_that_outlives_its_session_does_not_keep_the_supervisor_awake(session_checks):
     # The first session's writer is stuck in a write (a serial write without a timeout to a host
     # that stopped reading) past close()'s 2 s join, and fails after its port is closed: its
     # on_stop comes during the second session, which must then sleep again, not spin.
-    from protocol.server import LinkServer
-
-    checks = []
-    monkeypatch.setattr(LinkServer, "stopped", property(lambda self: checks.append(1) or self._stop.is_set()))
 
     class StuckWriter:
         def __init__(self, port):
@@ -484,9 +486,9 @@ def test_a_thread_that_outlives_its_session_does_not_keep_the_supervisor_awake(m
         time.sleep(0.01)
     assert len(opened) == 2
     time.sleep(0.6)  # the stuck writer's late failure has called the first session's on_stop
-    before = len(checks)
+    before = len(session_checks)
     time.sleep(0.5)
-    assert len(checks) - before <= 2
+    assert len(session_checks) - before <= 2
     stop.set()
     t.join(2.0)
     assert not t.is_alive()
