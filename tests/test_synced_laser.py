@@ -200,3 +200,40 @@ def test_a_co_mcu_whose_envelope_is_not_class_1_for_this_laser_lights_nothing():
         laser.start(FRAME)
     assert exc.value.reason == "refused" and "25.6 mW" in str(exc.value)
     assert seen == [fake.info()] and laser.controller is None and not laser.locked
+
+
+def test_the_heartbeat_thread_beats_while_frames_are_serviced_and_is_gone_before_the_stop():
+    """The Pi's heartbeat thread (heartbeat_s set; in simulation the simulated clock's ticker
+    beats instead): it writes heartbeats while the frame loop services frames, none once the
+    frame loop has been silent for watchdog_s (so a hung frame loop lets the firmware switch the
+    laser off), and ``stop`` ends it before the STOP goes out: no heartbeat after the STOP."""
+    import threading
+    import time
+
+    fake, written = FakeComcu(), []
+    beat, stop = fake.send_heartbeat, fake.stop
+    fake.send_heartbeat = lambda: written.append("heartbeat") or beat()
+    fake.stop = lambda: written.append("stop") or stop()
+    laser = SyncedLaser(lambda: fake, SyncConfig(0, 10, 0.05), heartbeat_s=0.01, watchdog_s=0.1)
+    laser.start(FRAME)
+    try:
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            laser.frame_lit(FRAME)
+            time.sleep(0.02)
+        assert fake.heartbeats_sent >= 10  # ~30 at 10 ms; a loaded machine wakes the thread late, not never
+        time.sleep(0.1 + 0.15)  # the watchdog's 0.1 s since the last frame, and a late wake-up
+        silent = fake.heartbeats_sent
+        time.sleep(0.15)
+        assert fake.heartbeats_sent == silent  # the frame loop is silent: so are the heartbeats
+        laser.frame_lit(FRAME)  # frames again: heartbeats again
+        deadline = time.monotonic() + 2.0
+        while fake.heartbeats_sent == silent and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert fake.heartbeats_sent > silent
+    finally:
+        laser.stop()
+    assert not any(t.name == "comcu-heartbeat" for t in threading.enumerate())
+    assert written[-1] == "stop" and written.count("stop") == 2  # start's STOP of an older schedule, and this one
+    time.sleep(0.05)
+    assert written[-1] == "stop"

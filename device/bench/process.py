@@ -178,10 +178,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def heartbeat_wait_cpu(stop: threading.Event, interval_s: float) -> tuple[float, float, int]:
-    """The heartbeat thread's wait (SyncedLaser._heartbeat_loop) until ``stop`` is set, without
-    its write: (thread CPU s, wall s, wake-ups)."""
+    """The heartbeat thread's wait (SyncedLaser._heartbeat_loop: its ``pause_between_heartbeats``)
+    until ``stop`` is set, without its write: (thread CPU s, wall s, wake-ups)."""
+    from device.laser.synced import pause_between_heartbeats
+
     cpu, wall, wakeups = time.thread_time(), time.monotonic(), 0
-    while not stop.wait(interval_s):
+    while not pause_between_heartbeats(stop, interval_s):
         wakeups += 1
     return time.thread_time() - cpu, time.monotonic() - wall, wakeups
 
