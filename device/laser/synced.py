@@ -48,9 +48,10 @@ UNANSWERED_HEARTBEATS = 12
 def pause_between_heartbeats(stop: threading.Event, interval_s: float) -> bool:
     """The heartbeat thread's wait: one interval asleep, then whether ``stop`` was set.
 
-    A plain sleep, not ``stop.wait(interval_s)``: a timed Event.wait builds a Condition's lock
-    and waiter list on every call and re-takes them on waking, and this thread wakes ~67 times a
-    second. Measured on this project's machine (BENCHMARKS.md "Device process"), a wake-up of
+    A plain sleep, not ``stop.wait(interval_s)``: a timed Event.wait allocates a lock for the
+    Condition's waiter list on every call, and on waking re-takes the Condition's lock and takes
+    the waiter off the list (CPython's Lib/threading.py, ``Condition.wait``), and this thread
+    wakes ~67 times a second. Measured on this project's machine (BENCHMARKS.md "Device process"), a wake-up of
     the timed Event.wait cost ~2x the CPU of a sleep's. The price: a set ``stop`` is seen up to
     one interval late, so ``_stop_heartbeat`` waits up to HEARTBEAT_S for the thread before the
     STOP goes out (the firmware's own timeout is the laser's backstop either way)."""
