@@ -3,6 +3,8 @@ runs in tests/test_serve_sim.py): HEALTH.comcu_resets depends on it."""
 
 from __future__ import annotations
 
+import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -207,9 +209,6 @@ def test_the_heartbeat_thread_beats_while_frames_are_serviced_and_is_gone_before
     beats instead): it writes heartbeats while the frame loop services frames, none once the
     frame loop has been silent for watchdog_s (so a hung frame loop lets the firmware switch the
     laser off), and ``stop`` ends it before the STOP goes out: no heartbeat after the STOP."""
-    import threading
-    import time
-
     fake, written = FakeComcu(), []
     beat, stop = fake.send_heartbeat, fake.stop
     fake.send_heartbeat = lambda: written.append("heartbeat") or beat()

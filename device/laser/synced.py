@@ -51,10 +51,11 @@ def pause_between_heartbeats(stop: threading.Event, interval_s: float) -> bool:
     A plain sleep, not ``stop.wait(interval_s)``: a timed Event.wait allocates a lock for the
     Condition's waiter list on every call, and on waking re-takes the Condition's lock and takes
     the waiter off the list (CPython's Lib/threading.py, ``Condition.wait``), and this thread
-    wakes ~67 times a second. Measured on this project's machine (BENCHMARKS.md "Device process"), a wake-up of
-    the timed Event.wait cost ~2x the CPU of a sleep's. The price: a set ``stop`` is seen up to
-    one interval late, so ``_stop_heartbeat`` waits up to HEARTBEAT_S for the thread before the
-    STOP goes out (the firmware's own timeout is the laser's backstop either way)."""
+    wakes ~67 times a second. Measured on this project's machine (BENCHMARKS.md "Device
+    process"), a wake-up of the timed Event.wait cost ~2x the CPU of a sleep's. The price: a set
+    ``stop`` is seen up to one interval late, so ``_stop_heartbeat`` waits up to HEARTBEAT_S for
+    the thread before the STOP goes out (the firmware's own timeout is the laser's backstop
+    either way)."""
     time.sleep(interval_s)
     return stop.is_set()
 
