@@ -51,6 +51,13 @@ def still_office():
     return sequence(CFG, with_motion(get_scene("office"), ambient_scale=3), 2, 0)
 
 
+@pytest.fixture(scope="module")
+def sharp_office_turning_in_10x_light():
+    """90 deg/s in 10x the indoor light (seed 0), the background point-sampled (SHARP): 3 lit
+    frames, the cases of two checks of a turned frame."""
+    return sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0, SHARP)
+
+
 def test_a_moved_background_gives_no_phantoms_and_no_false_no_return(turning_office, still_office):
     pipes = _pipelines(CFG)
     before = score([(_process("fast one-unlit", pipes["fast one-unlit"], p), p.truth) for p in turning_office], MIN_M)
@@ -202,7 +209,8 @@ def test_turning_in_bright_light_keeps_much_of_the_wall(still_office):
         assert wall / sum(int(np.sum((t.surface == 0) & np.isfinite(t.range_m))) for _, t in measured) > wall_share
 
 
-def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbours_disagree():
+def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbours_disagree(
+        sharp_office_turning_in_10x_light):
     # 90 deg/s in 10x light (seed 0): the turned neighbours agree but for a fraction of a row at
     # sharp horizontal edges, where one's resampling put the edge apart from the other's; there
     # the lit frame shows one-row bright ridges that pass for lines. With the turned background
@@ -214,7 +222,7 @@ def test_a_turned_frame_still_needs_its_lines_to_stand_above_where_the_neighbour
     # decimals). With the safeguards, the check still keeps the rows a turn smears over a depth
     # edge (the desk before the back wall) out at other points of `laserpi bench motion`
     # (BENCHMARKS.md)
-    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0, SHARP)
+    pairs = sharp_office_turning_in_10x_light
     device, as_read = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0})
     _, without = _device_and_without({"resample_slack": math.inf, "edge_ratio": 0.0, "agree_ratio": 0.0})
     gross = {name: score([(_process("fast", pipe, p), p.truth) for p in pairs], MIN_M)
@@ -656,7 +664,7 @@ def test_a_line_nearer_than_the_range_in_a_moved_column_is_rejected_not_too_clos
     assert meas.status[79] == ColumnStatus.REJECTED and np.isnan(meas.range[79])
 
 
-def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close():
+def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close(sharp_office_turning_in_10x_light):
     # 90 deg/s in 10x light: a bright stripe in the lit frame's near rows where both neighbours
     # show dark ones (the periodic texture aliases with the 50 ms frame step) brightens the lit
     # frame against both; the neighbours are that bright within the distance the background moves,
@@ -665,7 +673,7 @@ def test_a_stripe_aliasing_with_the_frame_step_is_not_too_close():
     # with the turned background as read back (resample_slack inf): held against it within a
     # row, the lit frame shows a weak line candidate in those columns, which are then not
     # without a line, and step 7 does not look at them
-    pairs = sequence(CFG, with_motion(get_scene("office"), yaw_rate_deg_s=90, ambient_scale=10), 3, 0, SHARP)
+    pairs = sharp_office_turning_in_10x_light
     device, as_read = _device_and_without({"resample_slack": math.inf})
     _, near_only = _device_and_without({"resample_slack": math.inf, "moving_reach_columns": 0})
     for pipe in (device, as_read):

@@ -84,17 +84,23 @@ def cast(origin: np.ndarray, dirs: np.ndarray, prims: Primitives, t_min: float =
             ex, ey = prims.seg_b[k] - prims.seg_a[k]
             denom = dx * ey - dy * ex
             wx, wy = ax - ox, ay - oy
-            t = (wx * ey - wy * ex) / denom
             s = (wx * dy - wy * dx) / denom
-            z = oz + t * dz
+            # the rays that cross the segment's line within it, then the rest of the test on them
+            # only: a wall of a room spans a part of the view (same arithmetic, fewer rays)
+            near = np.flatnonzero((np.abs(denom) > 1e-15) & (s >= 0) & (s <= 1))
+            if not near.size:
+                continue
+            t = (wx[near] * ey - wy[near] * ex) / denom[near]
+            z = oz[near] + t * dz[near]
             lo, hi = prims.seg_z[k]
-            hit = (np.abs(denom) > 1e-15) & (t > t_min) & (s >= 0) & (s <= 1) & (z >= lo) & (z <= hi) & (t < best_t)
-            if hit.any():
+            ok = (t > t_min) & (z >= lo) & (z <= hi) & (t < best_t[near])
+            if ok.any():
+                hit = near[ok]
                 length = np.hypot(ex, ey)
-                best_t[hit], best_s[hit] = t[hit], prims.seg_surface[k]
+                best_t[hit], best_s[hit] = t[ok], prims.seg_surface[k]
                 normal[hit] = (ey / length, -ex / length, 0.0)
                 tex[hit, 0] = prims.seg_offset[k] + s[hit] * length
-                tex[hit, 1] = z[hit]
+                tex[hit, 1] = z[ok]
         for k in range(prims.circ_c.shape[0]):
             cx, cy = prims.circ_c[k]
             r = prims.circ_r[k]
@@ -152,14 +158,33 @@ def value_noise(u: np.ndarray, v: np.ndarray, seed: int) -> np.ndarray:
     iu, iv = np.floor(u), np.floor(v)
     fu, fv = u - iu, v - iv
     fu, fv = fu * fu * (3 - 2 * fu), fv * fv * (3 - 2 * fv)
-
-    def h(i, j):
-        x = np.sin(i * 12.9898 + j * 78.233 + seed * 37.719) * 43758.5453
-        return x - np.floor(x)
-
-    top = h(iu, iv) * (1 - fu) + h(iu + 1, iv) * fu
-    bot = h(iu, iv + 1) * (1 - fu) + h(iu + 1, iv + 1) * fu
+    h00, h10, h01, h11 = _corner_hashes(iu, iv, seed)
+    top = h00 * (1 - fu) + h10 * fu
+    bot = h01 * (1 - fu) + h11 * fu
     return top * (1 - fv) + bot * fv
+
+
+def _lattice_hash(i: np.ndarray, j: np.ndarray, seed: int) -> np.ndarray:
+    """The value at lattice point (i, j): a hash of its coordinates in [0, 1)."""
+    x = np.sin(i * 12.9898 + j * 78.233 + seed * 37.719) * 43758.5453
+    return x - np.floor(x)
+
+
+def _corner_hashes(iu: np.ndarray, iv: np.ndarray, seed: int) -> tuple[np.ndarray, ...]:
+    """The hashes of the lattice corners (iu, iv), (iu + 1, iv), (iu, iv + 1), (iu + 1, iv + 1).
+    Many points share a lattice cell (a texture's cell spans many pixels): where the cells'
+    bounding box has fewer corners than there are points, each corner is hashed once and looked
+    up; the same arithmetic on the same coordinates, so the same values."""
+    if iu.size:
+        u0, u1, v0, v1 = iu.min(), iu.max(), iv.min(), iv.max()
+        if np.isfinite((u0, u1, v0, v1)).all() and (u1 - u0 + 2) * (v1 - v0 + 2) < iu.size:
+            nu, nv = int(u1 - u0) + 2, int(v1 - v0) + 2
+            table = _lattice_hash((u0 + np.arange(nu, dtype=float))[:, None], (v0 + np.arange(nv, dtype=float))[None, :],
+                                  seed).ravel()
+            k = (iu - u0).astype(np.intp) * nv + (iv - v0).astype(np.intp)
+            return table[k], table[k + nv], table[k + 1], table[k + nv + 1]
+    return (_lattice_hash(iu, iv, seed), _lattice_hash(iu + 1, iv, seed), _lattice_hash(iu, iv + 1, seed),
+            _lattice_hash(iu + 1, iv + 1, seed))
 
 
 def texture_factor(kind: str, texcoord: np.ndarray, scale_m: float, seed: int, depth: float = 0.3) -> np.ndarray:
