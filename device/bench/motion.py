@@ -29,6 +29,8 @@ driving at 1 m/s, all in 3x light (median of ``--repeats`` calls after one untim
 thread, the variants interleaved call by call), and its ratio to ``fast one-unlit``. And the static
 accuracy as ``laserpi bench pipeline`` measures it (fast-com, 90 % walls at 2 m and 3 m, the
 simulator's 40 ms exposure), with one unlit frame and with both neighbours, on the same frames.
+And the simulator's own cost: the wall-clock time per sweep point to render its sequence, per lit
+frame (``render_s_per_lit_frame``; the renderer's setup and the unlit neighbours included).
 """
 
 from __future__ import annotations
@@ -181,11 +183,13 @@ def measure(args) -> dict:
     for label, scene_name, yaw, speed, ambient, flicker, ahead in SWEEP:
         if wanted is not None and label not in wanted:
             continue
+        started = time.perf_counter()
         pairs = sequence(cfg, point_scene(label), args.frames, args.seed)
+        render_s = (time.perf_counter() - started) / args.frames
         if label in TIMED:
             timed[label] = pairs[0]
         row = {"point": label, "scene": scene_name, "yaw_deg_s": yaw, "speed_m_s": speed, "ambient_x": ambient,
-               "flicker_depth": flicker, "sensor_ahead_m": ahead}
+               "flicker_depth": flicker, "sensor_ahead_m": ahead, "render_s_per_lit_frame": render_s}
         for name, pipe in _pipelines(cfg).items():
             row[name] = score([(_process(name, pipe, p), p.truth) for p in pairs], cfg.operating_point.min_m)
         points.append(row)
@@ -354,6 +358,8 @@ def _print(result: dict, frames: int) -> None:
     driving = result["ms_per_driving_lit_frame"]
     print("CPU per lit frame (office, driving 1 m/s): " + ", ".join(f"{n} {driving[n]:.3f} ms" for n in VARIANTS)
           + f"; fast / fast one-unlit = {driving['fast'] / driving['fast one-unlit']:.2f}")
+    print("simulator, wall-clock s to render a lit frame with its unlit neighbours (the renderer's setup included): "
+          + ", ".join(f"{p['point']} {p['render_s_per_lit_frame']:.1f}" for p in result["points"]))
     print("still 90 % walls, fast-com (range error 1 sigma, valid): " + ", ".join(
         f"{k} {v['sigma_pct']:.3f} % {v['valid_fraction']:.3f}" for k, v in result["static"].items()))
     for line in targets(result):
