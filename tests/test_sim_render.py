@@ -318,3 +318,27 @@ def test_the_background_is_imaged_through_the_lens_as_the_line_is():
     jumps = np.abs(np.diff(profile))
     edge = profile.max() - profile.min()
     assert edge > 30 and jumps.max() < 0.5 * edge
+
+
+def test_renderers_of_one_camera_share_its_unprojected_pixels_and_cannot_change_them():
+    from device.sim.render import _pixel_rays
+    from device.sim.scene import with_motion
+
+    moving = with_motion(get_scene("office"), yaw_rate_deg_s=45)
+    a = SceneRenderer(CFG, moving)
+    hits = _pixel_rays.cache_info().hits
+    b = SceneRenderer(CFG, with_motion(get_scene("person"), yaw_rate_deg_s=45))
+    assert _pixel_rays.cache_info().hits == hits + 1  # the second renderer unprojected nothing
+    xy, valid = _pixel_rays(CFG.camera, a.active_width, a.active_height, 1)
+    with pytest.raises(ValueError, match="read-only"):
+        xy[0, 0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        valid[0, 0] = False
+    # each renderer's rays are its own: turned by its own scan frame, the same here
+    assert np.array_equal(a._moving_rays[0], b._moving_rays[0]) and a._moving_rays[0] is not b._moving_rays[0]
+    # another camera is unprojected again, and sees its pixels elsewhere
+    other = replace(CFG, camera=replace(CFG.camera, intrinsics=replace(CFG.camera.intrinsics, fx=CFG.camera.intrinsics.fx * 1.1)))
+    misses = _pixel_rays.cache_info().misses
+    c = SceneRenderer(other, moving)
+    assert _pixel_rays.cache_info().misses == misses + 1
+    assert not np.array_equal(c._moving_rays[0], a._moving_rays[0])

@@ -108,6 +108,7 @@ with a return shrink with range and sunlight gives no output.
 
 from __future__ import annotations
 
+import functools
 import math
 import zlib
 from dataclasses import dataclass, replace
@@ -116,7 +117,7 @@ from typing import Sequence
 import numpy as np
 
 from ..config import SensorConfig
-from ..model.camera import project_points, undistort_robust, pixel_grid
+from ..model.camera import CameraModel, project_points, undistort_robust, pixel_grid
 from ..model.scan_frame import scan_frame, to_scan_plane
 from ..model.irradiance import band_irradiance_w_m2
 from .geometry import Hits, cast, laser_prims, mirror, primitives, texture_factor, value_noise
@@ -472,12 +473,9 @@ class SceneRenderer:
     def _background_rays(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         """Rays every ``step`` pixels of the active area: ((hh, ww, 3) directions in the scan
         frame, (hh, ww) valid)."""
-        hh, ww = -(-self.active_height // step), -(-self.active_width // step)
-        grid = pixel_grid(ww, hh) * step + (step - 1) / 2
-        un = undistort_robust(grid.reshape(-1, 2), self.cfg.camera, tol_px=1e-3)
-        xy = np.where(un.valid[:, None], un.xy, 0.0)
-        d_cam = np.concatenate([xy, np.ones_like(xy[:, :1])], axis=-1)
-        return (d_cam @ self.frame.rotation.T).reshape(hh, ww, 3), un.valid.reshape(hh, ww)
+        xy, valid = _pixel_rays(self.cfg.camera, self.active_width, self.active_height, step)
+        d_cam = np.concatenate([xy, np.ones_like(xy[..., :1])], axis=-1).reshape(-1, 3)
+        return (d_cam @ self.frame.rotation.T).reshape(valid.shape + (3,)), valid
 
     def _background_reflectivity(self, origin: np.ndarray, d_scan: np.ndarray, prims) -> np.ndarray:
         """Reflectivity seen along rays ``origin + t d_scan`` ((N, 3) or (3,), (N, 3)), backdrop included."""
@@ -662,6 +660,21 @@ class SceneRenderer:
             span[:, 0], span[:, 1] = np.fmin(span[:, 0], r_i), np.fmax(span[:, 1], r_i)
         return FrameTruth(row, np.where(has, rng_m, np.inf), np.where(has, angle, np.nan), points,
                           np.where(has, surface, -1), lit_rows, time_ns, np.where(has[:, None], span, np.nan))
+
+
+@functools.lru_cache(maxsize=4)
+def _pixel_rays(camera: CameraModel, width: int, height: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised camera coordinates ((hh, ww, 2), 0 where not valid) and validity (hh, ww)
+    of the pixel centres every ``step`` pixels of a width x height area, read-only. Cached: a
+    moving scene's renderer unprojects every pixel (~1.5 M, seconds), and the renderers of one
+    camera (each sequence, each test, each sweep point) need the same."""
+    hh, ww = -(-height // step), -(-width // step)
+    grid = pixel_grid(ww, hh) * step + (step - 1) / 2
+    un = undistort_robust(grid.reshape(-1, 2), camera, tol_px=1e-3)
+    xy = np.where(un.valid[:, None], un.xy, 0.0).reshape(hh, ww, 2)
+    valid = un.valid.reshape(hh, ww)
+    xy.flags.writeable = valid.flags.writeable = False
+    return xy, valid
 
 
 def lens_blur(rate: np.ndarray, options: RenderOptions) -> np.ndarray:
