@@ -14,7 +14,7 @@ from device.camera.frame import Frame
 from device.camera.modes import MODE5
 from device.laser.base import LaserError
 from device.laser.comcu import CoMcuTimeout, PingResult
-from device.laser.synced import UNANSWERED_HEARTBEATS, SyncedLaser
+from device.laser.synced import UNANSWERED_HEARTBEATS, LockedComcu, SyncedLaser
 from device.sync.control import SyncConfig
 from protocol import mcu
 
@@ -236,3 +236,19 @@ def test_the_heartbeat_thread_beats_while_frames_are_serviced_and_is_gone_before
     assert written[-1] == "stop" and written.count("stop") == 2  # start's STOP of an older schedule, and this one
     time.sleep(0.05)
     assert written[-1] == "stop"
+
+
+def test_locked_comcu_holds_the_lock_over_each_call_and_sees_the_comcu_as_it_is_now():
+    fake = FakeComcu()
+    shared = LockedComcu(fake)
+    held = []
+    fake.send_heartbeat = lambda: held.append(shared.lock.locked())
+    shared.send_heartbeat()
+    assert shared.send_heartbeat is shared.send_heartbeat  # made once, kept (no closure per call)
+    fake.send_heartbeat = lambda: held.append("replaced")  # a method replaced later is the one called
+    shared.send_heartbeat()
+    assert held == [True, "replaced"] and not shared.lock.locked()
+    fake.heartbeats_sent = 7  # a value is read at every access, never kept
+    assert shared.heartbeats_sent == 7
+    fake.heartbeats_sent = 8
+    assert shared.heartbeats_sent == 8
